@@ -1,0 +1,34 @@
+# make repro: set up everything and run the whole pipeline on the simulated skin.
+# make test:  set up everything and run the tests.
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV := .venv
+BIN := $(CURDIR)/$(VENV)/bin
+export PATH := $(BIN):$(PATH)
+export DVC_NO_ANALYTICS := 1
+export MLFLOW_ENABLE_TELEMETRY := false
+export DO_NOT_TRACK := 1
+
+.PHONY: setup repro test lint clean
+
+setup: $(VENV)/.installed
+
+# Rebuilt whenever the package list or the pinned versions change.
+$(VENV)/.installed: pyproject.toml constraints.txt
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -c constraints.txt -e '.[dev]'
+	touch $@
+
+repro: setup
+	dvc repro
+	@dvc status --quiet && echo "pipeline up to date"
+
+test: setup
+	pytest -q
+
+lint: setup
+	ruff check eskin stages tests
+
+clean:
+	rm -rf $(VENV) data/raw data/processed

@@ -1,0 +1,3 @@
+from eskin.cli import main
+
+raise SystemExit(main())

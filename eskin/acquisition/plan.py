@@ -1,0 +1,129 @@
+"""Scenes as plans: the ordered list of conditions an experiment records.
+
+A condition is what determines a trial: the stretch and the contacts (node
+and force of each indenter). Its key adds the device (id and firmware), so a
+condition recorded once on a device is never recorded again on it — when a
+plan grows, only the new conditions are acquired — while another device, or
+a simulator with other settings, starts afresh.
+
+Label conventions (see the README):
+
+* single force — node 0 means "no indenter on the skin". As in the paper's
+  data, node 0 is recorded at every force level and every node at 0 N; a
+  sample is a contact only when force > 0 and node > 0.
+* two forces — contact 1 is the contact whose node comes first in row-major
+  order (lower x, then lower y); contact 2 is the other.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+from eskin.device.physics import GRID
+
+SCENE_KINDS = ("single_force", "two_force")
+
+
+@dataclass(frozen=True, order=True)
+class Contact:
+    """An indenter on node (x, y) with ``force`` newtons; x = y = 0 is no indenter."""
+
+    x: int
+    y: int
+    force: float
+
+    @property
+    def touches(self) -> bool:
+        return self.x > 0 and self.force > 0
+
+
+@dataclass(frozen=True)
+class Condition:
+    stretch: float
+    contacts: tuple[Contact, ...]
+
+    def as_dict(self) -> dict[str, object]:
+        return {"stretch": self.stretch,
+                "contacts": [[c.x, c.y, c.force] for c in self.contacts]}
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, object]) -> Condition:
+        contacts = tuple(Contact(int(x), int(y), float(f)) for x, y, f in data["contacts"])
+        return cls(float(data["stretch"]), contacts)
+
+    def key(self, device_id: str, firmware: str) -> str:
+        """Stable id of this condition on this device (16 hex digits)."""
+        canonical = {"device": device_id, "firmware": firmware,
+                     "stretch": round(self.stretch, 6),
+                     "contacts": [[c.x, c.y, round(c.force, 6)] for c in self.contacts]}
+        blob = json.dumps(canonical, sort_keys=True).encode()
+        return hashlib.sha256(blob).hexdigest()[:16]
+
+    def describe(self) -> str:
+        touching = [c for c in self.contacts if c.touches]
+        where = " + ".join(f"{c.force:g} N on ({c.x},{c.y})" for c in touching) or "no contact"
+        return f"λ={self.stretch:g}, {where}"
+
+
+@dataclass(frozen=True)
+class ScenePlan:
+    name: str
+    kind: str
+    conditions: tuple[Condition, ...]
+    samples: int
+
+    @property
+    def n_samples(self) -> int:
+        return len(self.conditions) * self.samples
+
+    def as_dict(self) -> dict[str, object]:
+        return {"name": self.name, "kind": self.kind, "samples": self.samples,
+                "conditions": len(self.conditions)}
+
+
+def single_force_plan(name: str, stretches: Sequence[float], forces: Sequence[float],
+                      samples: int) -> ScenePlan:
+    """Every stretch × force × node 0..100, node 0 being no contact."""
+    nodes = [(0, 0)] + [(x, y) for x in range(1, GRID + 1) for y in range(1, GRID + 1)]
+    conditions = tuple(
+        Condition(float(s), (Contact(x, y, float(f)),))
+        for s in stretches for f in forces for x, y in nodes)
+    return ScenePlan(name, "single_force", conditions, samples)
+
+
+def two_force_plan(name: str, stretches: Sequence[float], forces: Sequence[float],
+                   nodes_x: Sequence[int], nodes_y: Sequence[int], samples: int) -> ScenePlan:
+    """Every unordered pair of distinct nodes on the x × y grid, every force for each contact."""
+    nodes = sorted((int(x), int(y)) for x in nodes_x for y in nodes_y)
+    conditions = tuple(
+        Condition(float(s), (Contact(*a, float(fa)), Contact(*b, float(fb))))
+        for s in stretches
+        for a, b in itertools.combinations(nodes, 2)  # a < b: a is contact 1
+        for fa in forces for fb in forces)
+    return ScenePlan(name, "two_force", conditions, samples)
+
+
+def plan_from_params(name: str, section: Mapping[str, object]) -> ScenePlan:
+    """The plan of scene ``name`` from its params.yaml section, checked."""
+    kind = section.get("kind")
+    if kind not in SCENE_KINDS:
+        raise ValueError(f"scenes.{name}.kind must be one of {SCENE_KINDS}, got {kind!r}")
+    samples = int(section["samples"])
+    if samples < 1:
+        raise ValueError(f"scenes.{name}.samples must be ≥ 1")
+    stretches = [float(s) for s in section["stretches"]]
+    forces = [float(f) for f in section["forces"]]
+    if any(s < 1 for s in stretches) or any(f < 0 for f in forces):
+        raise ValueError(f"scenes.{name}: stretches must be ≥ 1 and forces ≥ 0")
+    if kind == "single_force":
+        return single_force_plan(name, stretches, forces, samples)
+    nodes_x, nodes_y = section["nodes_x"], section["nodes_y"]
+    if not all(1 <= int(v) <= GRID for v in [*nodes_x, *nodes_y]):
+        raise ValueError(f"scenes.{name}: contact nodes must be in 1..{GRID}")
+    if any(f <= 0 for f in forces):
+        raise ValueError(f"scenes.{name}: two-force levels must be > 0 (both indenters touch)")
+    return two_force_plan(name, stretches, forces, nodes_x, nodes_y, samples)

@@ -1,0 +1,191 @@
+"""The raw acquisition log: append-only, line-oriented, flushed per condition.
+
+One text file per scene, one record per line, fields separated by tabs::
+
+    #eskin-raw 1
+    S <json session: id, scene, source, port, device, simulator>
+    B <attempt> <json condition: key, stretch, contacts>
+    F <attempt> <frame line exactly as received>
+    R <attempt> <reason> <json string of the rejected bytes>
+    E <attempt> <frames>           condition complete
+    X <attempt> <reason>           attempt abandoned (it will be asked again)
+
+Every frame line is kept as it arrived, the rejected ones too, so the log is
+the evidence. Only attempts closed by ``E`` count. After a crash the last
+line may be torn; reading ignores it and reopening for append cuts it off, so
+a restart resumes at the first incomplete condition and loses nothing that
+was flushed.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from eskin.device.protocol import Frame, ParseError, parse_line
+
+MAGIC = "#eskin-raw 1"
+
+
+class RawLogError(ValueError):
+    """A raw log line that cannot be trusted; names the file and the line."""
+
+
+@dataclass
+class Attempt:
+    number: int
+    session: dict
+    condition: dict
+    frames: list[Frame] = field(default_factory=list)
+    line_numbers: list[int] = field(default_factory=list)
+    complete: bool = False
+
+
+@dataclass
+class BadLine:
+    path: Path
+    line_number: int
+    reason: str
+    text: str
+
+    def __str__(self) -> str:
+        return f"{self.path}:{self.line_number}: {self.reason}: {self.text[:120]!r}"
+
+
+@dataclass
+class LogContents:
+    sessions: list[dict]
+    completed: dict[str, Attempt]  # condition key -> latest completed attempt
+    attempts: int
+    frames_rejected: int
+    bad_lines: list[BadLine]
+    torn_tail: bool
+
+
+def read_log(path: Path) -> LogContents:
+    """Read a raw log. Lines that break the format are collected in ``bad_lines``,
+    and an attempt holding one does not count as complete."""
+    path = Path(path)
+    sessions: list[dict] = []
+    attempts: dict[int, Attempt] = {}
+    completed: dict[str, Attempt] = {}
+    bad: list[BadLine] = []
+    tainted: set[int] = set()
+    rejected = 0
+    torn = False
+    with path.open("rb") as handle:
+        for number, raw in enumerate(handle, start=1):
+            if not raw.endswith(b"\n"):
+                torn = True  # an interrupted write: at most the last line
+                break
+            try:
+                line = raw[:-1].decode("ascii")
+            except UnicodeDecodeError:
+                bad.append(BadLine(path, number, "not ASCII", raw.decode("latin-1")))
+                continue
+            if number == 1:
+                if line != MAGIC:
+                    raise RawLogError(f"{path}:1: not an eskin raw log (first line {line[:40]!r},"
+                                      f" expected {MAGIC!r})")
+                continue
+            tag, _, rest = line.partition("\t")
+            try:
+                if tag == "S":
+                    sessions.append(json.loads(rest))
+                    continue
+                if not sessions:
+                    raise ValueError("record before any session header")
+                number_text, _, payload = rest.partition("\t")
+                attempt_no = int(number_text)
+                if tag == "B":
+                    condition = json.loads(payload)
+                    if "key" not in condition:
+                        raise ValueError("condition without key")
+                    attempts[attempt_no] = Attempt(attempt_no, sessions[-1], condition)
+                    continue
+                attempt = attempts.get(attempt_no)
+                if attempt is None:
+                    raise ValueError(f"record for attempt {attempt_no} that never began")
+                if tag == "F":
+                    event = parse_line(payload.encode("ascii"))
+                    if isinstance(event, ParseError) or not isinstance(event, Frame):
+                        reason = event.reason if isinstance(event, ParseError) else "not a frame"
+                        raise ValueError(f"stored frame does not verify: {reason}")
+                    attempt.frames.append(event)
+                    attempt.line_numbers.append(number)
+                elif tag == "R":
+                    rejected += 1
+                elif tag == "E":
+                    if int(payload) != len(attempt.frames):
+                        raise ValueError(f"attempt closed with {payload} frames but "
+                                         f"{len(attempt.frames)} are stored")
+                    if attempt_no not in tainted:
+                        attempt.complete = True
+                        completed[attempt.condition["key"]] = attempt
+                elif tag == "X":
+                    pass
+                else:
+                    raise ValueError(f"unknown record type {tag!r}")
+            except (ValueError, KeyError, TypeError) as err:
+                bad.append(BadLine(path, number, str(err), line))
+                if tag in "FREX" and rest.partition("\t")[0].isdigit():
+                    tainted.add(int(rest.partition("\t")[0]))
+    return LogContents(sessions, completed, max(attempts, default=0), rejected, bad, torn)
+
+
+class RawLogWriter:
+    """Appends to a raw log; opening repairs a torn last line first."""
+
+    def __init__(self, path: Path, session: dict) -> None:
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        contents = read_log(self.path) if self.path.exists() else None
+        if contents is not None and contents.torn_tail:
+            _cut_torn_tail(self.path)
+        self.attempt = contents.attempts if contents else 0
+        self._file = self.path.open("a", encoding="ascii", newline="\n")
+        if contents is None:
+            self._file.write(MAGIC + "\n")
+        self._write("S", json.dumps(session, sort_keys=True))
+        self.flush()
+
+    def _write(self, *fields: object) -> None:
+        self._file.write("\t".join(str(f) for f in fields) + "\n")
+
+    def begin(self, condition: dict) -> int:
+        self.attempt += 1
+        self._write("B", self.attempt, json.dumps(condition, sort_keys=True))
+        return self.attempt
+
+    def frames(self, attempt: int, frames: list[Frame]) -> None:
+        for frame in frames:
+            self._write("F", attempt, frame.line.decode("ascii"))
+
+    def rejected(self, attempt: int, errors: list[ParseError]) -> None:
+        for error in errors:
+            self._write("R", attempt, error.reason.replace("\t", " "),
+                        json.dumps(error.line.decode("latin-1")))
+
+    def end(self, attempt: int, n_frames: int) -> None:
+        self._write("E", attempt, n_frames)
+        self.flush()
+
+    def abandon(self, attempt: int, reason: str) -> None:
+        self._write("X", attempt, reason.replace("\t", " "))
+        self.flush()
+
+    def flush(self) -> None:
+        self._file.flush()
+
+    def close(self) -> None:
+        self._file.flush()
+        os.fsync(self._file.fileno())
+        self._file.close()
+
+
+def _cut_torn_tail(path: Path) -> None:
+    data = path.read_bytes()
+    with path.open("r+b") as handle:
+        handle.truncate(data.rfind(b"\n") + 1)

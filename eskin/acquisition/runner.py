@@ -1,0 +1,141 @@
+"""The acquisition runner: walks a scene's plan over a serial link into a raw log.
+
+For each condition not yet recorded on this device it sets the stretch,
+has the indenters placed — by ``SIM`` commands on the simulated board, by a
+person prompted at the terminal on a real one — and asks for the samples. A
+condition is stored only whole: if any frame fails its CRC, is malformed or
+is missing from the sequence, the attempt is logged as abandoned and the
+condition is asked again (the simulated board replays the same trial, so a
+faulty link still gives the clean run's data).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Protocol
+
+from tqdm import tqdm
+
+from eskin.acquisition.plan import Condition, ScenePlan
+from eskin.acquisition.rawlog import RawLogWriter
+from eskin.device.link import SerialLink
+
+log = logging.getLogger(__name__)
+
+
+class AcquisitionError(RuntimeError):
+    """Acquisition could not complete a condition."""
+
+
+@dataclass
+class AcquisitionReport:
+    scene: str
+    port: str
+    conditions: int
+    reused: int
+    acquired: int
+    retries: int
+    frames_stored: int
+    frames_rejected: int
+    seconds: float
+
+    @property
+    def frames_per_s(self) -> float:
+        return self.frames_stored / self.seconds if self.seconds > 0 else 0.0
+
+    def summary(self) -> str:
+        return (f"{self.scene}: {self.acquired} condition(s) acquired, {self.reused} reused "
+                f"of {self.conditions}; {self.frames_stored} frames stored, "
+                f"{self.frames_rejected} rejected, {self.retries} retried condition(s); "
+                f"{self.seconds:.1f} s ({self.frames_per_s:.0f} frames/s over {self.port})")
+
+
+def trial_seed(key: str) -> int:
+    """The simulated board's trial number for a condition key (60 bits)."""
+    return int(key[:15], 16)
+
+
+class Placer(Protocol):
+    def place(self, link: SerialLink, condition: Condition, key: str, repeat: bool) -> None: ...
+
+
+class SimulatedPlacer:
+    """Places indenters on the simulated board with SIM commands."""
+
+    def place(self, link: SerialLink, condition: Condition, key: str, repeat: bool) -> None:
+        link.command("SIM CLEAR")
+        link.command(f"SIM TRIAL {trial_seed(key)}")
+        for contact in condition.contacts:
+            if contact.touches:
+                link.command(f"SIM PRESS {contact.x} {contact.y} {contact.force!r}")
+
+
+class OperatorPlacer:
+    """Asks a person to place the weights, only when what lies on the skin changes."""
+
+    def __init__(self, ask: Callable[[str], object] = input) -> None:
+        self.ask = ask
+        self._on_skin: tuple | None = None
+
+    def place(self, link: SerialLink, condition: Condition, key: str, repeat: bool) -> None:
+        touching = tuple(c for c in condition.contacts if c.touches)
+        if repeat or touching == self._on_skin:
+            return
+        what = "; ".join(f"{c.force:g} N on node x={c.x}, y={c.y}" for c in touching)
+        self.ask(f"[{condition.describe()}] {'Place ' + what if touching else 'Remove all weights'}"
+                 ", then press Enter: ")
+        self._on_skin = touching
+
+
+def acquire(plan: ScenePlan, link: SerialLink, writer: RawLogWriter, placer: Placer, *,
+            completed: set[str], rest_length_mm: float, max_attempts: int = 5,
+            progress: bool = True) -> AcquisitionReport:
+    """Acquire every condition of ``plan`` whose key is not in ``completed``."""
+    hello = link.hello
+    if hello is None:
+        raise AcquisitionError(f"no #HELLO from the board on {link.port}: call connect() first")
+    started = time.monotonic()
+    report = AcquisitionReport(plan.name, link.port, len(plan.conditions), 0, 0, 0, 0, 0, 0.0)
+    stretch_mm: str | None = None
+    bar = tqdm(total=len(plan.conditions), desc=f"acquire {plan.name}", unit="cond",
+               disable=not progress, leave=False)
+    with bar:
+        for condition in plan.conditions:
+            key = condition.key(hello.device_id, hello.firmware)
+            if key in completed:
+                report.reused += 1
+                bar.update()
+                continue
+            wanted_mm = f"{(condition.stretch - 1.0) * rest_length_mm:.3f}"
+            if wanted_mm != stretch_mm:
+                link.command(f"STRETCH {wanted_mm}")
+                stretch_mm = wanted_mm
+            record = {"key": key, "scene": plan.name, **condition.as_dict()}
+            for attempt_no in range(max_attempts):
+                placer.place(link, condition, key, repeat=attempt_no > 0)
+                attempt = writer.begin(record)
+                batch = link.sample(plan.samples)
+                writer.frames(attempt, batch.frames)
+                writer.rejected(attempt, batch.rejected)
+                report.frames_rejected += len(batch.rejected)
+                problem = batch.problem
+                if problem is None:
+                    writer.end(attempt, len(batch.frames))
+                    report.frames_stored += len(batch.frames)
+                    break
+                writer.abandon(attempt, problem)
+                report.retries += 1
+                log.info("%s: %s; asking again", condition.describe(), problem)
+            else:
+                raise AcquisitionError(
+                    f"{plan.name}: {condition.describe()} failed {max_attempts} times on "
+                    f"{link.port}, last: {problem}. Received data is in {writer.path}; "
+                    "rerun to resume.")
+            completed.add(key)
+            report.acquired += 1
+            bar.update()
+    report.seconds = time.monotonic() - started
+    return report

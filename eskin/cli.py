@@ -1,0 +1,139 @@
+"""The ``eskin`` command line: a one-line error and a non-zero exit for anything a user
+can fix, the traceback only with ``--debug``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from eskin import __version__
+
+RAW_DIR = Path("data/raw")
+PROCESSED_DIR = Path("data/processed")
+
+
+def _ports(args: argparse.Namespace) -> int:
+    from eskin.device.link import list_serial_ports
+
+    ports = list_serial_ports()
+    if not ports:
+        print("no serial ports found (a simulated board: `eskin device simulate`)")
+    for device, description, hwid in ports:
+        print(f"{device}\t{description}\t{hwid}")
+    return 0
+
+
+def _simulate(args: argparse.Namespace) -> int:
+    from eskin.config import load_params, section, skin_params
+    from eskin.device.board import SimulatedBoard
+    from eskin.device.physics import SkinParams
+    from eskin.device.simulate import announce_stdout, serve_pty, serve_socket
+
+    if args.config_json:
+        config = json.loads(args.config_json)
+        sim = SkinParams.from_mapping(config["sim"])
+        rest, period = config["rest_length_mm"], config["frame_period_ms"]
+        corrupt = config["corrupt_fraction"]
+    else:
+        params = load_params(args.params)
+        sim, rest = skin_params(params), section(params, "acquire.rest_length_mm")
+        corrupt = section(params, "sim_board.corrupt_fraction")
+        period = section(params, "sim_board.frame_period_ms")
+    if args.corrupt is not None:
+        corrupt = args.corrupt
+    board = SimulatedBoard(sim, rest_length_mm=rest, corrupt_fraction=corrupt,
+                           frame_period_ms=period)
+    try:
+        if args.socket is not None:
+            serve_socket(board, args.socket, announce_stdout)
+        else:
+            serve_pty(board, announce_stdout)
+    except KeyboardInterrupt:
+        pass
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="eskin", description=__doc__)
+    parser.add_argument("--version", action="version", version=f"eskin {__version__}")
+    parser.add_argument("--debug", action="store_true", help="show tracebacks")
+    commands = parser.add_subparsers(dest="command", required=True)
+
+    ports = commands.add_parser("ports", help="list serial ports (pyserial list_ports)")
+    ports.set_defaults(run=_ports)
+
+    device = commands.add_parser("device", help="device tools")
+    device_commands = device.add_subparsers(dest="device_command", required=True)
+    simulate = device_commands.add_parser(
+        "simulate", help="serve the simulated skin on a pseudo-terminal (or a loopback socket) "
+        "and print the port to open")
+    simulate.add_argument("--params", type=Path, default=Path("params.yaml"))
+    simulate.add_argument("--socket", type=int, metavar="PORT",
+                          help="serve on socket://127.0.0.1:PORT instead (0: any free port)")
+    simulate.add_argument("--corrupt", type=float, metavar="FRACTION",
+                          help="damage this share of frames on the wire")
+    simulate.add_argument("--config-json", help=argparse.SUPPRESS)
+    simulate.set_defaults(run=_simulate)
+
+    for name, helptext in (("acquire", "acquire a scene into data/raw/<scene>/ (resumes)"),
+                           ("ingest", "build data/processed/<scene>.parquet from the raw data")):
+        sub = commands.add_parser(name, help=helptext)
+        sub.add_argument("scene", help="a scene of params.yaml, e.g. single_force")
+        sub.add_argument("--params", type=Path, default=Path("params.yaml"))
+        if name == "acquire":
+            sub.add_argument("--source", choices=["simulated", "serial", "import"],
+                             help="override acquire.source")
+            sub.add_argument("--port", help="override acquire.port (serial source)")
+            sub.add_argument("--no-progress", action="store_true")
+        sub.set_defaults(run=_pipeline_step)
+    return parser
+
+
+def _pipeline_step(args: argparse.Namespace) -> int:
+    from eskin import steps
+    from eskin.config import load_params
+
+    params = load_params(args.params)
+    if args.command == "acquire":
+        if args.source:
+            params["acquire"]["source"] = args.source
+        if args.port:
+            params["acquire"]["port"] = args.port
+        print(steps.acquire(params, args.scene, RAW_DIR / args.scene,
+                            progress=not args.no_progress))
+    else:
+        print(steps.ingest(params, args.scene, RAW_DIR / args.scene, PROCESSED_DIR))
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.DEBUG if args.debug else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s")
+    return run_friendly(lambda: args.run(args), debug=args.debug)
+
+
+def run_friendly(call, *, debug: bool = False) -> int:
+    """Run ``call``; turn the errors a user can act on into one line and exit code 1."""
+    from eskin.acquisition.rawlog import RawLogError
+    from eskin.acquisition.runner import AcquisitionError
+    from eskin.data.schema import DatasetError
+    from eskin.device.link import LinkError
+
+    try:
+        return call() or 0
+    except KeyboardInterrupt:
+        print("eskin: interrupted; everything received so far is on disk, rerun to resume",
+              file=sys.stderr)
+        return 130
+    except (DatasetError, LinkError, AcquisitionError, RawLogError, ValueError, KeyError,
+            FileNotFoundError) as err:
+        if debug:
+            raise
+        message = err.args[0] if isinstance(err, KeyError) and err.args else err
+        print(f"eskin: error: {message}", file=sys.stderr)
+        return 1

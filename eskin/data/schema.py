@@ -1,0 +1,149 @@
+"""The processed dataset: columns, checks, and Parquet with provenance metadata.
+
+One row per sample (DESIGN §6):
+
+* ``cx1..cx10, cy1..cy10`` — channel readings, float64 (ADC counts for
+  acquired data; whatever unit an import carries);
+* single force: ``force`` (N), ``x``, ``y`` (0 = no contact, else 1..10), ``stretch`` (λ);
+* two forces: ``force1, x1, y1, force2, x2, y2, stretch``;
+* provenance: ``session``, ``trial`` (one condition), ``sample`` (index in
+  the trial), ``seq``, ``t_ms`` (board counters; null for imports).
+
+Key-value metadata under ``eskin.*`` records the scene, the plan, the
+device, the simulator and its seed, and the source file's checksum.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+X_CHANNELS = [f"cx{i}" for i in range(1, 11)]
+Y_CHANNELS = [f"cy{i}" for i in range(1, 11)]
+CHANNELS = X_CHANNELS + Y_CHANNELS
+LABELS = {
+    "single_force": ["force", "x", "y", "stretch"],
+    "two_force": ["force1", "x1", "y1", "force2", "x2", "y2", "stretch"],
+}
+PROVENANCE = ["session", "trial", "sample", "seq", "t_ms"]
+SCHEMA_VERSION = "1"
+
+
+class DatasetError(ValueError):
+    """A dataset that breaks the schema; the message says where."""
+
+
+def columns(kind: str) -> list[str]:
+    return CHANNELS + LABELS[kind] + PROVENANCE
+
+
+def arrow_schema(kind: str) -> pa.Schema:
+    fields = [pa.field(c, pa.float64(), nullable=False) for c in CHANNELS]
+    for label in LABELS[kind]:
+        kind_of = pa.int64() if label in node_columns(kind) else pa.float64()
+        fields.append(pa.field(label, kind_of, nullable=False))
+    fields += [pa.field("session", pa.string(), nullable=False),
+               pa.field("trial", pa.string(), nullable=False),
+               pa.field("sample", pa.int64(), nullable=False),
+               pa.field("seq", pa.int64()),
+               pa.field("t_ms", pa.int64())]
+    return pa.schema(fields)
+
+
+def node_columns(kind: str) -> list[str]:
+    return ["x", "y"] if kind == "single_force" else ["x1", "y1", "x2", "y2"]
+
+
+def force_columns(kind: str) -> list[str]:
+    return ["force"] if kind == "single_force" else ["force1", "force2"]
+
+
+def row_problems(frame: pd.DataFrame, kind: str) -> pd.Series:
+    """Per row, the first reason it cannot be trusted ('' when it can)."""
+    reasons = pd.Series("", index=frame.index, dtype=object)
+
+    def flag(mask: np.ndarray, reason: str) -> None:
+        reasons[(reasons == "") & mask] = reason
+
+    for column in CHANNELS + LABELS[kind]:
+        values = frame[column].to_numpy(dtype=float)
+        flag(np.isnan(values), f"{column} is NaN or empty")
+        flag(np.isinf(values), f"{column} is infinite")
+    for column in node_columns(kind):
+        values = frame[column].to_numpy(dtype=float)
+        flag((values < 0) | (values > 10) | (values != np.round(values)),
+             f"{column} is not a node number 0..10")
+    for column in force_columns(kind):
+        flag(frame[column].to_numpy(dtype=float) < 0, f"{column} is negative")
+    flag(frame["stretch"].to_numpy(dtype=float) <= 0, "stretch is not positive")
+    return reasons
+
+
+def validate(frame: pd.DataFrame, kind: str, where: str = "dataset") -> None:
+    """Raise DatasetError naming the first bad column or row."""
+    missing = [c for c in columns(kind) if c not in frame.columns]
+    if missing:
+        raise DatasetError(f"{where}: missing column(s) {missing}")
+    reasons = row_problems(frame, kind)
+    bad = reasons[reasons != ""]
+    if len(bad):
+        raise DatasetError(f"{where}: {len(bad)} bad row(s); first at row {bad.index[0]}: "
+                           f"{bad.iloc[0]}")
+    keys = frame[["session", "trial", "sample"]]
+    if keys.duplicated().any():
+        first = keys[keys.duplicated()].iloc[0].tolist()
+        raise DatasetError(f"{where}: duplicate (session, trial, sample) {first}")
+
+
+def contact_mask(frame: pd.DataFrame) -> np.ndarray:
+    """Single force: True where a sample is a contact (force > 0 and node > 0)."""
+    return ((frame["force"] > 0) & (frame["x"] > 0)).to_numpy()
+
+
+def sha256_file(path: Path) -> str:
+    digest = hashlib.sha256()
+    with Path(path).open("rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def write_dataset(frame: pd.DataFrame, kind: str, path: Path, metadata: dict) -> None:
+    """Validate, then write Parquet with ``eskin.*`` metadata, atomically."""
+    validate(frame, kind, where=str(path))
+    table = pa.Table.from_pandas(frame[columns(kind)], schema=arrow_schema(kind),
+                                 preserve_index=False)
+    extra = {f"eskin.{k}": json.dumps(v, sort_keys=True) for k, v in metadata.items()}
+    extra["eskin.schema_version"] = SCHEMA_VERSION
+    table = table.replace_schema_metadata({**(table.schema.metadata or {}),
+                                           **{k.encode(): v.encode() for k, v in extra.items()}})
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    partial = path.with_suffix(path.suffix + ".partial")
+    pq.write_table(table, partial)
+    os.replace(partial, path)
+
+
+def read_metadata(path: Path) -> dict:
+    """The ``eskin.*`` metadata of a dataset, decoded."""
+    raw = pq.read_schema(path).metadata or {}
+    return {k.decode()[len("eskin."):]: json.loads(v) for k, v in raw.items()
+            if k.startswith(b"eskin.")}
+
+
+def read_dataset(path: Path) -> pd.DataFrame:
+    return pd.read_parquet(path)
+
+
+def write_quarantine(rows: list[dict], path: Path) -> None:
+    """Rows that could not be trusted, with where they came from and why (header if none)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    pd.DataFrame(rows, columns=["source", "line", "reason", "text"]).to_csv(path, index=False)

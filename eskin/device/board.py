@@ -1,0 +1,163 @@
+"""The simulated board's command handling, as pure code (bytes in, bytes out).
+
+It speaks wire protocol v1 exactly as the firmware does, plus the simulated-
+board commands ``SIM PRESS <x> <y> <newtons>``, ``SIM CLEAR`` and
+``SIM TRIAL <n>``. ``SIM TRIAL`` starts trial n: placements, drift and noise
+then come from a stream seeded by (sim seed, n), so re-requesting a trial
+after a corrupted frame yields the same readings, and a run with link faults
+gives the same dataset as a clean one. Transports live in ``simulate.py``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+import numpy as np
+
+from eskin import __version__
+from eskin.device.physics import GRID, Indenter, SkinModel, SkinParams, Trial
+from eskin.device.protocol import MAX_LINE_BYTES, SEQ_MAX, crc8
+
+MAX_EXTENSION_MM = 40.0
+MAX_NEWTONS = 50.0
+MAX_SAMPLE = 100_000
+FIRMWARE = f"sim-{__version__}"
+
+
+def simulator_identity(params: SkinParams, rest_length_mm: float) -> str:
+    """A device id that changes whenever the simulated skin would read differently:
+    any parameter, the seed, the rig's rest length, or the simulator's own code."""
+    settings = {**params.as_dict(), "rest_length_mm": rest_length_mm}
+    digest = hashlib.sha256(json.dumps(settings, sort_keys=True).encode())
+    here = Path(__file__).parent
+    for module in ("physics.py", "board.py"):
+        digest.update((here / module).read_bytes())
+    return f"sim-{digest.hexdigest()[:12]}"
+
+
+class SimulatedBoard:
+    """Protocol v1 state machine of a simulated e-skin board.
+
+    Parameters
+    ----------
+    params
+        The skin's physics and read-out parameters.
+    rest_length_mm
+        Unstretched length between the clamps; ``STRETCH <mm>`` gives λ = 1 + mm / this.
+    corrupt_fraction
+        Share of frames damaged on the wire (a flipped byte or a truncated
+        line), drawn from their own seeded stream, to exercise integrity checks.
+    frame_period_ms
+        Board time between frames (multiplexing 20 terminals and converting).
+    """
+
+    def __init__(self, params: SkinParams, *, rest_length_mm: float = 101.0,
+                 corrupt_fraction: float = 0.0, frame_period_ms: int = 12) -> None:
+        if not 0.0 <= corrupt_fraction < 1.0:
+            raise ValueError(f"corrupt_fraction must be in [0, 1), got {corrupt_fraction}")
+        if rest_length_mm <= 0:
+            raise ValueError(f"rest_length_mm must be positive, got {rest_length_mm}")
+        self.model = SkinModel(params)
+        self.rest_length_mm = rest_length_mm
+        self.device_id = simulator_identity(params, rest_length_mm)
+        self.corrupt_fraction = corrupt_fraction
+        self.frame_period_ms = frame_period_ms
+        self.streaming = False
+        self.frames_corrupted = 0
+        self._corrupt_rng = np.random.default_rng([params.seed, 2])
+        self._seq = 0
+        self._t_ms = 0
+        self._stretch = 1.0
+        self._trial = Trial(self.model, [0])
+        self._indenters: list[Indenter] = []
+
+    # ------------------------------------------------------------ output
+
+    def hello(self) -> bytes:
+        return (f"#HELLO eskin {FIRMWARE} terminals={2 * GRID} "
+                f"adc_bits={self.model.params.adc_bits} id={self.device_id}\n").encode()
+
+    def frames(self, n: int) -> bytes:
+        """The next n frames at the current stretch and indenters."""
+        counts = self._trial.sample_counts(n, self._stretch, self._indenters)
+        lines = []
+        for row in counts:
+            body = b"D,%d,%d," % (self._seq, self._t_ms) + b",".join(b"%d" % c for c in row)
+            lines.append(self._wire(body + b"*%02X\n" % crc8(body)))
+            self._seq = (self._seq + 1) & SEQ_MAX
+            self._t_ms = (self._t_ms + self.frame_period_ms) & SEQ_MAX
+        return b"".join(lines)
+
+    def _wire(self, line: bytes) -> bytes:
+        if not self.corrupt_fraction or self._corrupt_rng.random() >= self.corrupt_fraction:
+            return line
+        self.frames_corrupted += 1
+        at = int(self._corrupt_rng.integers(0, len(line) - 1))
+        if self._corrupt_rng.random() < 0.5:  # truncated line
+            return line[:at] + b"\n"
+        flipped = line[at] ^ int(self._corrupt_rng.integers(1, 256))
+        if flipped == ord("\n"):  # keep one line one line; the CRC still catches it
+            flipped ^= 0x80
+        return line[:at] + bytes([flipped]) + line[at + 1:]
+
+    # ------------------------------------------------------------ input
+
+    def handle(self, line: bytes) -> bytes:
+        """Answer one command line (without newline)."""
+        text = line.strip().decode("ascii", errors="replace")
+        if not text:
+            return b""
+        if len(line) > MAX_LINE_BYTES:
+            return b"#ERR ? line too long\n"
+        words = text.split()
+        name = words[0].upper()
+        try:
+            if name == "HELLO" and len(words) == 1:
+                return self.hello()
+            if name == "STRETCH" and len(words) == 2:
+                return self._stretch_to(words[1])
+            if name == "SAMPLE" and len(words) == 2:
+                n = _number(words[1], int, 1, MAX_SAMPLE)
+                return self.frames(n) + b"#OK SAMPLE %d\n" % n
+            if name == "STREAM" and len(words) == 2 and words[1].upper() in ("ON", "OFF"):
+                self.streaming = words[1].upper() == "ON"
+                return f"#OK STREAM {words[1].upper()}\n".encode()
+            if name == "SIM" and len(words) >= 2:
+                return self._sim(words[1].upper(), words[2:])
+        except ValueError as err:
+            return f"#ERR {name} {err}\n".encode()
+        return f"#ERR {name} unknown command or wrong arguments\n".encode()
+
+    def _stretch_to(self, text: str) -> bytes:
+        mm = _number(text, float, 0.0, MAX_EXTENSION_MM)
+        self._stretch = 1.0 + mm / self.rest_length_mm
+        self._t_ms = (self._t_ms + 500) & SEQ_MAX  # the stepper takes its time
+        return f"#OK STRETCH {text}\n".encode()
+
+    def _sim(self, sub: str, args: list[str]) -> bytes:
+        if sub == "CLEAR" and not args:
+            self._indenters = []
+            return b"#OK SIM CLEAR\n"
+        if sub == "TRIAL" and len(args) == 1:
+            n = _number(args[0], int, 0, 2**63 - 1)
+            self._trial = Trial(self.model, [n])
+            return f"#OK SIM TRIAL {n}\n".encode()
+        if sub == "PRESS" and len(args) == 3:
+            x = _number(args[0], int, 1, GRID)
+            y = _number(args[1], int, 1, GRID)
+            newtons = _number(args[2], float, 0.0, MAX_NEWTONS)
+            self._indenters.append(self._trial.place(x, y, newtons))
+            return f"#OK SIM PRESS {x} {y} {args[2]}\n".encode()
+        raise ValueError(f"unknown SIM command {sub!r} with {len(args)} argument(s)")
+
+
+def _number(text: str, kind: type, low: float, high: float):
+    try:
+        value = kind(text)
+    except ValueError:
+        raise ValueError(f"{text!r} is not a number") from None
+    if not low <= value <= high:  # NaN fails this too
+        raise ValueError(f"{text} is outside {low}..{high}")
+    return value

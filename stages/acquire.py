@@ -1,0 +1,11 @@
+"""DVC stage: acquire one scene into data/raw/<scene>/ (resumes; reuses what is recorded)."""
+
+import sys
+
+from eskin import steps
+from eskin.cli import RAW_DIR, run_friendly
+from eskin.config import load_params
+
+if __name__ == "__main__":
+    scene = sys.argv[1]
+    sys.exit(run_friendly(lambda: print(steps.acquire(load_params(), scene, RAW_DIR / scene))))
