@@ -13,6 +13,7 @@ import selectors
 import subprocess
 import sys
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -32,11 +33,17 @@ from eskin.device.physics import SkinParams
 LOG_NAME = "acquisition.log"
 
 
+@dataclass(frozen=True)
+class RunningBoard:
+    port: str
+    process: subprocess.Popen
+
+
 @contextlib.contextmanager
 def simulated_board(sim: SkinParams, *, rest_length_mm: float, corrupt_fraction: float = 0.0,
                     frame_period_ms: int = 12, socket_port: int | None = None,
-                    start_timeout_s: float = 30.0) -> Iterator[str]:
-    """Run the simulated board in a child process; yield the port to open."""
+                    start_timeout_s: float = 30.0) -> Iterator[RunningBoard]:
+    """Run the simulated board in a child process; yield its port and process."""
     config = {"sim": sim.as_dict(), "rest_length_mm": rest_length_mm,
               "corrupt_fraction": corrupt_fraction, "frame_period_ms": frame_period_ms}
     command = [sys.executable, "-m", "eskin", "device", "simulate",
@@ -53,7 +60,7 @@ def simulated_board(sim: SkinParams, *, rest_length_mm: float, corrupt_fraction:
         port = process.stdout.readline().strip()
         if not port:
             raise RuntimeError(f"simulated board exited: {process.stderr.read().strip()}")
-        yield port
+        yield RunningBoard(port, process)
     finally:
         process.terminate()
         try:
@@ -104,8 +111,8 @@ def acquire_scene(plan: ScenePlan, raw_dir: Path, *, source: str, sim: SkinParam
     if source == "simulated":
         with simulated_board(sim, rest_length_mm=rest_length_mm,
                              corrupt_fraction=corrupt_fraction,
-                             frame_period_ms=frame_period_ms) as sim_port:
-            return run_session(plan, raw_dir, port=sim_port, placer=SimulatedPlacer(),
+                             frame_period_ms=frame_period_ms) as board:
+            return run_session(plan, raw_dir, port=board.port, placer=SimulatedPlacer(),
                                rest_length_mm=rest_length_mm,
                                simulator={"params": sim.as_dict(), "seed": sim.seed},
                                timeout_s=timeout_s, max_attempts=max_attempts,

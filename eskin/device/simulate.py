@@ -57,6 +57,11 @@ class _LineServer:
         return self.board.frame_period_ms / 1000 if self.board.streaming else 0.5
 
 
+def _orphaned(parent: int) -> bool:
+    """True once the process that started us is gone (killed, even by SIGKILL)."""
+    return os.getppid() != parent
+
+
 def _write_all(write: Callable[[bytes], int], data: bytes) -> None:
     view = memoryview(data)
     while view:
@@ -64,17 +69,18 @@ def _write_all(write: Callable[[bytes], int], data: bytes) -> None:
 
 
 def serve_pty(board: SimulatedBoard, announce: Callable[[str], None]) -> None:
-    """Serve on a new pseudo-terminal until killed; announce its path first.
+    """Serve on a new pseudo-terminal until killed or orphaned; announce its path first.
 
     The board keeps the slave end open too, so the port survives the host
     closing and reopening it, as a USB adapter that stays plugged in does.
     """
+    parent = os.getppid()
     master, slave = os.openpty()
     tty.setraw(slave)
     announce(os.ttyname(slave))
     server = _LineServer(board)
     _write_all(lambda b: os.write(master, b), board.hello())
-    while True:
+    while not _orphaned(parent):
         ready, _, _ = select.select([master], [], [], server.timeout())
         if ready:
             try:
@@ -90,17 +96,26 @@ def serve_pty(board: SimulatedBoard, announce: Callable[[str], None]) -> None:
 
 def serve_socket(board: SimulatedBoard, port: int, announce: Callable[[str], None]) -> None:
     """Serve one client at a time on 127.0.0.1 only; announce the pyserial URL."""
+    parent = os.getppid()
     with socket.create_server((LOOPBACK, port)) as listener:
         announce(f"socket://{LOOPBACK}:{listener.getsockname()[1]}")
-        while True:
-            conn, _ = listener.accept()
+        listener.settimeout(0.5)
+        while not _orphaned(parent):
+            try:
+                conn, _ = listener.accept()
+                conn.settimeout(None)
+            except TimeoutError:
+                continue
             with conn:
                 conn.sendall(board.hello())
                 server = _LineServer(board)
-                while True:
+                while not _orphaned(parent):
                     ready, _, _ = select.select([conn], [], [], server.timeout())
                     if ready:
-                        data = conn.recv(4096)
+                        try:
+                            data = conn.recv(4096)
+                        except ConnectionResetError:
+                            break
                         if not data:
                             break
                         conn.sendall(server.received(data))

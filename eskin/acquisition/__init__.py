@@ -1,0 +1,1 @@
+"""Acquisition: scene plans, the raw log, the runner and sessions."""

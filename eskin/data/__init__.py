@@ -1,0 +1,1 @@
+"""Datasets: schema, ingest of raw logs, import of external files."""

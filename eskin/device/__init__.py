@@ -1,0 +1,1 @@
+"""The board side: wire protocol, skin physics, simulated board, serial link."""

@@ -1,0 +1,44 @@
+import copy
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+os.environ.setdefault("DVC_NO_ANALYTICS", "1")
+
+
+@pytest.fixture(scope="session")
+def repo_params():
+    return yaml.safe_load((ROOT / "params.yaml").read_text())
+
+
+def small_scenes(repo_params: dict) -> dict:
+    """The repo's params with small scenes: 2 stretches × 2 forces × 101 nodes × 5 samples
+    single force (2,020 rows); 1 stretch × 2 × 2 forces × 36 pairs × 5 two force."""
+    params = copy.deepcopy(repo_params)
+    params["scenes"]["single_force"].update(stretches=[1.0, 1.07921], forces=[0.0, 3.2536],
+                                            samples=5)
+    params["scenes"]["two_force"].update(forces=[1.2936, 5.2136], samples=5)
+    return params
+
+
+@pytest.fixture
+def small_params(repo_params):
+    return small_scenes(repo_params)
+
+
+def write_params(directory: Path, params: dict) -> Path:
+    directory.mkdir(parents=True, exist_ok=True)
+    path = directory / "params.yaml"
+    path.write_text(yaml.safe_dump(params, sort_keys=False))
+    return path
+
+
+def eskin(args, cwd, **kwargs):
+    """Run the eskin CLI in its own process, as a user would."""
+    return subprocess.run([sys.executable, "-m", "eskin", *args], cwd=cwd, text=True,
+                          capture_output=True, timeout=300, **kwargs)

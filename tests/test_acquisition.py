@@ -1,0 +1,139 @@
+"""Acquisition end to end over a real pty: resume, reuse, integrity."""
+
+import copy
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pandas as pd
+import pytest
+
+from conftest import eskin, small_scenes, write_params
+from eskin import steps
+from eskin.acquisition.rawlog import read_log
+from eskin.config import scene_plan
+from eskin.data.schema import CHANNELS, LABELS, read_metadata
+
+# What a sample is, independent of how the link delivered it (seq and t_ms count wire
+# traffic, and a retried condition uses more of it).
+CONTENT = ["trial", "sample", *CHANNELS]
+
+
+def acquire_and_ingest(params, root, scene="single_force"):
+    summary = steps.acquire(params, scene, root / "raw" / scene, progress=False)
+    steps.ingest(params, scene, root / "raw" / scene, root / "processed")
+    return summary, pd.read_parquet(root / "processed" / f"{scene}.parquet")
+
+
+@pytest.fixture(scope="module")
+def clean_run(tmp_path_factory, repo_params):
+    params = small_scenes(repo_params)
+    root = tmp_path_factory.mktemp("clean")
+    summary, frame = acquire_and_ingest(params, root)
+    return params, summary, frame
+
+
+def test_small_scene_has_exactly_the_planned_rows_and_labels(clean_run):
+    params, summary, frame = clean_run
+    plan = scene_plan(params, "single_force")
+    assert len(frame) == plan.n_samples == 2 * 2 * 101 * 5
+    assert "404 condition(s) acquired, 0 reused" in summary
+    assert not frame[["session", "trial", "sample"]].duplicated().any()
+    assert frame.groupby("trial").size().eq(5).all()
+    assert set(frame["stretch"]) == {1.0, 1.07921}
+    no_contact = frame[frame["x"] == 0]
+    assert set(no_contact["force"]) == {0.0, 3.2536}
+    assert list(frame.columns[:20]) == CHANNELS
+    assert list(frame.columns[20:24]) == LABELS["single_force"]
+
+
+def test_same_params_give_the_same_dataset(clean_run, tmp_path):
+    params, _, frame = clean_run
+    _, again = acquire_and_ingest(params, tmp_path)
+    pd.testing.assert_frame_equal(frame, again)
+
+
+def test_corrupted_link_gives_the_clean_dataset_and_counts_rejections(clean_run, tmp_path):
+    params, _, clean = clean_run
+    noisy = copy.deepcopy(params)
+    noisy["sim_board"]["corrupt_fraction"] = 0.01
+    summary, frame = acquire_and_ingest(noisy, tmp_path)
+    rejected = int(summary.split(" rejected")[0].rsplit(" ", 1)[1])
+    assert rejected > 0, summary
+    pd.testing.assert_frame_equal(frame[CONTENT], clean[CONTENT])
+    meta = read_metadata(tmp_path / "processed" / "single_force.parquet")
+    assert meta["source"]["frames_rejected_on_link"] == rejected
+
+
+def test_sigkill_midway_then_resume_gives_every_planned_row_once(clean_run, tmp_path):
+    params, _, clean = clean_run
+    write_params(tmp_path, params)
+    log = tmp_path / "data" / "raw" / "single_force" / "acquisition.log"
+    process = subprocess.Popen([sys.executable, "-m", "eskin", "acquire", "single_force",
+                                "--no-progress"], cwd=tmp_path, stdout=subprocess.DEVNULL,
+                               stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        if log.exists() and log.read_bytes().count(b"\nE\t") >= 150:
+            break
+        time.sleep(0.005)
+    os.kill(process.pid, signal.SIGKILL)
+    process.wait()
+    done_before = len(read_log(log).completed)
+    assert 150 <= done_before < 404, "killed midway"
+
+    resumed = eskin(["acquire", "single_force", "--no-progress"], tmp_path)
+    assert resumed.returncode == 0, resumed.stderr
+    assert f"{404 - done_before} condition(s) acquired, {done_before} reused" in resumed.stdout
+    ingested = eskin(["ingest", "single_force"], tmp_path)
+    assert ingested.returncode == 0, ingested.stderr
+    frame = pd.read_parquet(tmp_path / "data" / "processed" / "single_force.parquet")
+    assert len(frame) == 404 * 5
+    assert not frame[["session", "trial", "sample"]].duplicated().any()
+    assert set(frame["session"]) == {"s001", "s002"}
+    pd.testing.assert_frame_equal(frame[CONTENT], clean[CONTENT])
+
+
+def test_a_grown_plan_acquires_only_the_new_conditions(clean_run, tmp_path):
+    params, _, _ = clean_run
+    first = steps.acquire(params, "single_force", tmp_path, progress=False)
+    assert "404 condition(s) acquired" in first
+    grown = copy.deepcopy(params)
+    grown["scenes"]["single_force"]["stretches"].append(1.15842)
+    second = steps.acquire(grown, "single_force", tmp_path, progress=False)
+    assert "202 condition(s) acquired, 404 reused of 606" in second
+    again = steps.acquire(grown, "single_force", tmp_path, progress=False)
+    assert "0 condition(s) acquired, 606 reused" in again
+
+
+def test_a_changed_simulator_parameter_reacquires_everything(clean_run, tmp_path):
+    params, _, clean = clean_run
+    steps.acquire(params, "single_force", tmp_path, progress=False)
+    changed = copy.deepcopy(params)
+    changed["sim"]["noise_pf"] = params["sim"]["noise_pf"] * 2
+    summary = steps.acquire(changed, "single_force", tmp_path, progress=False)
+    assert "404 condition(s) acquired, 0 reused" in summary
+    steps.ingest(changed, "single_force", tmp_path, tmp_path / "processed")
+    frame = pd.read_parquet(tmp_path / "processed" / "single_force.parquet")
+    assert not frame[CHANNELS].equals(clean[CHANNELS])
+    assert len(read_log(tmp_path / "acquisition.log").sessions) == 2, "nothing lost: both kept"
+
+
+def test_two_force_scene_follows_its_documented_plan(small_params, tmp_path):
+    _, frame = acquire_and_ingest(small_params, tmp_path, scene="two_force")
+    assert len(frame) == 36 * 2 * 2 * 5  # pairs of the 9 nodes × force1 × force2 × samples
+    first = frame["x1"] * 100 + frame["y1"]
+    second = frame["x2"] * 100 + frame["y2"]
+    assert (first < second).all(), "contact 1 comes first in row-major order"
+    assert set(frame["x1"]) | set(frame["x2"]) == {1, 6, 10}
+    assert (frame["stretch"] == 1.0).all()
+
+
+def test_ingest_of_an_incomplete_log_says_how_to_resume(small_params, tmp_path):
+    steps.acquire(small_params, "single_force", tmp_path, progress=False)
+    grown = copy.deepcopy(small_params)
+    grown["scenes"]["single_force"]["forces"].append(5.2136)
+    with pytest.raises(ValueError, match="202 of 606 planned conditions .*eskin acquire single_force"):
+        steps.ingest(grown, "single_force", tmp_path, tmp_path / "processed")

@@ -1,0 +1,109 @@
+"""The simulated skin's physics, pinned (DESIGN §8)."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from eskin.device.physics import Indenter, SkinModel, SkinParams, Trial, spread_kernel
+
+PARAMS = SkinParams()
+
+
+@pytest.fixture(scope="module")
+def skin():
+    return SkinModel(PARAMS)
+
+
+def test_noiseless_capacitance_is_linear_in_stretch(skin):
+    stretches = np.linspace(1.0, 1.3, 13)
+    caps = np.array([skin.capacitance(s) for s in stretches])
+    for terminal in range(20):
+        fit = np.polyfit(stretches, caps[:, terminal], 1)
+        residual = caps[:, terminal] - np.polyval(fit, stretches)
+        r2 = 1 - residual.var() / caps[:, terminal].var()
+        assert r2 > 0.999
+        assert fit[0] > 0
+
+
+def test_force_response_is_monotone_and_saturating(skin):
+    forces = np.linspace(0, 60, 121)
+    response = np.array([skin.capacitance(1.0, [Indenter(5, 5, f)])[4] for f in forces])
+    steps = np.diff(response)
+    assert np.all(steps > 0), "more force must always read more"
+    assert steps[-1] < steps[10] / 20, "the response must flatten out"
+    ceiling = skin.capacitance(1.0, [Indenter(5, 5, 1e9)])[4]
+    assert response[-1] < ceiling and ceiling < np.inf
+
+
+def test_stretch_stiffens_the_indentation_response(skin):
+    strain = [skin.peak_strain(3.0, s) for s in (1.0, 1.07921, 1.15842)]
+    assert strain[0] > strain[1] > strain[2] > 0
+
+
+@pytest.mark.parametrize("x", [1, 5, 10])
+def test_an_indentation_reaches_two_nodes_each_way_and_no_further(skin, x):
+    rest = skin.capacitance(1.0)
+    for offset in (-0.45, 0.0, 0.45):
+        pressed = skin.capacitance(1.0, [Indenter(x, 6, 5.2136, (offset, offset))])
+        changed = np.flatnonzero(~np.isclose(pressed[:10], rest[:10], rtol=0, atol=1e-12)) + 1
+        reach = {n for n in range(1, 11) if abs(n - x) <= 2}
+        assert set(changed) == reach, (offset, changed)
+        changed_y = np.flatnonzero(~np.isclose(pressed[10:], rest[10:], rtol=0, atol=1e-12)) + 1
+        assert set(changed_y) == {4, 5, 6, 7, 8}
+
+
+def test_spread_kernel_is_one_at_the_centre_and_zero_from_reach_plus_half():
+    assert spread_kernel(np.array([0.0]), 2)[0] == 1.0
+    assert spread_kernel(np.array([2.5, 3.0]), 2).tolist() == [0.0, 0.0]
+    assert 0 < spread_kernel(np.array([2.0]), 2)[0] < spread_kernel(np.array([1.0]), 2)[0] < 1
+
+
+def test_reading_noise_matches_its_parameter():
+    quiet = dataclasses.replace(PARAMS, drift_offset_pf=0.0, drift_step_pf=0.0, noise_pf=0.05)
+    trial = Trial(SkinModel(quiet), [1])
+    readings = trial.sample_pf(20_000, 1.0, [])
+    clean = SkinModel(quiet).capacitance(1.0)
+    noise = readings - clean
+    assert np.allclose(noise.mean(axis=0), 0, atol=0.003)
+    assert np.allclose(noise.std(axis=0), 0.05, rtol=0.05)
+
+
+def test_drift_offset_and_random_walk_match_their_parameters():
+    drifty = dataclasses.replace(PARAMS, noise_pf=0.0, drift_offset_pf=0.2, drift_step_pf=0.01)
+    model = SkinModel(drifty)
+    offsets = np.array([Trial(model, [n]).sample_pf(1, 1.0, [])[0] for n in range(2000)])
+    start = offsets - model.capacitance(1.0)
+    # first reading = offset + one walk step
+    assert np.allclose(start.std(axis=0), np.hypot(0.2, 0.01), rtol=0.1)
+    walk = Trial(model, [1]).sample_pf(5000, 1.0, [])
+    assert np.allclose(np.diff(walk, axis=0).std(axis=0), 0.01, rtol=0.05)
+
+
+def test_placement_errors_stay_within_their_bound_and_follow_their_sd():
+    model = SkinModel(PARAMS)
+    trial = Trial(model, [3])
+    offsets = np.array([trial.place(5, 5, 1.0).offset for _ in range(5000)])
+    assert np.abs(offsets).max() <= PARAMS.placement_max_nodes
+    assert np.allclose(offsets.std(axis=0), PARAMS.placement_sd_nodes, rtol=0.1)
+
+
+def test_trials_are_deterministic_and_distinct(skin):
+    a = Trial(skin, [42]).sample_counts(20, 1.0, [])
+    b = Trial(skin, [42]).sample_counts(20, 1.0, [])
+    c = Trial(skin, [43]).sample_counts(20, 1.0, [])
+    assert np.array_equal(a, b) and not np.array_equal(a, c)
+
+
+def test_adc_quantises_to_ten_bits_and_clips_at_the_rails(skin):
+    counts = skin.to_counts(np.array([[0.0] * 20, [1e6] * 20, list(skin.baseline_pf)]))
+    assert counts.dtype == np.int64
+    assert counts[0].tolist() == [0] * 20 and counts[1].tolist() == [1023] * 20
+    assert np.all((counts[2] > 100) & (counts[2] < 600)), "rest readings sit mid-range"
+
+
+def test_unknown_or_invalid_parameters_are_rejected_by_name():
+    with pytest.raises(ValueError, match="noise_sd"):
+        SkinParams.from_mapping({"noise_sd": 1.0})
+    with pytest.raises(ValueError, match="strain_max"):
+        SkinParams.from_mapping({"strain_max": 1.5})
