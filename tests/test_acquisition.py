@@ -9,8 +9,8 @@ import time
 
 import pandas as pd
 import pytest
-
 from conftest import eskin, small_scenes, write_params
+
 from eskin import steps
 from eskin.acquisition.rawlog import read_log
 from eskin.config import scene_plan
@@ -135,5 +135,6 @@ def test_ingest_of_an_incomplete_log_says_how_to_resume(small_params, tmp_path):
     steps.acquire(small_params, "single_force", tmp_path, progress=False)
     grown = copy.deepcopy(small_params)
     grown["scenes"]["single_force"]["forces"].append(5.2136)
-    with pytest.raises(ValueError, match="202 of 606 planned conditions .*eskin acquire single_force"):
+    expected = "202 of 606 planned conditions .*eskin acquire single_force"
+    with pytest.raises(ValueError, match=expected):
         steps.ingest(grown, "single_force", tmp_path, tmp_path / "processed")

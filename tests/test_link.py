@@ -9,9 +9,9 @@ import sys
 import pytest
 import serial
 
+from eskin.acquisition.session import simulated_board
 from eskin.device.link import LinkError, SerialLink, list_serial_ports
 from eskin.device.physics import SkinParams
-from eskin.acquisition.session import simulated_board
 
 
 def test_frames_cross_a_real_pty_from_another_process():

@@ -39,7 +39,6 @@ class Attempt:
     session: dict
     condition: dict
     frames: list[Frame] = field(default_factory=list)
-    line_numbers: list[int] = field(default_factory=list)
     complete: bool = False
 
 
@@ -114,23 +113,19 @@ def read_log(path: Path) -> LogContents:
                         reason = event.reason if isinstance(event, ParseError) else "not a frame"
                         raise ValueError(f"stored frame does not verify: {reason}")
                     attempt.frames.append(event)
-                    attempt.line_numbers.append(number)
                 elif tag == "R":
                     rejected += 1
-                elif tag == "E":
+                elif tag == "E" and attempt_no not in tainted:  # a tainted one is reported
                     if int(payload) != len(attempt.frames):
                         raise ValueError(f"attempt closed with {payload} frames but "
                                          f"{len(attempt.frames)} are stored")
-                    if attempt_no not in tainted:
-                        attempt.complete = True
-                        completed[attempt.condition["key"]] = attempt
-                elif tag == "X":
-                    pass
-                else:
+                    attempt.complete = True
+                    completed[attempt.condition["key"]] = attempt
+                elif tag not in ("E", "X"):
                     raise ValueError(f"unknown record type {tag!r}")
             except (ValueError, KeyError, TypeError) as err:
                 bad.append(BadLine(path, number, str(err), line))
-                if tag in "FREX" and rest.partition("\t")[0].isdigit():
+                if tag in ("F", "R", "E", "X") and rest.partition("\t")[0].isdigit():
                     tainted.add(int(rest.partition("\t")[0]))
     return LogContents(sessions, completed, max(attempts, default=0), rejected, bad, torn)
 

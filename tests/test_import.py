@@ -1,0 +1,126 @@
+"""Importing external data in the paper's layout, and every bad file we could think of."""
+
+import copy
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+from eskin import steps
+from eskin.data.importer import import_paper_layout
+from eskin.data.schema import CHANNELS, DatasetError, arrow_schema, read_metadata
+
+rng = np.random.default_rng(0)
+
+
+def paper_rows(n_trials=6, samples=4, kind="single_force"):
+    rows = []
+    for t in range(n_trials):
+        caps = rng.uniform(100, 600, size=20)
+        labels = ([1.2936 * (t % 3), t % 11, (t * 3) % 11, 1.0 + 0.07921 * (t % 2)]
+                  if kind == "single_force" else [1.2936, 1, 1, 3.2536, 6, 10])
+        for _ in range(samples):
+            rows.append([*np.round(caps + rng.normal(0, 1, 20), 3), *labels])
+    return rows
+
+
+def write_csv(path, rows, header=None):
+    lines = ([",".join(header)] if header else []) + [",".join(map(str, r)) for r in rows]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_csv_in_the_paper_layout_gets_the_dataset_schema(tmp_path):
+    result = import_paper_layout(write_csv(tmp_path / "skin.csv", paper_rows()), "single_force")
+    frame = result.frame
+    assert len(frame) == 24 and result.quarantine == []
+    table = pa.Table.from_pandas(frame, schema=arrow_schema("single_force"), preserve_index=False)
+    assert table.num_rows == 24
+    assert frame["trial"].nunique() == 6 and frame["sample"].max() == 3
+    assert frame["t_ms"].isna().all() and frame["seq"].tolist() == list(range(24))
+    assert result.metadata["source"]["sha256"]
+
+
+def test_header_row_and_two_force_layout_without_stretch(tmp_path):
+    header = CHANNELS + ["force1", "x1", "y1", "force2", "x2", "y2"]
+    path = write_csv(tmp_path / "two.csv", paper_rows(kind="two_force"), header)
+    result = import_paper_layout(path, "two_force")
+    assert len(result.frame) == 24 and (result.frame["stretch"] == 1.0).all()
+    assert result.metadata["source"]["stretch_assumed"] is True
+
+
+def test_parquet_import_matches_csv_import(tmp_path):
+    rows = paper_rows()
+    csv = import_paper_layout(write_csv(tmp_path / "a.csv", rows), "single_force").frame
+    pd.DataFrame(rows).set_axis([f"c{i}" for i in range(24)], axis=1).to_parquet(
+        tmp_path / "a.parquet")
+    parquet = import_paper_layout(tmp_path / "a.parquet", "single_force").frame
+    pd.testing.assert_frame_equal(csv.drop(columns=["session", "trial"]),
+                                  parquet.drop(columns=["session", "trial"]))
+
+
+@pytest.mark.parametrize("damage, message", [
+    (lambda r: r[5].__setitem__(3, "nan"), r"bad.csv:6: cx4 is NaN or empty"),
+    (lambda r: r[2].__setitem__(21, 11), r"bad.csv:3: x is not a node number 0..10"),
+    (lambda r: r[7].__setitem__(0, "12,5"), r"bad.csv:8: row has 25 columns, expected 24"),
+    (lambda r: r[1].__setitem__(4, "abc"), r"bad.csv:2: cx5 is not a number"),
+    (lambda r: r[9].__setitem__(10, "inf"), r"bad.csv:10: cy1 is infinite"),
+    (lambda r: r[4].__setitem__(20, -1.0), r"bad.csv:5: force is negative"),
+    (lambda r: r[4].__setitem__(22, 2.5), r"bad.csv:5: y is not a node number"),
+])
+def test_bad_rows_are_errors_naming_file_line_and_problem(tmp_path, damage, message):
+    rows = [list(r) for r in paper_rows()]
+    damage(rows)
+    path = write_csv(tmp_path / "bad.csv", rows)
+    with pytest.raises(DatasetError, match=message):
+        import_paper_layout(path, "single_force")
+    quarantined = import_paper_layout(path, "single_force", bad_rows="quarantine")
+    assert len(quarantined.frame) == 23 and len(quarantined.quarantine) == 1
+    assert quarantined.metadata["source"]["rows_quarantined"] == 1
+
+
+@pytest.mark.parametrize("content, message", [
+    (b"", "empty"),
+    (b"\n\n", "no data rows"),
+    (b"a,b,c\n", "no data rows"),
+    (b"1,2,3\n", "3 columns, but the single_force layout has 24"),
+    (b"\xff\xfe1,2\n", "not UTF-8"),
+    (b"1,2\x00,3\n", "NUL"),
+])
+def test_bad_files_are_errors_naming_the_file(tmp_path, content, message):
+    path = tmp_path / "broken.csv"
+    path.write_bytes(content)
+    with pytest.raises(DatasetError, match=message) as info:
+        import_paper_layout(path, "single_force")
+    assert "broken.csv" in str(info.value)
+
+
+def test_two_force_file_given_as_single_force_says_which_layout_it_is(tmp_path):
+    path = write_csv(tmp_path / "two.csv", paper_rows(kind="two_force"))
+    with pytest.raises(DatasetError, match="26 columns.*that is the two_force layout"):
+        import_paper_layout(path, "single_force")
+
+
+def test_truncated_parquet_is_a_clear_error(tmp_path):
+    pd.DataFrame(paper_rows()).set_axis([f"c{i}" for i in range(24)], axis=1).to_parquet(
+        tmp_path / "full.parquet")
+    data = (tmp_path / "full.parquet").read_bytes()
+    (tmp_path / "cut.parquet").write_bytes(data[: len(data) // 2])
+    with pytest.raises(DatasetError, match="cut.parquet: not a readable Parquet"):
+        import_paper_layout(tmp_path / "cut.parquet", "single_force")
+
+
+def test_import_source_runs_through_the_pipeline_steps(tmp_path, small_params):
+    source = write_csv(tmp_path / "lab.csv", paper_rows())
+    params = copy.deepcopy(small_params)
+    params["acquire"]["source"] = "import"
+    params["scenes"]["single_force"]["import_path"] = str(source)
+    steps.acquire(params, "single_force", tmp_path / "raw")
+    assert (tmp_path / "raw" / "import.csv").read_bytes() == source.read_bytes()
+    message = steps.ingest(params, "single_force", tmp_path / "raw", tmp_path / "out")
+    assert "24 rows" in message
+    frame = pq.read_table(tmp_path / "out" / "single_force.parquet").to_pandas()
+    assert len(frame) == 24
+    assert read_metadata(tmp_path / "out" / "single_force.parquet")["source"]["kind"] == "import"
