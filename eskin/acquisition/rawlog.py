@@ -39,7 +39,6 @@ class Attempt:
     session: dict
     condition: dict
     frames: list[Frame] = field(default_factory=list)
-    complete: bool = False
 
 
 @dataclass
@@ -119,7 +118,6 @@ def read_log(path: Path) -> LogContents:
                     if int(payload) != len(attempt.frames):
                         raise ValueError(f"attempt closed with {payload} frames but "
                                          f"{len(attempt.frames)} are stored")
-                    attempt.complete = True
                     completed[attempt.condition["key"]] = attempt
                 elif tag not in ("E", "X"):
                     raise ValueError(f"unknown record type {tag!r}")
@@ -133,10 +131,12 @@ def read_log(path: Path) -> LogContents:
 class RawLogWriter:
     """Appends to a raw log; opening repairs a torn last line first."""
 
-    def __init__(self, path: Path, session: dict) -> None:
+    def __init__(self, path: Path, session: dict, contents: LogContents | None = None) -> None:
+        """``contents``: the log as already read (``read_log``), if the caller has it."""
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        contents = read_log(self.path) if self.path.exists() else None
+        if contents is None and self.path.exists():
+            contents = read_log(self.path)
         if contents is not None and contents.torn_tail:
             _cut_torn_tail(self.path)
         self.attempt = contents.attempts if contents else 0

@@ -93,7 +93,7 @@ def run_session(plan: ScenePlan, raw_dir: Path, *, port: str, placer: Placer,
             # that the same params give a byte-identical log, and the same DVC hashes.
             session["started_utc"] = datetime.now(UTC).isoformat(timespec="seconds")
         completed = set(contents.completed) if contents else set()
-        writer = RawLogWriter(log_path, session)
+        writer = RawLogWriter(log_path, session, contents)
         try:
             return acquire(plan, link, writer, placer, completed=completed,
                            rest_length_mm=rest_length_mm, max_attempts=max_attempts,

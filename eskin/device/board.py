@@ -18,7 +18,7 @@ import numpy as np
 
 from eskin import __version__
 from eskin.device.physics import GRID, Indenter, SkinModel, SkinParams, Trial
-from eskin.device.protocol import MAX_LINE_BYTES, SEQ_MAX, crc8
+from eskin.device.protocol import MAX_LINE_BYTES, SEQ_MAX, encode_frame
 
 MAX_EXTENSION_MM = 40.0
 MAX_NEWTONS = 50.0
@@ -84,8 +84,7 @@ class SimulatedBoard:
         counts = self._trial.sample_counts(n, self._stretch, self._indenters)
         lines = []
         for row in counts:
-            body = b"D,%d,%d," % (self._seq, self._t_ms) + b",".join(b"%d" % c for c in row)
-            lines.append(self._wire(body + b"*%02X\n" % crc8(body)))
+            lines.append(self._wire(encode_frame(self._seq, self._t_ms, row)))
             self._seq = (self._seq + 1) & SEQ_MAX
             self._t_ms = (self._t_ms + self.frame_period_ms) & SEQ_MAX
         return b"".join(lines)
