@@ -13,7 +13,8 @@ from conftest import eskin, small_scenes, write_params
 
 from eskin import steps
 from eskin.acquisition.rawlog import read_log
-from eskin.config import scene_plan
+from eskin.acquisition.session import acquire_scene, simulated_board
+from eskin.config import scene_plan, skin_params
 from eskin.data.schema import CHANNELS, LABELS, read_metadata
 
 # What a sample is, independent of how the link delivered it (seq and t_ms count wire
@@ -138,3 +139,22 @@ def test_ingest_of_an_incomplete_log_says_how_to_resume(small_params, tmp_path):
     expected = "202 of 606 planned conditions .*eskin acquire single_force"
     with pytest.raises(ValueError, match=expected):
         steps.ingest(grown, "single_force", tmp_path, tmp_path / "processed")
+
+
+def test_serial_source_prompts_the_operator_only_when_the_weights_change(small_params,
+                                                                          tmp_path):
+    prompts = []
+    sim = skin_params(small_params)
+    with simulated_board(sim, rest_length_mm=101.0) as board:  # stands in for a real board
+        report = acquire_scene(scene_plan(small_params, "single_force"), tmp_path,
+                               source="serial",
+                               sim=sim, rest_length_mm=101.0, port=board.port,
+                               ask=prompts.append, progress=False)
+    assert report.acquired == 404
+    # per stretch: one "remove all weights" (0 N everywhere and node 0 at 3.2536 N leave
+    # the skin bare), then one prompt per node under 3.2536 N
+    assert len(prompts) == 2 * (1 + 100)
+    assert prompts[1].endswith("Place 3.2536 N on node x=1, y=1, then press Enter: ")
+    assert "Remove all weights" in prompts[0]
+    contents = read_log(tmp_path / "acquisition.log")
+    assert contents.sessions[0]["source"] == "serial" and "started_utc" in contents.sessions[0]
