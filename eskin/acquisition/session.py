@@ -27,7 +27,7 @@ from eskin.acquisition.runner import (
     SimulatedPlacer,
     acquire,
 )
-from eskin.device.link import SerialLink
+from eskin.device.link import LinkError, SerialLink
 from eskin.device.physics import SkinParams
 
 LOG_NAME = "acquisition.log"
@@ -56,10 +56,10 @@ def simulated_board(sim: SkinParams, *, rest_length_mm: float, corrupt_fraction:
         with selectors.DefaultSelector() as selector:
             selector.register(process.stdout, selectors.EVENT_READ)
             if not selector.select(start_timeout_s):
-                raise RuntimeError(f"simulated board did not start within {start_timeout_s} s")
+                raise LinkError(f"simulated board did not start within {start_timeout_s} s")
         port = process.stdout.readline().strip()
         if not port:
-            raise RuntimeError(f"simulated board exited: {process.stderr.read().strip()}")
+            raise LinkError(f"simulated board exited: {process.stderr.read().strip()}")
         yield RunningBoard(port, process)
     finally:
         process.terminate()
