@@ -105,8 +105,10 @@ def test_a_grown_plan_acquires_only_the_new_conditions(clean_run, tmp_path):
     grown["scenes"]["single_force"]["stretches"].append(1.15842)
     second = steps.acquire(grown, "single_force", tmp_path, progress=False)
     assert "202 condition(s) acquired, 404 reused of 606" in second
+    before = (tmp_path / "acquisition.log").read_bytes()
     again = steps.acquire(grown, "single_force", tmp_path, progress=False)
     assert "0 condition(s) acquired, 606 reused" in again
+    assert (tmp_path / "acquisition.log").read_bytes() == before, "nothing new, nothing written"
 
 
 def test_a_changed_simulator_parameter_reacquires_everything(clean_run, tmp_path):

@@ -129,7 +129,8 @@ def read_log(path: Path) -> LogContents:
 
 
 class RawLogWriter:
-    """Appends to a raw log; opening repairs a torn last line first."""
+    """Appends to a raw log; opening repairs a torn last line first, and the session
+    header goes in with the session's first attempt."""
 
     def __init__(self, path: Path, session: dict, contents: LogContents | None = None) -> None:
         """``contents``: the log as already read (``read_log``), if the caller has it."""
@@ -140,16 +141,21 @@ class RawLogWriter:
         if contents is not None and contents.torn_tail:
             _cut_torn_tail(self.path)
         self.attempt = contents.attempts if contents else 0
+        self._new_file = contents is None
+        self._session: dict | None = session  # written with the first attempt
         self._file = self.path.open("a", encoding="ascii", newline="\n")
-        if contents is None:
-            self._file.write(MAGIC + "\n")
-        self._write("S", json.dumps(session, sort_keys=True))
-        self.flush()
 
     def _write(self, *fields: object) -> None:
         self._file.write("\t".join(str(f) for f in fields) + "\n")
 
     def begin(self, condition: dict) -> int:
+        # A session that acquires nothing leaves the log untouched, byte for byte.
+        if self._new_file:
+            self._file.write(MAGIC + "\n")
+            self._new_file = False
+        if self._session is not None:
+            self._write("S", json.dumps(self._session, sort_keys=True))
+            self._session = None
         self.attempt += 1
         self._write("B", self.attempt, json.dumps(condition, sort_keys=True))
         return self.attempt
