@@ -107,6 +107,30 @@ def contact_mask(frame: pd.DataFrame) -> np.ndarray:
     return ((frame["force"] > 0) & (frame["x"] > 0)).to_numpy()
 
 
+def contact_free(frame: pd.DataFrame, kind: str) -> np.ndarray:
+    """True where no indenter presses the skin (never, in a two-force scene)."""
+    if kind == "single_force":
+        return ~contact_mask(frame)
+    touching = [(frame[f"force{i}"] > 0) & (frame[f"x{i}"] > 0) for i in (1, 2)]
+    return ~(touching[0] | touching[1]).to_numpy()
+
+
+def node_id(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Node number 1..100 in row-major order ((x − 1)·10 + y); 0 where x is 0 (no node)."""
+    x = np.asarray(x, dtype=np.int64)
+    y = np.asarray(y, dtype=np.int64)
+    return np.where(x > 0, (x - 1) * 10 + y, 0)
+
+
+def md5_file(path: Path) -> str:
+    """The md5 DVC records for a file output (its bytes' md5), so MLflow and DVC agree."""
+    digest = hashlib.md5(usedforsecurity=False)
+    with Path(path).open("rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
 def sha256_file(path: Path) -> str:
     digest = hashlib.sha256()
     with Path(path).open("rb") as handle:

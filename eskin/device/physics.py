@@ -13,7 +13,9 @@ Every number comes from :class:`SkinParams` (``sim:`` in params.yaml).
   each way and no further. A node's capacitance grows as 1/(1 − ε); a
   terminal strip sums its ten nodes.
 * **Read-out.** Each terminal has its own baseline and CAV424 gain. Per trial,
-  the indenter lands off-centre (placement variation) and the baseline
+  the indenter lands off-centre (placement variation) and passes on more or
+  less of its weight (seating, tilt and creep of the soft skin: a lognormal
+  load factor, ``load_variation``), and the baseline
   wanders (slow drift: an offset per trial and a random walk within it).
   Every reading has white noise. The CAV424 maps relative capacitance to
   volts, clipped to its supply, and the Arduino's ADC quantises to 10 bits.
@@ -46,6 +48,7 @@ class SkinParams:
     reach_nodes: int = 2
     placement_sd_nodes: float = 0.15
     placement_max_nodes: float = 0.45
+    load_variation: float = 0.0
     noise_pf: float = 0.03
     drift_offset_pf: float = 0.1
     drift_step_pf: float = 0.005
@@ -78,6 +81,7 @@ class SkinParams:
             if getattr(self, name) <= 0:
                 raise ValueError(f"sim.{name} must be positive, got {getattr(self, name)}")
         for name in ("noise_pf", "drift_offset_pf", "drift_step_pf", "placement_sd_nodes",
+                     "load_variation",
                      "baseline_spread", "stretch_sensitivity_spread", "cav424_gain_spread"):
             if getattr(self, name) < 0:
                 raise ValueError(f"sim.{name} must not be negative, got {getattr(self, name)}")
@@ -191,7 +195,10 @@ class Trial:
         self._drift = p.drift_offset_pf * self.rng.standard_normal(2 * GRID)
 
     def place(self, x: int, y: int, newtons: float) -> Indenter:
-        return Indenter(x, y, newtons, self.model.placement_offset(self.rng))
+        """The indenter as it lands: off-centre, and passing on more or less of its load."""
+        offset = self.model.placement_offset(self.rng)
+        load = float(np.exp(self.model.params.load_variation * self.rng.standard_normal()))
+        return Indenter(x, y, newtons * load, offset)
 
     def sample_pf(self, n: int, stretch: float, indenters: Sequence[Indenter]) -> np.ndarray:
         """n noisy capacitance readings in pF, shape (n, 20)."""

@@ -1,0 +1,67 @@
+"""Scores of out-of-fold predictions: regression, detection, localisation."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+from sklearn.metrics import (
+    accuracy_score,
+    balanced_accuracy_score,
+    confusion_matrix,
+    f1_score,
+    mean_absolute_error,
+    mean_squared_error,
+    r2_score,
+)
+
+
+def regression(y_true: np.ndarray, y_pred: np.ndarray) -> dict[str, float]:
+    mse = mean_squared_error(y_true, y_pred)
+    return {"r2": float(r2_score(y_true, y_pred)) if np.ptp(y_true) > 0 else float("nan"),
+            "mse": float(mse), "rmse": float(np.sqrt(mse)),
+            "mae": float(mean_absolute_error(y_true, y_pred))}
+
+
+def detection(y_true: np.ndarray, y_pred: np.ndarray) -> dict[str, float]:
+    y_true = np.asarray(y_true, dtype=bool)
+    y_pred = np.asarray(y_pred, dtype=bool)
+    return {"accuracy": float(accuracy_score(y_true, y_pred)),
+            "balanced_accuracy": float(balanced_accuracy_score(y_true, y_pred)),
+            "f1": float(f1_score(y_true, y_pred, zero_division=0.0))}
+
+
+def localisation(y_true: np.ndarray, y_pred: np.ndarray) -> dict[str, float]:
+    """Accuracy, balanced accuracy, macro F1 and the share within one node of the truth."""
+    y_true = np.asarray(y_true)
+    y_pred = np.asarray(y_pred)
+    with warnings.catch_warnings():
+        # A grouped fold may hold no sample of a node the model still predicts: the
+        # score is then over the nodes present, which is what a fold can measure.
+        warnings.filterwarnings("ignore", message="y_pred contains classes not in y_true")
+        balanced = balanced_accuracy_score(y_true, y_pred)
+    return {"accuracy": float(accuracy_score(y_true, y_pred)),
+            "balanced_accuracy": float(balanced),
+            "f1_macro": float(f1_score(y_true, y_pred, average="macro", zero_division=0.0)),
+            "within_one": float(np.mean(np.abs(y_true.astype(float) - y_pred) <= 1))}
+
+
+SCORERS = {"regression": regression, "detection": detection, "localisation": localisation}
+
+
+def confusion(y_true: np.ndarray, y_pred: np.ndarray) -> dict[str, list]:
+    """Counts with rows = truth, columns = prediction, over the union of labels."""
+    labels = np.union1d(np.unique(y_true), np.unique(y_pred))
+    matrix = confusion_matrix(y_true, y_pred, labels=labels)
+    return {"labels": labels.tolist(), "counts": matrix.tolist()}
+
+
+def summarise(per_fold: list[dict[str, float]]) -> dict[str, float]:
+    """Mean and standard deviation over folds of each score (``r2``, ``r2_std``)."""
+    out: dict[str, float] = {}
+    for name in per_fold[0]:
+        values = np.array([fold[name] for fold in per_fold], dtype=float)
+        finite = values[np.isfinite(values)]
+        out[name] = float(finite.mean()) if finite.size else float("nan")
+        out[f"{name}_std"] = float(finite.std()) if finite.size else float("nan")
+    return out

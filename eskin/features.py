@@ -1,0 +1,88 @@
+"""Features from the 20 channels: the paper's raw readings, or a fitted transform.
+
+``featurize.method`` chooses:
+
+* ``raw`` — the channel readings as they are (the paper);
+* ``standardise`` — each channel to zero mean and unit variance;
+* ``baseline`` — each channel minus its mean over the no-contact, unstretched
+  samples: the change a contact or a stretch makes, which removes the
+  terminals' own baselines. On a real bench that baseline is the reading
+  taken before the first press, so fitting it on those samples is
+  calibration, not leakage.
+
+Each is a scikit-learn transformer; the fitted one is saved beside the
+features so that live inference applies exactly the same transform.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+from sklearn.base import BaseEstimator, TransformerMixin
+from sklearn.preprocessing import FunctionTransformer, StandardScaler
+from sklearn.utils.validation import check_is_fitted, validate_data
+
+from eskin.data.schema import CHANNELS, contact_free
+
+METHODS = ("raw", "standardise", "baseline")
+
+
+class BaselineDelta(TransformerMixin, BaseEstimator):
+    """Subtract the per-channel mean of the samples it was fitted on.
+
+    Fit it on baseline samples (no contact, unstretched); transform any.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> BaselineDelta().fit(np.array([[1.0, 2.0], [3.0, 4.0]])).transform([[2.0, 3.0]])
+    array([[0., 0.]])
+    """
+
+    def fit(self, X, y=None):  # noqa: N803 - scikit-learn's name
+        X = validate_data(self, X, dtype=np.float64)
+        self.baseline_ = X.mean(axis=0)
+        return self
+
+    def transform(self, X):  # noqa: N803
+        check_is_fitted(self)
+        X = validate_data(self, X, dtype=np.float64, reset=False)
+        return X - self.baseline_
+
+
+def make_featurizer(method: str) -> TransformerMixin:
+    if method == "raw":
+        return FunctionTransformer(feature_names_out="one-to-one")
+    if method == "standardise":
+        return StandardScaler()
+    if method == "baseline":
+        return BaselineDelta()
+    raise ValueError(f"featurize.method must be one of {METHODS}, got {method!r}")
+
+
+def baseline_rows(frame: pd.DataFrame, kind: str) -> np.ndarray:
+    """No-contact samples at the lowest stretch recorded."""
+    rest = frame["stretch"] == frame["stretch"].min()
+    return (rest.to_numpy() & contact_free(frame, kind))
+
+
+def fit_featurizer(method: str, frame: pd.DataFrame, kind: str) -> TransformerMixin:
+    """The transform of ``method`` fitted on ``frame`` (baseline: on its rest samples)."""
+    featurizer = make_featurizer(method)
+    channels = frame[CHANNELS]
+    if method == "baseline":
+        rows = baseline_rows(frame, kind)
+        if not rows.any():
+            raise ValueError(
+                "featurize.method 'baseline' needs no-contact samples at the lowest stretch, "
+                f"and this {kind} dataset has none; use 'raw' or 'standardise'")
+        channels = channels[rows]
+    return featurizer.fit(channels)
+
+
+def featurize(frame: pd.DataFrame, featurizer: TransformerMixin) -> pd.DataFrame:
+    """``frame`` with its channels replaced by features (same names), labels kept."""
+    features = np.asarray(featurizer.transform(frame[CHANNELS]), dtype=np.float64)
+    out = frame.copy()
+    out[CHANNELS] = features
+    return out

@@ -1,0 +1,96 @@
+"""What each scene can learn: the tasks, their targets, rows, and preconditions.
+
+Single force (the paper's section III-D):
+
+* ``stretch`` — λ from every sample (needs two or more stretch levels);
+* ``force`` — newtons from every sample, the physical force: 0 wherever no
+  indenter presses (node 0 and every 0 N sample), since the recorded force of
+  a node-0 sample names a weight that was not on the skin;
+* ``detect`` — contact (force > 0 and node > 0) against none, every sample;
+* ``localise`` — x and y of the pressed node, contact samples only (the
+  paper's localisation "assumes that there is pressure on the sensor").
+
+Two forces (section III-E): ``force1``, ``force2`` and ``localise`` (x1, y1,
+x2, y2), every sample.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from eskin.data.schema import contact_mask
+
+
+def _all_rows(frame: pd.DataFrame) -> np.ndarray:
+    return np.ones(len(frame), dtype=bool)
+
+
+def _physical_force(index: str = "") -> Callable[[pd.DataFrame], np.ndarray]:
+    def target(frame: pd.DataFrame) -> np.ndarray:
+        force = frame[f"force{index}"].to_numpy(dtype=float)
+        touching = (force > 0) & (frame[f"x{index}"].to_numpy() > 0)
+        return np.where(touching, force, 0.0)
+    return target
+
+
+def _column(name: str) -> Callable[[pd.DataFrame], np.ndarray]:
+    return lambda frame: frame[name].to_numpy()
+
+
+@dataclass(frozen=True)
+class Task:
+    """A learning task: a model role, a scorer, and a target per output."""
+
+    name: str
+    role: str                     # entry of eskin.models.REGISTRY
+    scorer: str                   # entry of eskin.evaluation.metrics.SCORERS
+    targets: dict[str, Callable[[pd.DataFrame], np.ndarray]]
+    rows: Callable[[pd.DataFrame], np.ndarray] = _all_rows
+    row_note: str = "every sample"
+
+    def target_values(self, frame: pd.DataFrame) -> dict[str, np.ndarray]:
+        return {name: get(frame) for name, get in self.targets.items()}
+
+    def unsupported(self, frame: pd.DataFrame) -> str | None:
+        """Why this scene cannot train the task, or None when it can."""
+        rows = self.rows(frame)
+        if not rows.any():
+            return f"no rows for {self.name} ({self.row_note})"
+        if self.name == "stretch" and frame["stretch"].nunique() < 2:
+            return "stretch regression needs two or more stretch levels; this scene has one"
+        for name, values in self.target_values(frame[rows]).items():
+            if len(np.unique(values)) < 2:
+                what = "contact and no-contact samples" if self.name == "detect" else \
+                    f"two or more distinct values of {name}"
+                return f"{self.name} needs {what}; this scene has only {np.unique(values)}"
+        return None
+
+
+TASKS: dict[str, dict[str, Task]] = {
+    "single_force": {
+        "stretch": Task("stretch", "stretch", "regression", {"stretch": _column("stretch")}),
+        "force": Task("force", "force", "regression", {"force": _physical_force()}),
+        "detect": Task("detect", "detect", "detection", {"contact": contact_mask}),
+        "localise": Task("localise", "localise", "localisation",
+                         {"x": _column("x"), "y": _column("y")},
+                         rows=contact_mask, row_note="contact samples"),
+    },
+    "two_force": {
+        "force1": Task("force1", "force", "regression", {"force1": _physical_force("1")}),
+        "force2": Task("force2", "force", "regression", {"force2": _physical_force("2")}),
+        "localise": Task("localise", "localise", "localisation",
+                         {name: _column(name) for name in ("x1", "y1", "x2", "y2")}),
+    },
+}
+
+
+def get_task(kind: str, name: str) -> Task:
+    if kind not in TASKS:
+        raise ValueError(f"unknown scene kind {kind!r}; known: {sorted(TASKS)}")
+    if name not in TASKS[kind]:
+        raise ValueError(f"a {kind} scene has no task {name!r}; known: {sorted(TASKS[kind])}")
+    return TASKS[kind][name]

@@ -1,0 +1,197 @@
+"""MLflow tracking: one run per task execution, grouped under a pipeline run.
+
+The store defaults to SQLite in the project (``mlflow.db``, artifacts in
+``mlruns/``; both ignored by git and DVC). Under ``dvc exp run --queue`` a
+stage runs in a temporary copy of the repository, so the project is found
+through ``DVC_ROOT`` (set by DVC to the parent repository) and every
+experiment logs to the same store. ``MLFLOW_TRACKING_URI`` overrides it all.
+
+A pipeline run — all the stages of one ``dvc repro`` or one ``dvc exp run``
+— is a parent run keyed by the DVC experiment name, or, outside ``dvc exp``,
+by the git commit and the params file; each stage finds its parent by that
+key (creating it on first use) and logs its own run under it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import os
+import subprocess
+import tempfile
+import warnings
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+os.environ.setdefault("MLFLOW_ENABLE_TELEMETRY", "false")
+os.environ.setdefault("MLFLOW_DISABLE_TELEMETRY", "true")
+
+import mlflow  # noqa: E402 - telemetry must be off before import
+import pandas as pd  # noqa: E402
+from mlflow.models import infer_signature  # noqa: E402
+from mlflow.tracking import MlflowClient  # noqa: E402
+
+from eskin.data.schema import CHANNELS  # noqa: E402
+
+EXPERIMENT = "eskin"
+PIPELINE_TAG = "eskin.pipeline"
+
+
+def project_root() -> Path:
+    return Path(os.environ.get("DVC_ROOT") or Path.cwd()).resolve()
+
+
+def tracking_uri() -> str:
+    return os.environ.get("MLFLOW_TRACKING_URI") or f"sqlite:///{project_root() / 'mlflow.db'}"
+
+
+def git_commit(root: Path | None = None) -> str:
+    """HEAD of the working copy (empty when not in git)."""
+    try:
+        out = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root or Path.cwd(),
+                             capture_output=True, text=True, check=True, timeout=10)
+    except (OSError, subprocess.SubprocessError):
+        return ""
+    return out.stdout.strip()
+
+
+def dvc_experiment() -> str:
+    return os.environ.get("DVC_EXP_NAME", "")
+
+
+def pipeline_key(params_text: str, commit: str) -> str:
+    """The same for every stage of one ``dvc repro`` / ``dvc exp run``."""
+    if dvc_experiment():
+        return f"exp:{dvc_experiment()}"
+    digest = hashlib.sha256(f"{commit}\n{params_text}".encode()).hexdigest()[:16]
+    return f"repro:{digest}"
+
+
+def _experiment_id(client: MlflowClient, name: str) -> str:
+    experiment = client.get_experiment_by_name(name)
+    if experiment is not None:
+        return experiment.experiment_id
+    location = None
+    if not os.environ.get("MLFLOW_TRACKING_URI"):
+        location = (project_root() / "mlruns").as_uri()
+    try:
+        return client.create_experiment(name, artifact_location=location)
+    except mlflow.exceptions.MlflowException:
+        # Another stage created it between our lookup and create.
+        return client.get_experiment_by_name(name).experiment_id
+
+
+def parent_run(client: MlflowClient, experiment_id: str, key: str,
+               tags: Mapping[str, str]) -> str:
+    """The id of the pipeline run keyed ``key``, created on first use."""
+    found = client.search_runs([experiment_id], filter_string=f"tags.`{PIPELINE_TAG}` = '{key}'"
+                               " and tags.`eskin.kind` = 'pipeline'", max_results=1)
+    if found:
+        return found[0].info.run_id
+    name = dvc_experiment() or f"repro {key.split(':', 1)[1]}"
+    run = client.create_run(experiment_id, run_name=name,
+                            tags={**tags, PIPELINE_TAG: key, "eskin.kind": "pipeline"})
+    client.set_terminated(run.info.run_id)
+    return run.info.run_id
+
+
+def flatten(mapping: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """``{"a": {"b": 1}}`` → ``{"a.b": 1}``: nested params and metrics as MLflow keys."""
+    out: dict[str, Any] = {}
+    for key, value in mapping.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping):
+            out.update(flatten(value, f"{name}."))
+        else:
+            out[name] = value
+    return out
+
+
+def log_task_run(*, scene: str, task: str, params: Mapping[str, Any], params_text: str,
+                 results: list, models: Mapping[str, Any], dataset: pd.DataFrame,
+                 dataset_digest: str, dataset_source: str,
+                 extra_tags: Mapping[str, str] | None = None) -> str:
+    """Log one task execution; returns its run id.
+
+    ``results`` are :class:`~eskin.evaluation.crossval.CVResult` per scheme;
+    ``models`` maps target name → fitted final model; ``dataset`` is the
+    frame that trained them (features and labels), logged as an MLflow input
+    whose digest is the DVC md5 of the dataset's Parquet file.
+    """
+    mlflow.set_tracking_uri(tracking_uri())
+    client = MlflowClient()
+    experiment_id = _experiment_id(client, EXPERIMENT)
+    commit = git_commit(project_root())
+    key = pipeline_key(params_text, commit)
+    tags = {"eskin.git_commit": commit, "mlflow.source.git.commit": commit,
+            "eskin.dvc_experiment": dvc_experiment(), "eskin.scene": scene}
+    parent = parent_run(client, experiment_id, key, tags)
+    run_tags = {**tags, **(extra_tags or {}), "eskin.task": task, "eskin.kind": "task",
+                "eskin.cv_schemes": ",".join(r.scheme for r in results),
+                "eskin.cv_scheme": results[0].scheme if results else "",
+                PIPELINE_TAG: key, "eskin.dataset_digest": dataset_digest}
+    with warnings.catch_warnings(), _quiet("mlflow.sklearn"):
+        # Both warnings are about choices made here on purpose: the dataset source is
+        # a plain local path, and integer node labels never carry missing values.
+        warnings.filterwarnings("ignore", message="The specified dataset source can be")
+        warnings.filterwarnings("ignore", message="Hint: Inferred schema contains integer")
+        return _log_run(experiment_id, parent, scene, task, run_tags, params, results, models,
+                         dataset, dataset_digest, dataset_source)
+
+
+class _quiet:
+    """Raise a logger's level for a block: MLflow's pickle advice, given on every save.
+
+    Models are pickled by design; they are loaded only from this project's own
+    DVC-tracked outputs or MLflow store.
+    """
+
+    def __init__(self, name: str) -> None:
+        self.logger = logging.getLogger(name)
+
+    def __enter__(self) -> None:
+        self.level = self.logger.level
+        self.logger.setLevel(logging.ERROR)
+
+    def __exit__(self, *exc: object) -> None:
+        self.logger.setLevel(self.level)
+
+
+def _log_run(experiment_id, parent, scene, task, run_tags, params, results, models, dataset,
+             dataset_digest, dataset_source) -> str:
+    with mlflow.start_run(experiment_id=experiment_id, run_name=f"{scene}/{task}",
+                          parent_run_id=parent, tags=run_tags) as run:
+        mlflow.log_params({k: str(v) for k, v in flatten(params).items()})
+        mlflow.log_input(mlflow.data.from_pandas(dataset, source=dataset_source,
+                                                 targets=None, name=scene,
+                                                 digest=dataset_digest),
+                         context="training")
+        for result in results:
+            for target, folds in result.per_fold.items():
+                for fold, scores in enumerate(folds):
+                    mlflow.log_metrics({f"{result.scheme}.{target}.{k}": v
+                                        for k, v in scores.items()}, step=fold)
+            mlflow.log_metrics(flatten({result.scheme: result.summary}))
+            mlflow.log_metrics({f"{result.scheme}.fit_seconds": result.fit_seconds,
+                                f"{result.scheme}.predict_seconds": result.predict_seconds})
+        with tempfile.TemporaryDirectory() as scratch:
+            for result in results:
+                path = Path(scratch) / f"oof_{result.scheme}.parquet"
+                result.predictions.to_parquet(path, index=False)
+                mlflow.log_artifact(str(path), artifact_path="predictions")
+                if result.confusion:
+                    mlflow.log_dict(result.confusion, f"confusion/{result.scheme}.json")
+        example = dataset[CHANNELS].head(5)
+        for target, model in models.items():
+            mlflow.sklearn.log_model(
+                model, name=f"{task}_{target}", input_example=example,
+                signature=infer_signature(example, model.predict(example)),
+                pip_requirements=_requirements(), serialization_format="cloudpickle")
+        return run.info.run_id
+
+
+def _requirements() -> list[str]:
+    """Pinned from the running environment: no dependency inference at log time."""
+    from importlib.metadata import version
+    return [f"{name}=={version(name)}" for name in ("scikit-learn", "numpy", "scipy", "pandas")]

@@ -1,0 +1,13 @@
+"""DVC stage: features of a scene → one task's metrics, predictions, models and MLflow run."""
+
+import sys
+
+from eskin import steps
+from eskin.cli import FEATURES_DIR, run_friendly, task_outputs
+from eskin.config import DEFAULT_PARAMS, load_params
+
+if __name__ == "__main__":
+    scene, task = sys.argv[1], sys.argv[2]
+    sys.exit(run_friendly(lambda: print(steps.train(
+        load_params(), scene, task, FEATURES_DIR, params_text=DEFAULT_PARAMS.read_text(),
+        **task_outputs(scene, task)))))

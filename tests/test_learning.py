@@ -1,0 +1,220 @@
+"""Single- and two-force learning: folds, tasks, models, metrics, determinism."""
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+from conftest import small_scenes
+from sklearn.utils.estimator_checks import check_estimator
+
+from eskin import steps
+from eskin.data.schema import CHANNELS, md5_file, node_id
+from eskin.evaluation.crossval import cross_validate
+from eskin.evaluation.cv import assign_folds, strata
+from eskin.features import BaselineDelta, fit_featurizer
+from eskin.models import REGISTRY, SubsampledGaussianProcess, build_model, model_settings
+from eskin.tasks import TASKS, get_task
+
+
+@pytest.fixture(scope="module")
+def project(tmp_path_factory, repo_params):
+    """Small scenes acquired over the pty, ingested and featurized, in a scratch project."""
+    params = small_scenes(repo_params)
+    params["cv"]["folds"] = 5  # training tests; the fold tests ask for 10 themselves
+    params["train"]["single_force"]["force"]["paper"]["subsample"] = 300
+    for task in ("force1", "force2"):
+        params["train"]["two_force"][task]["paper"]["subsample"] = 300
+    root = tmp_path_factory.mktemp("project")
+    for scene in ("single_force", "two_force"):
+        steps.acquire(params, scene, root / "raw" / scene, progress=False)
+        steps.ingest(params, scene, root / "raw" / scene, root / "processed")
+        steps.featurize(params, scene, root / "processed", root / "features", root / "models")
+    return params, root
+
+
+def features(project, scene="single_force"):
+    return pd.read_parquet(project[1] / "features" / f"{scene}.parquet")
+
+
+def train(project, scene, task, out, params=None, **kwargs):
+    return steps.train(params or project[0], scene, task, project[1] / "features",
+                       metrics_path=out / "metrics.json", predictions_path=out / "oof.parquet",
+                       model_path=out / "model.joblib", track=False, **kwargs)
+
+
+# ------------------------------------------------------------------ folds
+
+def test_every_stratified_fold_holds_every_node(project):
+    frame = features(project)
+    folds = assign_folds(frame, "single_force", "stratified", 10, seed=42)
+    nodes = strata(frame, "single_force")
+    assert set(folds) == set(range(10))
+    for fold in range(10):
+        assert set(nodes[folds == fold]) == set(range(101)), f"fold {fold} misses a node"
+
+
+def test_grouped_folds_never_put_a_trial_on_both_sides(project):
+    frame = features(project)
+    folds = assign_folds(frame, "single_force", "grouped", 10, seed=42)
+    folds_per_trial = pd.Series(folds).groupby(frame["trial"].to_numpy()).nunique()
+    assert folds_per_trial.eq(1).all()
+    assert set(folds) == set(range(10))
+
+
+def test_stratified_folds_split_trials_which_is_why_grouped_exists(project):
+    frame = features(project)
+    folds = assign_folds(frame, "single_force", "stratified", 10, seed=42)
+    assert pd.Series(folds).groupby(frame["trial"].to_numpy()).nunique().gt(1).any()
+
+
+def test_folds_follow_the_seed(project):
+    frame = features(project)
+    a = assign_folds(frame, "single_force", "stratified", 10, seed=1)
+    assert np.array_equal(a, assign_folds(frame, "single_force", "stratified", 10, seed=1))
+    assert not np.array_equal(a, assign_folds(frame, "single_force", "stratified", 10, seed=2))
+
+
+def test_two_force_strata_are_the_pair_of_nodes(project):
+    frame = features(project, "two_force")
+    pairs = strata(frame, "two_force")
+    assert len(np.unique(pairs)) == 36
+    folds = assign_folds(frame, "two_force", "stratified", 10, seed=0)
+    assert set(pairs[folds == 0]) == set(np.unique(pairs))
+
+
+def test_grouped_cv_with_too_few_trials_is_a_clear_error(project):
+    frame = features(project).iloc[:15]  # three trials
+    with pytest.raises(ValueError, match="needs at least 10 trials; this dataset has 3"):
+        assign_folds(frame, "single_force", "grouped", 10, seed=0)
+
+
+# ------------------------------------------------------------------ tasks and labels
+
+def test_localise_uses_contact_samples_only_and_force_is_physical(project):
+    frame = features(project)
+    localise = get_task("single_force", "localise")
+    rows = localise.rows(frame)
+    assert (frame.loc[rows, "x"] > 0).all() and (frame.loc[rows, "force"] > 0).all()
+    force = get_task("single_force", "force").target_values(frame)["force"]
+    node_zero = frame["x"].to_numpy() == 0
+    assert (frame.loc[node_zero, "force"] > 0).any()  # recorded at every force level...
+    assert (force[node_zero] == 0).all()               # ...but no weight was on the skin
+
+
+def test_a_single_stretch_level_skips_stretch_with_its_reason(project, tmp_path):
+    params, root = project
+    frame = features(project)
+    one_level = root / "one_level"
+    one_level.mkdir(exist_ok=True)
+    from eskin.data.schema import read_metadata, write_dataset
+    meta = read_metadata(root / "features" / "single_force.parquet")
+    write_dataset(frame[frame["stretch"] == 1.0], "single_force",
+                  one_level / "single_force.parquet", meta)
+    summary = steps.train(params, "single_force", "stretch", one_level,
+                          metrics_path=tmp_path / "m.json", predictions_path=tmp_path / "p.parquet",
+                          model_path=tmp_path / "model.joblib", track=False)
+    assert "skipped" in summary
+    metrics = json.loads((tmp_path / "m.json").read_text())
+    assert metrics["status"] == "skipped"
+    assert "two or more stretch levels" in metrics["reason"]
+
+
+def test_every_task_of_both_scenes_is_defined_with_a_registered_role():
+    assert set(TASKS["single_force"]) == {"stretch", "force", "detect", "localise"}
+    assert set(TASKS["two_force"]) == {"force1", "force2", "localise"}
+    for tasks in TASKS.values():
+        for task in tasks.values():
+            assert "paper" in REGISTRY[task.role]
+
+
+# ------------------------------------------------------------------ registry and estimators
+
+def test_an_unknown_model_names_the_known_ones():
+    with pytest.raises(ValueError, match=r"no force model named 'gp_magic'; known: \["):
+        build_model("force", "gp_magic")
+    with pytest.raises(ValueError, match="bad hyperparameters for force model 'paper'"):
+        build_model("force", "paper", {"subsampel": 10})
+
+
+def test_model_hyperparameters_are_the_ones_beside_the_chosen_model():
+    name, hyper = model_settings({"model": "random_forest", "paper": {"subsample": 5},
+                                  "random_forest": {"n_estimators": 7}})
+    assert (name, hyper) == ("random_forest", {"n_estimators": 7})
+    assert build_model("force", name, hyper).n_estimators == 7
+
+
+@pytest.mark.parametrize("estimator", [SubsampledGaussianProcess(subsample=30), BaselineDelta()],
+                         ids=lambda e: type(e).__name__)
+def test_custom_estimators_follow_the_scikit_learn_contract(estimator):
+    check_estimator(estimator)
+
+
+def test_subsampled_gp_keeps_every_force_level(project):
+    frame = features(project)
+    y = get_task("single_force", "force").target_values(frame)["force"]
+    gp = SubsampledGaussianProcess(subsample=60, random_state=0).fit(frame[CHANNELS], y)
+    assert len(gp.subsample_index_) == 60
+    assert set(y[gp.subsample_index_]) == set(y)
+
+
+def test_baseline_features_are_zero_mean_on_rest_samples(project):
+    frame = pd.read_parquet(project[1] / "processed" / "single_force.parquet")
+    featurizer = fit_featurizer("baseline", frame, "single_force")
+    rest = (frame["stretch"] == 1.0) & ((frame["force"] == 0) | (frame["x"] == 0))
+    delta = featurizer.transform(frame.loc[rest, CHANNELS])
+    assert np.allclose(delta.mean(axis=0), 0.0, atol=1e-9)
+
+
+# ------------------------------------------------------------------ cross-validation and metrics
+
+def test_out_of_fold_predictions_cover_each_row_once(project):
+    frame = features(project)
+    task = get_task("single_force", "localise")
+    folds = assign_folds(frame, "single_force", "stratified", 10, seed=42)
+    result = cross_validate(task, frame, folds, build_model("localise", "paper",
+                                                            {"n_estimators": 10}), "stratified")
+    assert len(result.predictions) == task.rows(frame).sum()
+    assert result.predictions[["x_pred", "y_pred"]].notna().all().all()
+    assert len(result.per_fold["x"]) == 10
+    confusion = np.array(result.confusion["x"]["counts"])
+    assert confusion.sum() == len(result.predictions)
+    accuracy = (result.predictions["x_pred"] == result.predictions["x_true"]).mean()
+    assert result.summary["x"]["accuracy"] == pytest.approx(accuracy, abs=0.02)
+
+
+def test_same_params_and_seed_give_identical_metrics_files(project, tmp_path):
+    for task in ("force", "detect", "localise"):
+        train(project, "single_force", task, tmp_path / "a" / task)
+        train(project, "single_force", task, tmp_path / "b" / task)
+        first = (tmp_path / "a" / task / "metrics.json").read_bytes()
+        assert first == (tmp_path / "b" / task / "metrics.json").read_bytes(), task
+        assert json.loads(first)["status"] == "trained"
+
+
+def test_metrics_carry_every_score_under_both_schemes(project, tmp_path):
+    train(project, "single_force", "localise", tmp_path)
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    for scheme in ("stratified", "grouped"):
+        for axis in ("x", "y"):
+            scores = metrics[scheme][axis]
+            assert {"accuracy", "balanced_accuracy", "f1_macro", "within_one",
+                    "accuracy_std"} <= set(scores)
+            assert 0 <= scores["accuracy"] <= scores["within_one"] <= 1
+        assert len(metrics["confusion"][scheme]["x"]["counts"]) == 10  # x = 1..10
+    assert metrics["dataset_md5"] == md5_file(project[1] / "processed" / "single_force.parquet")
+    oof = pd.read_parquet(tmp_path / "oof.parquet")
+    assert set(oof["scheme"]) == {"stratified", "grouped"}
+
+
+def test_two_force_tasks_train(project, tmp_path):
+    summary = train(project, "two_force", "localise", tmp_path / "loc")
+    metrics = json.loads((tmp_path / "loc" / "metrics.json").read_text())
+    assert set(metrics["stratified"]) == {"x1", "y1", "x2", "y2"}, summary
+    train(project, "two_force", "force2", tmp_path / "f2")
+    metrics = json.loads((tmp_path / "f2" / "metrics.json").read_text())
+    assert np.isfinite(metrics["grouped"]["force2"]["r2"])
+
+
+def test_node_ids_are_row_major():
+    assert node_id(np.array([0, 1, 1, 10]), np.array([0, 1, 10, 10])).tolist() == [0, 1, 10, 100]
