@@ -101,7 +101,35 @@ def build_parser() -> argparse.ArgumentParser:
             sub.add_argument("--port", help="override acquire.port (serial source)")
             sub.add_argument("--no-progress", action="store_true")
         sub.set_defaults(run=_pipeline_step)
+
+    featurize = commands.add_parser("featurize", help="build data/features/<scene>.parquet "
+                                    "and the fitted transform (featurize.method)")
+    featurize.add_argument("scene")
+    featurize.add_argument("--params", type=Path, default=Path("params.yaml"))
+    featurize.set_defaults(run=_learning_step)
+    train = commands.add_parser("train", help="cross-validate, refit and log one task "
+                                "(train.<scene>.<task> in params.yaml)")
+    train.add_argument("scene")
+    train.add_argument("task", help="single_force: stretch, force, detect, localise; "
+                       "two_force: force1, force2, localise")
+    train.add_argument("--params", type=Path, default=Path("params.yaml"))
+    train.add_argument("--no-track", action="store_true", help="do not log to MLflow")
+    train.set_defaults(run=_learning_step)
     return parser
+
+
+def _learning_step(args: argparse.Namespace) -> int:
+    from eskin import learn
+    from eskin.config import load_params
+
+    params = load_params(args.params)
+    if args.command == "featurize":
+        print(learn.featurize(params, args.scene, PROCESSED_DIR, FEATURES_DIR, MODELS_DIR))
+    else:
+        print(learn.train(params, args.scene, args.task, FEATURES_DIR,
+                          params_text=Path(args.params).read_text(), track=not args.no_track,
+                          **task_outputs(args.scene, args.task)))
+    return 0
 
 
 def _pipeline_step(args: argparse.Namespace) -> int:

@@ -108,6 +108,18 @@ def flatten(mapping: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
     return out
 
 
+def _pipeline(scene: str, params_text: str) -> tuple[str, str, str, dict[str, str]]:
+    """(experiment id, parent run id, pipeline key, common tags) for a stage's run."""
+    mlflow.set_tracking_uri(tracking_uri())
+    client = MlflowClient()
+    experiment_id = _experiment_id(client, EXPERIMENT)
+    commit = git_commit(project_root())
+    key = pipeline_key(params_text, commit)
+    tags = {"eskin.git_commit": commit, "mlflow.source.git.commit": commit,
+            "eskin.dvc_experiment": dvc_experiment(), "eskin.scene": scene}
+    return experiment_id, parent_run(client, experiment_id, key, tags), key, tags
+
+
 def log_task_run(*, scene: str, task: str, params: Mapping[str, Any], params_text: str,
                  results: list, models: Mapping[str, Any], dataset: pd.DataFrame,
                  dataset_digest: str, dataset_source: str,
@@ -119,14 +131,7 @@ def log_task_run(*, scene: str, task: str, params: Mapping[str, Any], params_tex
     frame that trained them (features and labels), logged as an MLflow input
     whose digest is the DVC md5 of the dataset's Parquet file.
     """
-    mlflow.set_tracking_uri(tracking_uri())
-    client = MlflowClient()
-    experiment_id = _experiment_id(client, EXPERIMENT)
-    commit = git_commit(project_root())
-    key = pipeline_key(params_text, commit)
-    tags = {"eskin.git_commit": commit, "mlflow.source.git.commit": commit,
-            "eskin.dvc_experiment": dvc_experiment(), "eskin.scene": scene}
-    parent = parent_run(client, experiment_id, key, tags)
+    experiment_id, parent, key, tags = _pipeline(scene, params_text)
     run_tags = {**tags, **(extra_tags or {}), "eskin.task": task, "eskin.kind": "task",
                 "eskin.cv_schemes": ",".join(r.scheme for r in results),
                 "eskin.cv_scheme": results[0].scheme if results else "",
@@ -195,3 +200,16 @@ def _requirements() -> list[str]:
     """Pinned from the running environment: no dependency inference at log time."""
     from importlib.metadata import version
     return [f"{name}=={version(name)}" for name in ("scikit-learn", "numpy", "scipy", "pandas")]
+
+
+def log_scores_run(*, scene: str, task: str, scores: Mapping[str, Any], params_text: str,
+                   dataset_digest: str) -> str:
+    """Log a run that only scores other runs' predictions (e.g. two-force pairs)."""
+    experiment_id, parent, key, tags = _pipeline(scene, params_text)
+    with mlflow.start_run(experiment_id=experiment_id, run_name=f"{scene}/{task}",
+                          parent_run_id=parent,
+                          tags={**tags, "eskin.task": task, "eskin.kind": "scores",
+                                PIPELINE_TAG: key, "eskin.dataset_digest": dataset_digest}) as run:
+        mlflow.log_metrics({k: v for k, v in flatten(scores).items()
+                            if isinstance(v, (int, float))})
+        return run.info.run_id

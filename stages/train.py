@@ -2,12 +2,12 @@
 
 import sys
 
-from eskin import steps
+from eskin import learn
 from eskin.cli import FEATURES_DIR, run_friendly, task_outputs
 from eskin.config import DEFAULT_PARAMS, load_params
 
 if __name__ == "__main__":
     scene, task = sys.argv[1], sys.argv[2]
-    sys.exit(run_friendly(lambda: print(steps.train(
+    sys.exit(run_friendly(lambda: print(learn.train(
         load_params(), scene, task, FEATURES_DIR, params_text=DEFAULT_PARAMS.read_text(),
         **task_outputs(scene, task)))))

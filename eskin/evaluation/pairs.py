@@ -1,0 +1,112 @@
+"""Two contacts scored as a set: match predicted to true contacts, then score.
+
+Which contact is "first" is a labelling convention (README: row-major order),
+so a model that finds both contacts but names them in the other order has not
+failed. Per sample, predicted contacts are assigned to true ones by
+``scipy.optimize.linear_sum_assignment`` on a cost that counts a wrong node as
+1 and breaks ties by distance (1e-3 per node pitch), so that the matching
+first minimises the number of wrong contacts, then how far off they are.
+
+Scores per sample: wrong contacts (0, 1 or 2 — a wrong contact costs exactly
+one), pair right (both contacts right as a set), and the force error of each
+contact against the force predicted for the contact matched to it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+from scipy.optimize import linear_sum_assignment
+
+from eskin.evaluation.metrics import regression, summarise
+
+TIE_BREAK = 1e-3
+CONTACTS = (1, 2)
+
+
+def match_contacts(true_nodes: np.ndarray, predicted_nodes: np.ndarray) -> np.ndarray:
+    """For each sample, which predicted contact goes with each true contact.
+
+    ``true_nodes`` and ``predicted_nodes`` have shape (n, k, 2): n samples, k
+    contacts, (x, y). Returns (n, k) indices into the predicted contacts.
+    """
+    true_nodes = np.asarray(true_nodes, dtype=float)
+    predicted_nodes = np.asarray(predicted_nodes, dtype=float)
+    if true_nodes.shape != predicted_nodes.shape or true_nodes.ndim != 3:
+        raise ValueError(f"expected two (n, k, 2) arrays, got {true_nodes.shape} and "
+                         f"{predicted_nodes.shape}")
+    difference = true_nodes[:, :, None, :] - predicted_nodes[:, None, :, :]
+    wrong = np.any(difference != 0, axis=-1).astype(float)
+    cost = wrong + TIE_BREAK * np.linalg.norm(difference, axis=-1)
+    assignment = np.empty(true_nodes.shape[:2], dtype=np.int64)
+    for i, sample_cost in enumerate(cost):
+        rows, cols = linear_sum_assignment(sample_cost)
+        assignment[i, rows] = cols
+    return assignment
+
+
+def _stack(frame: pd.DataFrame, pattern: str) -> np.ndarray:
+    return np.stack([frame[[pattern.format(axis=a, i=i) for a in ("x", "y")]].to_numpy()
+                     for i in CONTACTS], axis=1)
+
+
+def pair_outcomes(frame: pd.DataFrame) -> pd.DataFrame:
+    """Per sample: matched wrong contacts, ordered wrong contacts, matched forces.
+
+    ``frame`` holds ``x1_true … y2_true``, ``x1_pred … y2_pred``, ``force1_true``,
+    ``force2_true``, ``force1_pred``, ``force2_pred``.
+    """
+    true_nodes = _stack(frame, "{axis}{i}_true")
+    predicted_nodes = _stack(frame, "{axis}{i}_pred")
+    assignment = match_contacts(true_nodes, predicted_nodes)
+    matched_nodes = np.take_along_axis(predicted_nodes, assignment[:, :, None], axis=1)
+    wrong_matched = np.any(matched_nodes != true_nodes, axis=-1).sum(axis=1)
+    wrong_ordered = np.any(predicted_nodes != true_nodes, axis=-1).sum(axis=1)
+    forces_true = frame[[f"force{i}_true" for i in CONTACTS]].to_numpy(dtype=float)
+    forces_pred = frame[[f"force{i}_pred" for i in CONTACTS]].to_numpy(dtype=float)
+    matched_forces = np.take_along_axis(forces_pred, assignment, axis=1)
+    return pd.DataFrame({
+        "wrong_contacts": wrong_matched, "wrong_contacts_ordered": wrong_ordered,
+        "swapped": (assignment[:, 0] == 1),
+        **{f"force{i}_true": forces_true[:, k] for k, i in enumerate(CONTACTS)},
+        **{f"force{i}_matched": matched_forces[:, k] for k, i in enumerate(CONTACTS)}},
+        index=frame.index)
+
+
+def pair_scores(outcomes: pd.DataFrame) -> dict[str, float]:
+    """Pair accuracy (set and ordered), per-contact accuracy, matched force error."""
+    wrong = outcomes["wrong_contacts"].to_numpy()
+    ordered = outcomes["wrong_contacts_ordered"].to_numpy()
+    forces_true = outcomes[[f"force{i}_true" for i in CONTACTS]].to_numpy().ravel()
+    forces_matched = outcomes[[f"force{i}_matched" for i in CONTACTS]].to_numpy().ravel()
+    force = regression(forces_true, forces_matched)
+    return {"pair_accuracy": float(np.mean(wrong == 0)),
+            "pair_accuracy_ordered": float(np.mean(ordered == 0)),
+            "contact_accuracy": float(1 - np.mean(wrong) / len(CONTACTS)),
+            "contact_accuracy_ordered": float(1 - np.mean(ordered) / len(CONTACTS)),
+            "swapped_share": float(outcomes["swapped"].mean()),
+            **{f"force_{name}": value for name, value in force.items()}}
+
+
+def score_pairs(localise: pd.DataFrame, force1: pd.DataFrame,
+                force2: pd.DataFrame) -> dict[str, dict[str, float]]:
+    """Per CV scheme, mean and std over folds of :func:`pair_scores`.
+
+    The three frames are the out-of-fold predictions of the two-force tasks
+    (one row per sample and scheme, keyed by trial and sample).
+    """
+    key = ["scheme", "trial", "sample"]
+    joined = localise.merge(force1[key + ["force1_pred", "force1_true"]], on=key,
+                            validate="one_to_one")
+    joined = joined.merge(force2[key + ["force2_pred", "force2_true"]], on=key,
+                          validate="one_to_one")
+    if len(joined) != len(localise):
+        raise ValueError(f"the two-force predictions do not cover the same samples: "
+                         f"{len(localise)} localised, {len(joined)} with both forces")
+    out = {}
+    for scheme, rows in joined.groupby("scheme", sort=False):
+        outcomes = pair_outcomes(rows)
+        per_fold = [pair_scores(outcomes[rows["fold"].to_numpy() == f])
+                    for f in sorted(rows["fold"].unique())]
+        out[str(scheme)] = summarise(per_fold)
+    return out
