@@ -9,9 +9,17 @@ export DVC_NO_ANALYTICS := 1
 export MLFLOW_ENABLE_TELEMETRY := false
 export DO_NOT_TRACK := 1
 
-.PHONY: setup repro test lint clean
+.PHONY: setup browser repro test lint clean
 
 setup: $(VENV)/.installed
+
+# The report page is tested in headless Chromium: Debian's, installed where missing.
+SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
+browser:
+	@command -v chromium >/dev/null || { \
+	  echo "installing Debian's chromium for the report test"; \
+	  $(SUDO) apt-get update -qq && \
+	  $(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends chromium; }
 
 # Rebuilt whenever the package list or the pinned versions change.
 $(VENV)/.installed: pyproject.toml constraints.txt
@@ -24,7 +32,7 @@ repro: setup
 	dvc repro
 	@dvc status --quiet && echo "pipeline up to date"
 
-test: setup
+test: setup browser
 	pytest -q
 
 lint: setup

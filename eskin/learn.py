@@ -46,7 +46,7 @@ def featurize(params: dict[str, Any], scene: str, processed_dir: Path, features_
 
 
 def train(params: dict[str, Any], scene: str, task_name: str, features_dir: Path, *,
-          metrics_path: Path, predictions_path: Path, model_path: Path,
+          metrics_path: Path, predictions_path: Path, model_path: Path, run_path: Path,
           params_text: str = "", track: bool = True) -> str:
     """Cross-validate one task under each CV scheme, refit, save, and log to MLflow."""
     source = Path(features_dir) / f"{scene}.parquet"
@@ -61,13 +61,15 @@ def train(params: dict[str, Any], scene: str, task_name: str, features_dir: Path
     estimator = build_model(task.role, model_name, hyper)
     cv = section(params, "cv")
     header = {"scene": scene, "task": task_name, "model": model_name,
-              "dataset_md5": meta["dataset"]["md5"]}
+              "dataset_md5": meta["dataset"]["md5"], "dataset_rows": meta["dataset"]["rows"],
+              "source": meta.get("source", {}).get("kind", "unknown")}
 
     reason = task.unsupported(frame)
     if reason is not None:
         write_json({**header, "status": "skipped", "reason": reason}, metrics_path)
         save_predictions(pd.DataFrame(), predictions_path)
         save_models({"skipped": reason}, model_path)
+        write_json({"run_id": None}, run_path)
         return f"{scene}/{task_name}: skipped — {reason}"
 
     results = []
@@ -85,7 +87,7 @@ def train(params: dict[str, Any], scene: str, task_name: str, features_dir: Path
     save_predictions(pd.concat([r.predictions.assign(scheme=r.scheme) for r in results],
                                ignore_index=True), predictions_path)
     save_models(models, model_path)
-    run_note = ""
+    run_note, run_id = "", None
     if track:
         from eskin import tracking  # MLflow takes seconds to import; only training needs it
 
@@ -95,6 +97,7 @@ def train(params: dict[str, Any], scene: str, task_name: str, features_dir: Path
             dataset=frame.drop(columns=["session", "trial", "seq", "t_ms"]),
             dataset_digest=meta["dataset"]["md5"], dataset_source=meta["dataset"]["path"])
         run_note = f"; MLflow run {run_id}"
+    write_json({"run_id": run_id}, run_path)
     headline = ", ".join(f"{r.scheme} {_headline(r.summary)}" for r in results)
     notes = "".join(f"\n  note ({r.scheme}, {n} of {len(r.per_fold[next(iter(r.per_fold))])} "
                     f"folds): {text}" for r in results for text, n in sorted(r.notes.items()))
@@ -127,7 +130,7 @@ def save_models(models: dict, path: Path) -> None:
     joblib.dump(models, path)
 
 
-def score_pairs(scene: str, predictions_dir: Path, metrics_path: Path, *,
+def score_pairs(scene: str, predictions_dir: Path, metrics_path: Path, run_path: Path, *,
                 params_text: str = "", track: bool = True) -> str:
     """Score a two-force scene's contacts as sets (order-free), from its tasks' predictions."""
     from eskin.evaluation.pairs import score_pairs as score
@@ -144,11 +147,12 @@ def score_pairs(scene: str, predictions_dir: Path, metrics_path: Path, *,
         skipped = [task for task, frame in frames.items() if frame.empty]
         write_json({**metrics_doc, "status": "skipped",
                     "reason": f"no predictions from {', '.join(skipped)} (skipped)"}, metrics_path)
+        write_json({"run_id": None}, run_path)
         return f"{scene}/pairs: skipped — {', '.join(skipped)} skipped"
     scores = score(frames["localise"], frames["force1"], frames["force2"])
     metrics_doc.update(status="scored", **scores)
     write_json(metrics_doc, metrics_path)
-    run_note = ""
+    run_note, run_id = "", None
     if track:
         from eskin import tracking
 
@@ -157,6 +161,7 @@ def score_pairs(scene: str, predictions_dir: Path, metrics_path: Path, *,
                                          params_text=params_text,
                                          dataset_digest=digest.get("dataset_md5", ""))
         run_note = f"; MLflow run {run_id}"
+    write_json({"run_id": run_id}, run_path)
     parts = [f"{scheme} pair {s['pair_accuracy']:.3f} (ordered {s['pair_accuracy_ordered']:.3f}), "
              f"force R² {s['force_r2']:.3f}" for scheme, s in scores.items()]
     return f"{scene}/pairs: {'; '.join(parts)}{run_note}"

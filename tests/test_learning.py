@@ -42,7 +42,8 @@ def features(project, scene="single_force"):
 def train(project, scene, task, out, params=None, **kwargs):
     return learn.train(params or project[0], scene, task, project[1] / "features",
                        metrics_path=out / "metrics.json", predictions_path=out / "oof.parquet",
-                       model_path=out / "model.joblib", track=False, **kwargs)
+                       model_path=out / "model.joblib", run_path=out / "run.json", track=False,
+                       **kwargs)
 
 
 # ------------------------------------------------------------------ folds
@@ -115,7 +116,8 @@ def test_a_single_stretch_level_skips_stretch_with_its_reason(project, tmp_path)
                   one_level / "single_force.parquet", meta)
     summary = learn.train(params, "single_force", "stretch", one_level,
                           metrics_path=tmp_path / "m.json", predictions_path=tmp_path / "p.parquet",
-                          model_path=tmp_path / "model.joblib", track=False)
+                          model_path=tmp_path / "model.joblib", run_path=tmp_path / "run.json",
+                          track=False)
     assert "skipped" in summary
     metrics = json.loads((tmp_path / "m.json").read_text())
     assert metrics["status"] == "skipped"
@@ -207,6 +209,15 @@ def test_metrics_carry_every_score_under_both_schemes(project, tmp_path):
     assert metrics["dataset_md5"] == md5_file(project[1] / "processed" / "single_force.parquet")
     oof = pd.read_parquet(tmp_path / "oof.parquet")
     assert set(oof["scheme"]) == {"stratified", "grouped"}
+
+
+def test_detection_keeps_a_score_per_sample_for_roc_curves(project, tmp_path):
+    train(project, "single_force", "detect", tmp_path)
+    oof = pd.read_parquet(tmp_path / "oof.parquet")
+    assert oof["contact_score"].notna().all()
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert 0.5 < metrics["stratified"]["contact"]["roc_auc"] <= 1
+    assert metrics["source"] == "simulated" and metrics["dataset_rows"] == len(oof) // 2
 
 
 def test_two_force_tasks_train(project, tmp_path):

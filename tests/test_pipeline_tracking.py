@@ -17,7 +17,8 @@ from conftest import ROOT, small_scenes, write_params
 
 from eskin.data.schema import md5_file
 
-COPIED = ["eskin", "stages", "dvc.yaml", ".dvcignore", ".gitignore", "pyproject.toml"]
+COPIED = ["eskin", "stages", "dvc.yaml", ".dvcignore", ".gitignore", "pyproject.toml",
+          "README.md"]
 
 
 def run(args, cwd, env):
@@ -37,6 +38,7 @@ def scratch(tmp_path_factory, repo_params):
             shutil.copy2(source, root / name)
     params = small_scenes(repo_params)
     params["cv"].update(n_jobs=1, folds=5)
+    params["report"].update(dpi=60, page_dpi=50)
     for scene, task in (("single_force", "force"), ("two_force", "force1"),
                         ("two_force", "force2")):
         params["train"][scene][task]["paper"]["subsample"] = 200
@@ -109,6 +111,15 @@ def test_a_second_force_model_is_a_second_mlflow_run_on_the_same_dataset(scratch
     lock = yaml.safe_load((root / "dvc.lock").read_text())
     outs = lock["stages"]["ingest@single_force"]["outs"]
     assert digest in {o["md5"] for o in outs}
+
+
+def test_the_report_stage_writes_the_readme_table_and_dvc_plots_render(scratch):
+    root, env = scratch
+    readme = (root / "README.md").read_text()
+    assert "| stretch R² (linear regression) | 0." in readme
+    assert (root / "reports" / "index.html").stat().st_size > 10_000
+    run(["dvc", "plots", "show", "-o", str(root / "dvc_plots")], root, env)
+    assert (root / "dvc_plots" / "index.html").exists()
 
 
 def test_a_repro_groups_its_task_runs_under_one_pipeline_run(scratch):

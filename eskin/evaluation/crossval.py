@@ -35,9 +35,19 @@ class CVResult:
     notes: dict[str, int] = field(default_factory=dict)  # fit remark → folds that made it
 
 
+def decision_scores(model: BaseEstimator, X: np.ndarray) -> np.ndarray | None:
+    """A binary classifier's continuous score for the positive class (for ROC curves)."""
+    if hasattr(model, "decision_function"):
+        return np.asarray(model.decision_function(X), dtype=float)
+    if hasattr(model, "predict_proba"):
+        return np.asarray(model.predict_proba(X), dtype=float)[:, 1]
+    return None
+
+
 def _fit_predict_fold(estimator: BaseEstimator, X: np.ndarray, targets: dict[str, np.ndarray],
-                      train: np.ndarray, test: np.ndarray) -> tuple[dict, float, float, set]:
-    predictions, fit_s, predict_s, notes = {}, 0.0, 0.0, set()
+                      train: np.ndarray, test: np.ndarray,
+                      binary: bool) -> tuple[dict, float, float, set, dict]:
+    predictions, fit_s, predict_s, notes, scores = {}, 0.0, 0.0, set(), {}
     for name, y in targets.items():
         model = clone(estimator)
         start = time.perf_counter()
@@ -46,8 +56,10 @@ def _fit_predict_fold(estimator: BaseEstimator, X: np.ndarray, targets: dict[str
         start = time.perf_counter()
         predictions[name] = np.asarray(model.predict(X[test]))
         predict_s += time.perf_counter() - start
+        if binary:
+            scores[name] = decision_scores(model, X[test])
         notes.update(f"{name}: {note}" for note in getattr(model, "convergence_warnings_", []))
-    return predictions, fit_s, predict_s, notes
+    return predictions, fit_s, predict_s, notes, scores
 
 
 def cross_validate(task: Task, frame: pd.DataFrame, folds: np.ndarray, estimator: BaseEstimator,
@@ -60,20 +72,25 @@ def cross_validate(task: Task, frame: pd.DataFrame, folds: np.ndarray, estimator
     targets = task.target_values(data)
     fold_ids = [f for f in np.unique(fold_of) if f >= 0]
     splits = [(np.flatnonzero(fold_of != f), np.flatnonzero(fold_of == f)) for f in fold_ids]
+    binary = task.scorer == "detection"
     outcomes = Parallel(n_jobs=n_jobs)(
-        delayed(_fit_predict_fold)(estimator, X, targets, train, test) for train, test in splits)
+        delayed(_fit_predict_fold)(estimator, X, targets, train, test, binary)
+        for train, test in splits)
 
     score: Callable = metrics.SCORERS[task.scorer]
     predictions = data.drop(columns=CHANNELS).assign(fold=fold_of)
     per_fold: dict[str, list[dict[str, float]]] = {name: [] for name in targets}
-    for (_, test), (predicted, *_) in zip(splits, outcomes, strict=True):
+    for (_, test), (predicted, _, _, _, scores) in zip(splits, outcomes, strict=True):
         for name, values in predicted.items():
-            column = f"{name}_pred"
-            if column not in predictions:
-                predictions[column] = pd.Series(pd.NA, index=predictions.index,
-                                                dtype=_dtype(values))
-            predictions.loc[test, column] = values
-            per_fold[name].append(score(targets[name][test], values))
+            columns = {f"{name}_pred": values}
+            if scores.get(name) is not None:
+                columns[f"{name}_score"] = scores[name]
+            for column, column_values in columns.items():
+                if column not in predictions:
+                    predictions[column] = pd.Series(pd.NA, index=predictions.index,
+                                                    dtype=_dtype(column_values))
+                predictions.loc[test, column] = column_values
+            per_fold[name].append(score(targets[name][test], values, scores.get(name)))
     for name, values in targets.items():
         predictions[f"{name}_true"] = values
     confusion = {}

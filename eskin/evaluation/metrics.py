@@ -13,25 +13,32 @@ from sklearn.metrics import (
     mean_absolute_error,
     mean_squared_error,
     r2_score,
+    roc_auc_score,
 )
 
 
-def regression(y_true: np.ndarray, y_pred: np.ndarray) -> dict[str, float]:
+def regression(y_true: np.ndarray, y_pred: np.ndarray, score=None) -> dict[str, float]:
     mse = mean_squared_error(y_true, y_pred)
     return {"r2": float(r2_score(y_true, y_pred)) if np.ptp(y_true) > 0 else float("nan"),
             "mse": float(mse), "rmse": float(np.sqrt(mse)),
             "mae": float(mean_absolute_error(y_true, y_pred))}
 
 
-def detection(y_true: np.ndarray, y_pred: np.ndarray) -> dict[str, float]:
+def detection(y_true: np.ndarray, y_pred: np.ndarray,
+              score: np.ndarray | None = None) -> dict[str, float]:
+    """Accuracy, balanced accuracy, F1; ROC AUC when the model gives a score."""
     y_true = np.asarray(y_true, dtype=bool)
     y_pred = np.asarray(y_pred, dtype=bool)
-    return {"accuracy": float(accuracy_score(y_true, y_pred)),
-            "balanced_accuracy": float(balanced_accuracy_score(y_true, y_pred)),
-            "f1": float(f1_score(y_true, y_pred, zero_division=0.0))}
+    out = {"accuracy": float(accuracy_score(y_true, y_pred)),
+           "balanced_accuracy": float(balanced_accuracy_score(y_true, y_pred)),
+           "f1": float(f1_score(y_true, y_pred, zero_division=0.0))}
+    if score is not None:
+        both = len(np.unique(y_true)) == 2
+        out["roc_auc"] = float(roc_auc_score(y_true, score)) if both else float("nan")
+    return out
 
 
-def localisation(y_true: np.ndarray, y_pred: np.ndarray) -> dict[str, float]:
+def localisation(y_true: np.ndarray, y_pred: np.ndarray, score=None) -> dict[str, float]:
     """Accuracy, balanced accuracy, macro F1 and the share within one node of the truth."""
     y_true = np.asarray(y_true)
     y_pred = np.asarray(y_pred)

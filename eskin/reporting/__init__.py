@@ -1,0 +1,1 @@
+"""Figures, DVC plot data and the report page, from predictions and metrics only."""

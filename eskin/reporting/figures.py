@@ -1,0 +1,146 @@
+"""The paper's figures, regenerated from out-of-fold predictions.
+
+Each function takes predictions (one CV scheme) and returns a matplotlib
+Figure; nothing here reads or writes files.
+"""
+
+from __future__ import annotations
+
+import matplotlib
+
+matplotlib.use("Agg")  # files only: no display on a build machine
+
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
+from sklearn.metrics import confusion_matrix, roc_auc_score, roc_curve  # noqa: E402
+
+STYLE = {"font.size": 9, "axes.titlesize": 9, "axes.labelsize": 9, "legend.fontsize": 8,
+         "xtick.labelsize": 8, "ytick.labelsize": 8, "figure.constrained_layout.use": True}
+COLUMN_IN = 3.5   # one column of the paper, inches
+PAGE_IN = 7.2     # both columns
+
+
+def _ideal(ax, low: float, high: float) -> None:
+    pad = 0.05 * (high - low)
+    ax.plot([low - pad, high + pad], [low - pad, high + pad], color="black", lw=1,
+            label="ideal")
+    ax.set_xlim(low - pad, high + pad)
+    ax.set_ylim(low - pad, high + pad)
+    ax.set_aspect("equal")
+
+
+def _level_summary(true: pd.Series, predicted: pd.Series) -> pd.DataFrame:
+    return predicted.groupby(true.to_numpy()).agg(["mean", "std"]).fillna(0.0)
+
+
+def stretch_parity(oof: pd.DataFrame) -> Figure:
+    """Predicted against true λ: every prediction faint, mean ± std per level (paper Fig. 5)."""
+    with plt.rc_context(STYLE):
+        fig, ax = plt.subplots(figsize=(COLUMN_IN, COLUMN_IN))
+        true, pred = oof["stretch_true"], oof["stretch_pred"].astype(float)
+        _ideal(ax, min(true.min(), pred.min()), max(true.max(), pred.max()))
+        ax.scatter(true, pred, s=2, alpha=0.05, color="tab:gray", label="prediction",
+                   rasterized=True)
+        stats = _level_summary(true, pred)
+        ax.errorbar(stats.index, stats["mean"], yerr=stats["std"], fmt="o", color="tab:red",
+                    capsize=4, label="mean ± std")
+        ax.set_xlabel("true stretch λ")
+        ax.set_ylabel("predicted stretch λ")
+        ax.legend(loc="upper left")
+    return fig
+
+
+def force_parity(oof: pd.DataFrame, target: str = "force", by: str | None = "stretch",
+                 ax=None, title: str | None = None) -> Figure:
+    """Predicted against true force, mean ± std per level, a colour per stretch (Fig. 6)."""
+    with plt.rc_context(STYLE):
+        if ax is None:
+            fig, ax = plt.subplots(figsize=(COLUMN_IN, COLUMN_IN))
+        else:
+            fig = ax.figure
+        true = oof[f"{target}_true"]
+        groups = [(None, oof)] if by is None else list(oof.groupby(by))
+        spans = [_level_summary(rows[f"{target}_true"], rows[f"{target}_pred"].astype(float))
+                 for _, rows in groups]
+        _ideal(ax, min([0.0, true.min()] + [(s["mean"] - s["std"]).min() for s in spans]),
+               max([true.max()] + [(s["mean"] + s["std"]).max() for s in spans]))
+        offsets = np.linspace(-0.12, 0.12, len(groups)) if len(groups) > 1 else [0.0]
+        for (level, rows), offset in zip(groups, offsets, strict=True):
+            stats = _level_summary(rows[f"{target}_true"], rows[f"{target}_pred"].astype(float))
+            label = "mean ± std" if level is None else f"λ = {level:g}"
+            ax.errorbar(stats.index + offset, stats["mean"], yerr=stats["std"], fmt="o",
+                        capsize=3, label=label)
+        ax.set_xlabel("true force (N)")
+        ax.set_ylabel("predicted force (N)")
+        if title:
+            ax.set_title(title)
+        ax.legend(loc="upper left")
+    return fig
+
+
+def _confusion_panel(ax, true: np.ndarray, predicted: np.ndarray, name: str,
+                     tick_names: dict | None = None) -> None:
+    labels = np.union1d(np.unique(true), np.unique(predicted))
+    counts = confusion_matrix(true, predicted, labels=labels)
+    rows = counts.sum(axis=1, keepdims=True)
+    share = np.divide(counts, rows, out=np.zeros(counts.shape, dtype=float), where=rows > 0)
+    ax.imshow(share, cmap="Blues", vmin=0, vmax=1)
+    small = len(labels) > 6
+    for (i, j), count in np.ndenumerate(counts):
+        if count:
+            ax.text(j, i, str(count), ha="center", va="center", fontsize=5 if small else 7,
+                    color="white" if share[i, j] > 0.6 else "black")
+    ticks = np.arange(len(labels))
+    names = [str((tick_names or {}).get(v, v)) for v in labels]
+    ax.set_xticks(ticks, names)
+    ax.set_yticks(ticks, names)
+    ax.set_xlabel(f"predicted {name}")
+    ax.set_ylabel(f"true {name}")
+
+
+def confusion_grid(oof: pd.DataFrame, targets: list[str], names: list[str],
+                   columns: int = 2) -> Figure:
+    """Confusion matrices, counts written in, colour normalised per true row (Figs. 7, 8)."""
+    with plt.rc_context(STYLE):
+        rows = int(np.ceil(len(targets) / columns))
+        fig, axes = plt.subplots(rows, columns, figsize=(PAGE_IN, PAGE_IN / columns * rows),
+                                 squeeze=False)
+        for ax, target, name in zip(axes.ravel(), targets, names, strict=False):
+            _confusion_panel(ax, oof[f"{target}_true"].to_numpy(),
+                             oof[f"{target}_pred"].to_numpy(), name)
+        for ax in axes.ravel()[len(targets):]:
+            ax.set_visible(False)
+    return fig
+
+
+def two_force_parity(force1: pd.DataFrame, force2: pd.DataFrame) -> Figure:
+    """Force parity of contact 1 and contact 2 side by side (paper Fig. 9)."""
+    with plt.rc_context(STYLE):
+        fig, axes = plt.subplots(1, 2, figsize=(PAGE_IN, PAGE_IN / 2))
+        force_parity(force1, "force1", by=None, ax=axes[0], title="contact 1")
+        force_parity(force2, "force2", by=None, ax=axes[1], title="contact 2")
+    return fig
+
+
+def detection(oof: pd.DataFrame) -> Figure:
+    """Contact detection: confusion matrix and ROC curve."""
+    with plt.rc_context(STYLE):
+        fig, (left, right) = plt.subplots(1, 2, figsize=(PAGE_IN, PAGE_IN / 2))
+        true = oof["contact_true"].astype(bool).to_numpy()
+        pred = oof["contact_pred"].astype(bool).to_numpy()
+        _confusion_panel(left, true.astype(int), pred.astype(int), "class",
+                         {0: "no contact", 1: "contact"})
+        if "contact_score" in oof and len(np.unique(true)) == 2:
+            score = oof["contact_score"].astype(float).to_numpy()
+            fpr, tpr, _ = roc_curve(true, score)
+            right.plot(fpr, tpr, color="tab:red", label=f"AUC {roc_auc_score(true, score):.3f}")
+            right.plot([0, 1], [0, 1], color="gray", lw=0.8, ls="--", label="chance")
+            right.legend(loc="lower right")
+        else:
+            right.text(0.5, 0.5, "no scores from this model", ha="center", va="center")
+        right.set_xlabel("false positive rate")
+        right.set_ylabel("true positive rate")
+        right.set_aspect("equal")
+    return fig

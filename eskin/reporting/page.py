@@ -1,0 +1,176 @@
+"""The headline table, the report page and the README's results section.
+
+Inputs are the metrics documents of the training and scoring stages (and the
+MLflow run ids they recorded); outputs are strings, so that everything here is
+tested without files.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+SCHEMES = ("stratified", "grouped")
+README_BEGIN = "<!-- results:begin (written by the report stage; edits here are overwritten) -->"
+README_END = "<!-- results:end -->"
+
+
+@dataclass(frozen=True)
+class Headline:
+    """One row of the headline table: where its number is, and the paper's value."""
+
+    label: str
+    scene: str
+    task: str
+    target: str | None     # None: the scores sit directly under the scheme (pairs)
+    metric: str
+    paper: str = "—"
+
+
+HEADLINES = (
+    Headline("stretch R² (linear regression)", "single_force", "stretch", "stretch", "r2",
+             "0.996"),
+    Headline("stretch MSE", "single_force", "stretch", "stretch", "mse", "2 × 10⁻⁵"),
+    Headline("force R² (Gaussian process)", "single_force", "force", "force", "r2", "0.827"),
+    Headline("force RMSE (N)", "single_force", "force", "force", "rmse"),
+    Headline("contact detection accuracy (RBF SVM)", "single_force", "detect", "contact",
+             "accuracy", "0.96"),
+    Headline("contact detection balanced accuracy", "single_force", "detect", "contact",
+             "balanced_accuracy"),
+    Headline("contact detection ROC AUC", "single_force", "detect", "contact", "roc_auc"),
+    Headline("x accuracy (random forest)", "single_force", "localise", "x", "accuracy",
+             "“effective” (Fig. 7)"),
+    Headline("x within one node", "single_force", "localise", "x", "within_one"),
+    Headline("y accuracy (random forest)", "single_force", "localise", "y", "accuracy",
+             "“effective” (Fig. 7)"),
+    Headline("y within one node", "single_force", "localise", "y", "within_one"),
+    Headline("two forces: force 1 R² (Gaussian process)", "two_force", "force1", "force1", "r2",
+             "0.695"),
+    Headline("two forces: force 2 R² (Gaussian process)", "two_force", "force2", "force2", "r2",
+             "0.771"),
+    *(Headline(f"two forces: {t} accuracy (random forest)", "two_force", "localise", t,
+               "accuracy", "“high” (Fig. 8)") for t in ("x1", "y1", "x2", "y2")),
+    Headline("two forces: pair accuracy, order-free", "two_force", "pairs", None,
+             "pair_accuracy"),
+    Headline("two forces: pair accuracy, in label order", "two_force", "pairs", None,
+             "pair_accuracy_ordered"),
+    Headline("two forces: contact accuracy, order-free", "two_force", "pairs", None,
+             "contact_accuracy"),
+    Headline("two forces: force R², order-free", "two_force", "pairs", None, "force_r2"),
+)
+
+
+def _value(metrics: Mapping, row: Headline, scheme: str) -> str:
+    document = metrics.get((row.scene, row.task))
+    if document is None:
+        return "missing"
+    if document.get("status") == "skipped":
+        return "skipped"
+    scores = document.get(scheme, {})
+    if row.target is not None:
+        scores = scores.get(row.target, {})
+    if row.metric not in scores:
+        return "—"
+    mean, std = scores[row.metric], scores.get(f"{row.metric}_std", float("nan"))
+    if not math.isfinite(mean):
+        return "n/a"
+    digits = 3 if abs(mean) >= 1e-3 or mean == 0 else 2
+    fmt = f"{{:.{digits}f}}" if digits == 3 else "{:.2e}"
+    return f"{fmt.format(mean)} ± {fmt.format(std)}" if math.isfinite(std) else fmt.format(mean)
+
+
+def headline_rows(metrics: Mapping[tuple[str, str], Mapping]) -> list[list[str]]:
+    """[metric, stratified, grouped, paper] per headline, as display strings."""
+    return [[row.label, *(_value(metrics, row, s) for s in SCHEMES), row.paper]
+            for row in HEADLINES]
+
+
+def headline_markdown(metrics: Mapping[tuple[str, str], Mapping]) -> str:
+    lines = ["| metric | stratified CV (the paper's) | grouped CV (whole trials out) | paper |",
+             "|---|---|---|---|"]
+    lines += ["| " + " | ".join(cells) + " |" for cells in headline_rows(metrics)]
+    return "\n".join(lines)
+
+
+def datasets(metrics: Mapping[tuple[str, str], Mapping]) -> list[list[str]]:
+    """[scene, DVC md5, rows, source] per scene that trained."""
+    seen: dict[str, list[str]] = {}
+    for (scene, _), document in sorted(metrics.items()):
+        if "dataset_md5" in document and scene not in seen:
+            rows = document.get("dataset_rows")
+            seen[scene] = [scene, document["dataset_md5"],
+                           f"{rows:,}" if isinstance(rows, int) else "?",
+                           str(document.get("source", "?"))]
+    return list(seen.values())
+
+
+def replace_readme_results(readme: str, section: str) -> str:
+    """The README with the text between the results markers replaced by ``section``."""
+    if README_BEGIN not in readme or README_END not in readme:
+        raise ValueError(f"README.md lacks the results markers {README_BEGIN!r} … {README_END!r}")
+    head, rest = readme.split(README_BEGIN, 1)
+    _, tail = rest.split(README_END, 1)
+    return f"{head}{README_BEGIN}\n{section.strip()}\n{README_END}{tail}"
+
+
+def readme_section(metrics: Mapping[tuple[str, str], Mapping]) -> str:
+    scenes = "; ".join(f"{scene}: {rows} rows, {source}, DVC md5 `{md5}`"
+                       for scene, md5, rows, source in datasets(metrics))
+    return (f"{headline_markdown(metrics)}\n\nMean ± std over folds. Datasets — {scenes}. "
+            "Figures and run ids: `reports/index.html`.")
+
+
+def _table(header: list[str], rows: list[list[str]]) -> str:
+    head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
+    body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in row) + "</tr>"
+                   for row in rows)
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+
+
+CSS = """
+body { font-family: system-ui, sans-serif; max-width: 1100px; margin: 2em auto; padding: 0 1em;
+       color: #222; line-height: 1.4; }
+table { border-collapse: collapse; margin: 1em 0; font-size: 0.92em; }
+th, td { border: 1px solid #ccc; padding: 0.3em 0.6em; text-align: left; }
+th { background: #f3f3f3; }
+td:nth-child(2), td:nth-child(3) { font-variant-numeric: tabular-nums; white-space: nowrap; }
+figure { margin: 1.5em 0; }
+figure img { max-width: 100%; border: 1px solid #eee; }
+figcaption { font-size: 0.9em; color: #555; }
+"""
+
+
+def render_page(metrics: Mapping[tuple[str, str], Mapping], runs: Mapping[tuple[str, str], str],
+                figures: list[tuple[str, str, bytes]], commit: str = "") -> str:
+    """The report: headline table, datasets, MLflow runs, and figures embedded as PNG.
+
+    ``figures`` are (id, caption, PNG bytes); the page needs no other file.
+    """
+    run_rows = [[f"{scene}/{task}", run or "not tracked"] for (scene, task), run in
+                sorted(runs.items())]
+    figure_html = "".join(
+        f'<figure id="{html.escape(fid)}"><img alt="{html.escape(caption)}" '
+        f'src="data:image/png;base64,{base64.b64encode(png).decode()}">'
+        f"<figcaption>{html.escape(caption)}</figcaption></figure>"
+        for fid, caption, png in figures)
+    return f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>eskin report</title>
+<style>{CSS}</style></head><body>
+<h1>eskin — this run against the paper</h1>
+<p>Dawood, Coppola &amp; Althoefer (ICRA 2023), reproduced on the data below.
+Mean ± std over the folds of each cross-validation scheme: <em>stratified</em> is the paper's
+(10 folds stratified on the node); <em>grouped</em> holds whole trials out.
+{f"Git commit <code>{html.escape(commit)}</code>." if commit else ""}</p>
+<h2>Headline</h2>
+{_table(["metric", "stratified CV (the paper's)", "grouped CV", "paper"], headline_rows(metrics))}
+<h2>Datasets</h2>
+{_table(["scene", "DVC md5", "rows", "source"], datasets(metrics))}
+<h2>MLflow runs</h2>
+{_table(["scene/task", "run id"], run_rows)}
+<h2>Figures</h2>
+{figure_html}
+</body></html>
+"""

@@ -1,0 +1,138 @@
+"""The report: figures, plot data, the page (opened in headless Chromium), the README table."""
+
+import json
+import shutil
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from eskin import report
+from eskin.reporting.page import (
+    HEADLINES,
+    README_BEGIN,
+    README_END,
+    headline_rows,
+    replace_readme_results,
+)
+
+CHROMIUM = shutil.which("chromium")
+
+
+def fake_outputs(root):
+    """Predictions, metrics and run ids shaped like the training stages' (small)."""
+    rng = np.random.default_rng(0)
+
+    def write(scene, task, frame, metrics):
+        for sub in ("predictions", "metrics", "runs"):
+            (root / sub / scene).mkdir(parents=True, exist_ok=True)
+        frame.to_parquet(root / "predictions" / scene / f"{task}.parquet")
+        (root / "metrics" / scene / f"{task}.json").write_text(json.dumps(
+            {"scene": scene, "task": task, "status": "trained", "dataset_md5": "0" * 32,
+             "dataset_rows": 120, "source": "simulated", **metrics}))
+        (root / "runs" / scene / f"{task}.json").write_text(json.dumps({"run_id": f"r-{task}"}))
+
+    n = 120
+    schemes = np.repeat(["stratified", "grouped"], n // 2)
+    stretch = rng.choice([1.0, 1.07921, 1.15842], n)
+    force = rng.choice([0.0, 1.2936, 3.2536, 5.2136], n)
+    node = rng.integers(1, 11, (n, 4))
+    scores = {"stratified": {}, "grouped": {}}
+
+    def regression(target, values):
+        return {s: {target: {"r2": 0.9, "r2_std": 0.01, "mse": 1e-5, "mse_std": 1e-6,
+                             "rmse": 0.1, "rmse_std": 0.01}} for s in scores}
+
+    base = pd.DataFrame({"scheme": schemes, "stretch": stretch, "trial": np.arange(n).astype(str),
+                         "sample": 0, "fold": np.arange(n) % 5})
+    write("single_force", "stretch", base.assign(stretch_true=stretch,
+                                                 stretch_pred=stretch + rng.normal(0, .01, n)),
+          regression("stretch", stretch))
+    write("single_force", "force",
+          base.assign(force_true=force, force_pred=force + rng.normal(0, .3, n)),
+          regression("force", force))
+    contact = force > 0
+    write("single_force", "detect", base.assign(contact_true=contact, contact_pred=contact,
+                                                contact_score=contact + rng.normal(0, .3, n)),
+          {s: {"contact": {"accuracy": 0.96, "accuracy_std": 0.01}} for s in scores})
+    write("single_force", "localise", base.assign(x_true=node[:, 0], x_pred=node[:, 0],
+                                                  y_true=node[:, 1], y_pred=node[:, 1]),
+          {s: {"x": {"accuracy": 1.0, "accuracy_std": 0.0}} for s in scores})
+    two = base.assign(**{f"{c}_true": node[:, i] for i, c in enumerate(["x1", "y1", "x2", "y2"])},
+                      **{f"{c}_pred": node[:, i] for i, c in enumerate(["x1", "y1", "x2", "y2"])})
+    write("two_force", "localise", two, {})
+    for task in ("force1", "force2"):
+        write("two_force", task, base.assign(**{f"{task}_true": force + 1,
+                                                f"{task}_pred": force + 1.2}),
+              regression(task, force))
+    (root / "README.md").write_text(f"# x\n\n{README_BEGIN}\nstale table\n{README_END}\n\nkept\n")
+    return root
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory):
+    root = fake_outputs(tmp_path_factory.mktemp("report"))
+    params = {"report": {"schemes": ["stratified", "grouped"], "plots_scheme": "stratified",
+                         "dpi": 60, "page_dpi": 50}}
+    summary = report.report(params, metrics_dir=root / "metrics",
+                            predictions_dir=root / "predictions", runs_dir=root / "runs",
+                            figures_dir=root / "figures", plots_dir=root / "plots",
+                            page_path=root / "index.html", readme_path=root / "README.md")
+    return root, summary
+
+
+def test_every_figure_is_written_as_png_and_svg_per_scheme(built):
+    root, summary = built
+    names = {p.stem for p in (root / "figures").glob("*.png")}
+    expected = {f"{fid}_{scheme}" for scheme in ("stratified", "grouped") for fid in (
+        "stretch_parity", "force_parity", "localisation_confusion", "detection",
+        "two_force_localisation", "two_force_parity")}
+    assert names == expected, summary
+    assert {p.stem for p in (root / "figures").glob("*.svg")} == expected
+
+
+def test_dvc_plot_data_has_the_columns_dvc_yaml_names(built):
+    root, _ = built
+    confusion = pd.read_csv(root / "plots" / "localisation_x.csv")
+    assert list(confusion.columns) == ["actual", "predicted"]
+    parity = pd.read_csv(root / "plots" / "force_parity.csv")
+    assert list(parity.columns) == ["actual", "predicted", "stretch"]
+    assert len(parity) == 60  # the stratified half only
+
+
+def test_readme_table_replaces_only_its_section(built):
+    root, _ = built
+    readme = (root / "README.md").read_text()
+    assert "stale table" not in readme and readme.endswith("kept\n")
+    assert "| force R² (Gaussian process) | 0.900 ± 0.010 | 0.900 ± 0.010 | 0.827 |" in readme
+    with pytest.raises(ValueError, match="lacks the results markers"):
+        replace_readme_results("# no markers\n", "table")
+
+
+def test_missing_and_skipped_tasks_say_so_in_the_table():
+    rows = headline_rows({("single_force", "stretch"): {"status": "skipped"}})
+    by_label = {r[0]: r for r in rows}
+    assert by_label["stretch R² (linear regression)"][1:3] == ["skipped", "skipped"]
+    assert by_label["force R² (Gaussian process)"][1:3] == ["missing", "missing"]
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is missing: `make test` "
+                    "installs it")
+def test_the_page_loads_every_image_in_headless_chromium(built):
+    from playwright.sync_api import sync_playwright
+
+    root, _ = built
+    with sync_playwright() as playwright:
+        browser = playwright.chromium.launch(executable_path=CHROMIUM,
+                                             args=["--no-sandbox", "--disable-gpu"])
+        page = browser.new_page()
+        page.goto((root / "index.html").as_uri())
+        page.wait_for_load_state("load")
+        widths = page.eval_on_selector_all("img", "imgs => imgs.map(i => i.naturalWidth)")
+        headline = page.eval_on_selector_all(
+            "h2:text('Headline') + table tbody tr", "rows => rows.map(r => r.cells[0].innerText)")
+        runs = page.inner_text("h2:text('MLflow runs') + table")
+        browser.close()
+    assert len(widths) == 12 and all(w > 0 for w in widths), widths
+    assert headline == [row.label for row in HEADLINES]
+    assert "r-force" in runs
