@@ -30,7 +30,7 @@ $(VENV)/.installed: pyproject.toml constraints.txt
 
 repro: setup
 	dvc repro
-	@dvc status --quiet && echo "pipeline up to date"
+	@dvc status dvc.yaml --quiet && echo "pipeline up to date"
 
 test: setup browser
 	pytest -q

@@ -18,15 +18,13 @@ FEATURES_DIR = Path("data/features")
 MODELS_DIR = Path("models")
 METRICS_DIR = Path("reports/metrics")
 PREDICTIONS_DIR = Path("reports/predictions")
-RUNS_DIR = Path("reports/runs")
 
 
 def task_outputs(scene: str, task: str) -> dict[str, Path]:
     """Where one task's outputs go (the paths dvc.yaml declares)."""
     return {"metrics_path": METRICS_DIR / scene / f"{task}.json",
             "predictions_path": PREDICTIONS_DIR / scene / f"{task}.parquet",
-            "model_path": MODELS_DIR / scene / f"{task}.joblib",
-            "run_path": RUNS_DIR / scene / f"{task}.json"}
+            "model_path": MODELS_DIR / scene / f"{task}.joblib"}
 
 
 def _ports(args: argparse.Namespace) -> int:

@@ -46,7 +46,7 @@ def featurize(params: dict[str, Any], scene: str, processed_dir: Path, features_
 
 
 def train(params: dict[str, Any], scene: str, task_name: str, features_dir: Path, *,
-          metrics_path: Path, predictions_path: Path, model_path: Path, run_path: Path,
+          metrics_path: Path, predictions_path: Path, model_path: Path,
           params_text: str = "", track: bool = True) -> str:
     """Cross-validate one task under each CV scheme, refit, save, and log to MLflow."""
     source = Path(features_dir) / f"{scene}.parquet"
@@ -69,7 +69,6 @@ def train(params: dict[str, Any], scene: str, task_name: str, features_dir: Path
         write_json({**header, "status": "skipped", "reason": reason}, metrics_path)
         save_predictions(pd.DataFrame(), predictions_path)
         save_models({"skipped": reason}, model_path)
-        write_json({"run_id": None}, run_path)
         return f"{scene}/{task_name}: skipped — {reason}"
 
     results = []
@@ -78,6 +77,9 @@ def train(params: dict[str, Any], scene: str, task_name: str, features_dir: Path
         results.append(cross_validate(task, frame, folds, estimator, scheme,
                                       n_jobs=int(cv.get("n_jobs", 1))))
     models = fit_final(task, frame, estimator)
+    save_models(models, model_path)
+    # The model file's md5 (as in dvc.lock) links metrics, DVC and the MLflow run.
+    header["model_md5"] = md5_file(model_path)
     metrics_doc = {**header, "status": "trained", "rows": int(task.rows(frame).sum()),
                    **{r.scheme: r.summary for r in results}}
     confusion = {r.scheme: r.confusion for r in results if r.confusion}
@@ -86,8 +88,7 @@ def train(params: dict[str, Any], scene: str, task_name: str, features_dir: Path
     write_json(metrics_doc, metrics_path)
     save_predictions(pd.concat([r.predictions.assign(scheme=r.scheme) for r in results],
                                ignore_index=True), predictions_path)
-    save_models(models, model_path)
-    run_note, run_id = "", None
+    run_note = ""
     if track:
         from eskin import tracking  # MLflow takes seconds to import; only training needs it
 
@@ -95,9 +96,9 @@ def train(params: dict[str, Any], scene: str, task_name: str, features_dir: Path
             scene=scene, task=task_name, params={"model": model_name, model_name: hyper, "cv": cv},
             params_text=params_text, results=results, models=models,
             dataset=frame.drop(columns=["session", "trial", "seq", "t_ms"]),
-            dataset_digest=meta["dataset"]["md5"], dataset_source=meta["dataset"]["path"])
+            dataset_digest=meta["dataset"]["md5"], dataset_source=meta["dataset"]["path"],
+            extra_tags={"eskin.model_md5": header["model_md5"], "eskin.model": model_name})
         run_note = f"; MLflow run {run_id}"
-    write_json({"run_id": run_id}, run_path)
     headline = ", ".join(f"{r.scheme} {_headline(r.summary)}" for r in results)
     notes = "".join(f"\n  note ({r.scheme}, {n} of {len(r.per_fold[next(iter(r.per_fold))])} "
                     f"folds): {text}" for r in results for text, n in sorted(r.notes.items()))
@@ -130,7 +131,7 @@ def save_models(models: dict, path: Path) -> None:
     joblib.dump(models, path)
 
 
-def score_pairs(scene: str, predictions_dir: Path, metrics_path: Path, run_path: Path, *,
+def score_pairs(scene: str, predictions_dir: Path, metrics_path: Path, *,
                 params_text: str = "", track: bool = True) -> str:
     """Score a two-force scene's contacts as sets (order-free), from its tasks' predictions."""
     from eskin.evaluation.pairs import score_pairs as score
@@ -147,12 +148,11 @@ def score_pairs(scene: str, predictions_dir: Path, metrics_path: Path, run_path:
         skipped = [task for task, frame in frames.items() if frame.empty]
         write_json({**metrics_doc, "status": "skipped",
                     "reason": f"no predictions from {', '.join(skipped)} (skipped)"}, metrics_path)
-        write_json({"run_id": None}, run_path)
         return f"{scene}/pairs: skipped — {', '.join(skipped)} skipped"
     scores = score(frames["localise"], frames["force1"], frames["force2"])
     metrics_doc.update(status="scored", **scores)
     write_json(metrics_doc, metrics_path)
-    run_note, run_id = "", None
+    run_note = ""
     if track:
         from eskin import tracking
 
@@ -161,7 +161,6 @@ def score_pairs(scene: str, predictions_dir: Path, metrics_path: Path, run_path:
                                          params_text=params_text,
                                          dataset_digest=digest.get("dataset_md5", ""))
         run_note = f"; MLflow run {run_id}"
-    write_json({"run_id": run_id}, run_path)
     parts = [f"{scheme} pair {s['pair_accuracy']:.3f} (ordered {s['pair_accuracy_ordered']:.3f}), "
              f"force R² {s['force_r2']:.3f}" for scheme, s in scores.items()]
     return f"{scene}/pairs: {'; '.join(parts)}{run_note}"

@@ -88,13 +88,11 @@ PLOT_DATA = (
 )
 
 
-def report(params: dict[str, Any], *, metrics_dir: Path, predictions_dir: Path, runs_dir: Path,
+def report(params: dict[str, Any], *, metrics_dir: Path, predictions_dir: Path,
            figures_dir: Path, plots_dir: Path, page_path: Path, readme_path: Path) -> str:
     settings = section(params, "report")
     metrics = _load(metrics_dir, ".json", lambda p: json.loads(p.read_text()))
     predictions = _load(predictions_dir, ".parquet", pd.read_parquet)
-    runs = {key: doc.get("run_id") for key, doc in
-            _load(runs_dir, ".json", lambda p: json.loads(p.read_text())).items()}
     if not metrics:
         raise FileNotFoundError(f"{metrics_dir}: no metrics; run the training stages first")
 
@@ -121,7 +119,7 @@ def report(params: dict[str, Any], *, metrics_dir: Path, predictions_dir: Path, 
         chosen = frame[frame["scheme"] == settings["plots_scheme"]]
         chosen[list(columns)].rename(columns=columns).to_csv(plots_dir / filename, index=False)
 
-    Path(page_path).write_text(render_page(metrics, runs, page_figures))
+    Path(page_path).write_text(render_page(metrics, page_figures))
     readme = Path(readme_path)
     readme.write_text(replace_readme_results(readme.read_text(), readme_section(metrics)))
     return (f"report: {written} figures (PNG + SVG) in {figures_dir}, plot data in {plots_dir}, "

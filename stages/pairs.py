@@ -3,11 +3,11 @@
 import sys
 
 from eskin import learn
-from eskin.cli import METRICS_DIR, PREDICTIONS_DIR, RUNS_DIR, run_friendly
+from eskin.cli import METRICS_DIR, PREDICTIONS_DIR, run_friendly
 from eskin.config import DEFAULT_PARAMS
 
 if __name__ == "__main__":
     scene = sys.argv[1]
     sys.exit(run_friendly(lambda: print(learn.score_pairs(
-        scene, PREDICTIONS_DIR, METRICS_DIR / scene / "pairs.json", RUNS_DIR / scene / "pairs.json",
+        scene, PREDICTIONS_DIR, METRICS_DIR / scene / "pairs.json",
         params_text=DEFAULT_PARAMS.read_text()))))

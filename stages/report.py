@@ -3,11 +3,11 @@
 import sys
 
 from eskin import report
-from eskin.cli import METRICS_DIR, PREDICTIONS_DIR, RUNS_DIR, run_friendly
+from eskin.cli import METRICS_DIR, PREDICTIONS_DIR, run_friendly
 from eskin.config import load_params
 
 if __name__ == "__main__":
     sys.exit(run_friendly(lambda: print(report.report(
         load_params(), metrics_dir=METRICS_DIR, predictions_dir=PREDICTIONS_DIR,
-        runs_dir=RUNS_DIR, figures_dir="reports/figures", plots_dir="reports/plots",
+        figures_dir="reports/figures", plots_dir="reports/plots",
         page_path="reports/index.html", readme_path="README.md"))))

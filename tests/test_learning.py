@@ -42,7 +42,7 @@ def features(project, scene="single_force"):
 def train(project, scene, task, out, params=None, **kwargs):
     return learn.train(params or project[0], scene, task, project[1] / "features",
                        metrics_path=out / "metrics.json", predictions_path=out / "oof.parquet",
-                       model_path=out / "model.joblib", run_path=out / "run.json", track=False,
+                       model_path=out / "model.joblib", track=False,
                        **kwargs)
 
 
@@ -116,7 +116,7 @@ def test_a_single_stretch_level_skips_stretch_with_its_reason(project, tmp_path)
                   one_level / "single_force.parquet", meta)
     summary = learn.train(params, "single_force", "stretch", one_level,
                           metrics_path=tmp_path / "m.json", predictions_path=tmp_path / "p.parquet",
-                          model_path=tmp_path / "model.joblib", run_path=tmp_path / "run.json",
+                          model_path=tmp_path / "model.joblib",
                           track=False)
     assert "skipped" in summary
     metrics = json.loads((tmp_path / "m.json").read_text())

@@ -20,17 +20,17 @@ CHROMIUM = shutil.which("chromium")
 
 
 def fake_outputs(root):
-    """Predictions, metrics and run ids shaped like the training stages' (small)."""
+    """Predictions and metrics shaped like the training stages' (small)."""
     rng = np.random.default_rng(0)
 
     def write(scene, task, frame, metrics):
-        for sub in ("predictions", "metrics", "runs"):
+        for sub in ("predictions", "metrics"):
             (root / sub / scene).mkdir(parents=True, exist_ok=True)
         frame.to_parquet(root / "predictions" / scene / f"{task}.parquet")
         (root / "metrics" / scene / f"{task}.json").write_text(json.dumps(
             {"scene": scene, "task": task, "status": "trained", "dataset_md5": "0" * 32,
-             "dataset_rows": 120, "source": "simulated", **metrics}))
-        (root / "runs" / scene / f"{task}.json").write_text(json.dumps({"run_id": f"r-{task}"}))
+             "dataset_rows": 120, "source": "simulated", "model": "paper",
+             "model_md5": f"{task:0>32}", **metrics}))
 
     n = 120
     schemes = np.repeat(["stratified", "grouped"], n // 2)
@@ -75,7 +75,7 @@ def built(tmp_path_factory):
     params = {"report": {"schemes": ["stratified", "grouped"], "plots_scheme": "stratified",
                          "dpi": 60, "page_dpi": 50}}
     summary = report.report(params, metrics_dir=root / "metrics",
-                            predictions_dir=root / "predictions", runs_dir=root / "runs",
+                            predictions_dir=root / "predictions",
                             figures_dir=root / "figures", plots_dir=root / "plots",
                             page_path=root / "index.html", readme_path=root / "README.md")
     return root, summary
@@ -131,8 +131,8 @@ def test_the_page_loads_every_image_in_headless_chromium(built):
         widths = page.eval_on_selector_all("img", "imgs => imgs.map(i => i.naturalWidth)")
         headline = page.eval_on_selector_all(
             "h2:text('Headline') + table tbody tr", "rows => rows.map(r => r.cells[0].innerText)")
-        runs = page.inner_text("h2:text('MLflow runs') + table")
+        models = page.inner_text("h2:text('Models') + p + table")
         browser.close()
     assert len(widths) == 12 and all(w > 0 for w in widths), widths
     assert headline == [row.label for row in HEADLINES]
-    assert "r-force" in runs
+    assert "00000000000000000000000000force" in models

@@ -1,7 +1,6 @@
 """The headline table, the report page and the README's results section.
 
-Inputs are the metrics documents of the training and scoring stages (and the
-MLflow run ids they recorded); outputs are strings, so that everything here is
+Inputs are the metrics documents of the training and scoring stages; outputs are strings, so that everything here is
 tested without files.
 """
 
@@ -120,7 +119,7 @@ def readme_section(metrics: Mapping[tuple[str, str], Mapping]) -> str:
     scenes = "; ".join(f"{scene}: {rows} rows, {source}, DVC md5 `{md5}`"
                        for scene, md5, rows, source in datasets(metrics))
     return (f"{headline_markdown(metrics)}\n\nMean ± std over folds. Datasets — {scenes}. "
-            "Figures and run ids: `reports/index.html`.")
+            "Figures and model hashes: `reports/index.html`.")
 
 
 def _table(header: list[str], rows: list[list[str]]) -> str:
@@ -143,14 +142,18 @@ figcaption { font-size: 0.9em; color: #555; }
 """
 
 
-def render_page(metrics: Mapping[tuple[str, str], Mapping], runs: Mapping[tuple[str, str], str],
+def models(metrics: Mapping[tuple[str, str], Mapping]) -> list[list[str]]:
+    """(scene/task, model, model md5) of each trained task: the key to its MLflow run."""
+    return [[f"{scene}/{task}", str(document.get("model", "?")), document["model_md5"]]
+            for (scene, task), document in sorted(metrics.items()) if "model_md5" in document]
+
+
+def render_page(metrics: Mapping[tuple[str, str], Mapping],
                 figures: list[tuple[str, str, bytes]], commit: str = "") -> str:
-    """The report: headline table, datasets, MLflow runs, and figures embedded as PNG.
+    """The report: headline table, datasets, models, and figures embedded as PNG.
 
     ``figures`` are (id, caption, PNG bytes); the page needs no other file.
     """
-    run_rows = [[f"{scene}/{task}", run or "not tracked"] for (scene, task), run in
-                sorted(runs.items())]
     figure_html = "".join(
         f'<figure id="{html.escape(fid)}"><img alt="{html.escape(caption)}" '
         f'src="data:image/png;base64,{base64.b64encode(png).decode()}">'
@@ -168,8 +171,10 @@ Mean ± std over the folds of each cross-validation scheme: <em>stratified</em> 
 {_table(["metric", "stratified CV (the paper's)", "grouped CV", "paper"], headline_rows(metrics))}
 <h2>Datasets</h2>
 {_table(["scene", "DVC md5", "rows", "source"], datasets(metrics))}
-<h2>MLflow runs</h2>
-{_table(["scene/task", "run id"], run_rows)}
+<h2>Models</h2>
+<p>Each model file's md5 is the one in <code>dvc.lock</code>; its MLflow run carries it as the tag
+<code>eskin.model_md5</code> (<code>mlflow.search_runs(filter_string="tags.`eskin.model_md5` = '…'")</code>).</p>
+{_table(["scene/task", "model", "model md5"], models(metrics))}
 <h2>Figures</h2>
 {figure_html}
 </body></html>
