@@ -56,8 +56,8 @@ def train(params: dict[str, Any], scene: str, task_name: str, features_dir: Path
     frame = read_dataset(source)
     kind = meta["kind"]
     task = get_task(kind, task_name)
-    task_params = section(params, f"train.{scene}.{task_name}")
-    model_name, hyper = model_settings(task_params)
+    model_name, hyper = model_settings(section(params, f"train.{scene}.{task_name}"),
+                                       section(params, "train.configuration"))
     estimator = build_model(task.role, model_name, hyper)
     cv = section(params, "cv")
     header = {"scene": scene, "task": task_name, "model": model_name,

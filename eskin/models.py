@@ -41,6 +41,8 @@ from sklearn.preprocessing import StandardScaler
 from sklearn.svm import SVC, LinearSVC
 from sklearn.utils.validation import check_is_fitted, validate_data
 
+from eskin.gp import FixedKernelGaussianProcess, SparseGaussianProcess
+
 ROLES = ("stretch", "force", "detect", "localise")
 
 
@@ -129,6 +131,10 @@ REGISTRY: dict[str, dict[str, Factory]] = {
         "hist_gradient_boosting": lambda max_iter=200, learning_rate=0.1, seed=0:
             HistGradientBoostingRegressor(max_iter=max_iter, learning_rate=learning_rate,
                                           random_state=seed),
+        "sparse_gp": lambda n_inducing=500, hyper_subsample=500, ard=True, hyperparameters=None,
+            seed=0: SparseGaussianProcess(n_inducing, hyper_subsample, ard, hyperparameters, seed),
+        "exact_gp": lambda hyper_subsample=2000, ard=False, seed=0:
+            FixedKernelGaussianProcess(hyper_subsample, ard, seed),
     },
     "detect": {
         "paper": lambda C=1.0, gamma="scale", class_weight="balanced":
@@ -139,6 +145,11 @@ REGISTRY: dict[str, dict[str, Factory]] = {
             _scaled(LogisticRegression(C=C, class_weight=class_weight, max_iter=1000)),
         "random_forest": lambda n_estimators=100, seed=0: RandomForestClassifier(
             n_estimators, random_state=seed, n_jobs=1),
+        "extra_trees": lambda n_estimators=100, seed=0: ExtraTreesClassifier(
+            n_estimators, random_state=seed, n_jobs=1),
+        "hist_gradient_boosting": lambda max_iter=100, seed=0: HistGradientBoostingClassifier(
+            max_iter=max_iter, random_state=seed),
+        "knn": lambda n_neighbors=5: _scaled(KNeighborsClassifier(n_neighbors)),
     },
     "localise": {
         "paper": lambda n_estimators=100, seed=0: RandomForestClassifier(
@@ -148,15 +159,28 @@ REGISTRY: dict[str, dict[str, Factory]] = {
         "hist_gradient_boosting": lambda max_iter=100, seed=0: HistGradientBoostingClassifier(
             max_iter=max_iter, random_state=seed),
         "knn": lambda n_neighbors=5: _scaled(KNeighborsClassifier(n_neighbors)),
+        "logistic": lambda C=1.0: _scaled(LogisticRegression(C=C, max_iter=1000)),
+        "linear_svm": lambda C=1.0: _scaled(LinearSVC(C=C)),
     },
 }
 
 
-def model_settings(task_params: Mapping[str, Any]) -> tuple[str, dict[str, Any]]:
-    """(model name, its hyperparameters) from a ``train.<scene>.<task>`` section."""
+CONFIGURATIONS = ("tuned", "paper")
+
+
+def model_settings(task_params: Mapping[str, Any],
+                   configuration: str = "tuned") -> tuple[str, dict[str, Any]]:
+    """(model name, its hyperparameters) from a ``train.<scene>.<task>`` section.
+
+    ``configuration`` is ``train.configuration``: ``tuned`` uses the task's
+    ``model`` (chosen by ``make bench``), ``paper`` its ``paper`` entry.
+    """
+    if configuration not in CONFIGURATIONS:
+        raise ValueError(f"train.configuration must be one of {CONFIGURATIONS}, "
+                         f"got {configuration!r}")
     if "model" not in task_params:
         raise KeyError("the task's params need a 'model' entry naming a registry model")
-    name = str(task_params["model"])
+    name = "paper" if configuration == "paper" else str(task_params["model"])
     hyper = task_params.get(name) or {}
     if not isinstance(hyper, Mapping):
         raise ValueError(f"hyperparameters of {name!r} must be a mapping, got {hyper!r}")

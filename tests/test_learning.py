@@ -231,3 +231,12 @@ def test_two_force_tasks_train(project, tmp_path):
 
 def test_node_ids_are_row_major():
     assert node_id(np.array([0, 1, 1, 10]), np.array([0, 1, 10, 10])).tolist() == [0, 1, 10, 100]
+
+
+def test_the_paper_configuration_switch_picks_every_tasks_paper_entry():
+    section = {"model": "hist_gradient_boosting", "paper": {"subsample": 10},
+               "hist_gradient_boosting": {"max_iter": 5}}
+    assert model_settings(section) == ("hist_gradient_boosting", {"max_iter": 5})
+    assert model_settings(section, "paper") == ("paper", {"subsample": 10})
+    with pytest.raises(ValueError, match="train.configuration"):
+        model_settings(section, "best")

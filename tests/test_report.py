@@ -104,7 +104,7 @@ def test_readme_table_replaces_only_its_section(built):
     root, _ = built
     readme = (root / "README.md").read_text()
     assert "stale table" not in readme and readme.endswith("kept\n")
-    assert "| force R² (Gaussian process) | 0.900 ± 0.010 | 0.900 ± 0.010 | 0.827 |" in readme
+    assert "| force R² [paper] | 0.900 ± 0.010 | 0.900 ± 0.010 | 0.827 |" in readme
     with pytest.raises(ValueError, match="lacks the results markers"):
         replace_readme_results("# no markers\n", "table")
 
@@ -112,8 +112,8 @@ def test_readme_table_replaces_only_its_section(built):
 def test_missing_and_skipped_tasks_say_so_in_the_table():
     rows = headline_rows({("single_force", "stretch"): {"status": "skipped"}})
     by_label = {r[0]: r for r in rows}
-    assert by_label["stretch R² (linear regression)"][1:3] == ["skipped", "skipped"]
-    assert by_label["force R² (Gaussian process)"][1:3] == ["missing", "missing"]
+    assert by_label["stretch R²"][1:3] == ["skipped", "skipped"]
+    assert by_label["force R²"][1:3] == ["missing", "missing"]
 
 
 @pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is missing: `make test` "
@@ -134,5 +134,6 @@ def test_the_page_loads_every_image_in_headless_chromium(built):
         models = page.inner_text("h2:text('Models') + p + table")
         browser.close()
     assert len(widths) == 12 and all(w > 0 for w in widths), widths
-    assert headline == [row.label for row in HEADLINES]
+    assert [h.split(' [')[0] for h in headline] == [row.label for row in HEADLINES]
+    assert headline[0] == f"{HEADLINES[0].label} [paper]"
     assert "00000000000000000000000000force" in models

@@ -1,7 +1,7 @@
 """The headline table, the report page and the README's results section.
 
-Inputs are the metrics documents of the training and scoring stages; outputs are strings, so that everything here is
-tested without files.
+Inputs are the metrics documents of the training and scoring stages; outputs
+are strings, so that everything here is tested without files.
 """
 
 from __future__ import annotations
@@ -30,27 +30,27 @@ class Headline:
 
 
 HEADLINES = (
-    Headline("stretch R² (linear regression)", "single_force", "stretch", "stretch", "r2",
+    Headline("stretch R²", "single_force", "stretch", "stretch", "r2",
              "0.996"),
     Headline("stretch MSE", "single_force", "stretch", "stretch", "mse", "2 × 10⁻⁵"),
-    Headline("force R² (Gaussian process)", "single_force", "force", "force", "r2", "0.827"),
+    Headline("force R²", "single_force", "force", "force", "r2", "0.827"),
     Headline("force RMSE (N)", "single_force", "force", "force", "rmse"),
-    Headline("contact detection accuracy (RBF SVM)", "single_force", "detect", "contact",
+    Headline("contact detection accuracy", "single_force", "detect", "contact",
              "accuracy", "0.96"),
     Headline("contact detection balanced accuracy", "single_force", "detect", "contact",
              "balanced_accuracy"),
     Headline("contact detection ROC AUC", "single_force", "detect", "contact", "roc_auc"),
-    Headline("x accuracy (random forest)", "single_force", "localise", "x", "accuracy",
+    Headline("x accuracy", "single_force", "localise", "x", "accuracy",
              "“effective” (Fig. 7)"),
     Headline("x within one node", "single_force", "localise", "x", "within_one"),
-    Headline("y accuracy (random forest)", "single_force", "localise", "y", "accuracy",
+    Headline("y accuracy", "single_force", "localise", "y", "accuracy",
              "“effective” (Fig. 7)"),
     Headline("y within one node", "single_force", "localise", "y", "within_one"),
-    Headline("two forces: force 1 R² (Gaussian process)", "two_force", "force1", "force1", "r2",
+    Headline("two forces: force 1 R²", "two_force", "force1", "force1", "r2",
              "0.695"),
-    Headline("two forces: force 2 R² (Gaussian process)", "two_force", "force2", "force2", "r2",
+    Headline("two forces: force 2 R²", "two_force", "force2", "force2", "r2",
              "0.771"),
-    *(Headline(f"two forces: {t} accuracy (random forest)", "two_force", "localise", t,
+    *(Headline(f"two forces: {t} accuracy", "two_force", "localise", t,
                "accuracy", "“high” (Fig. 8)") for t in ("x1", "y1", "x2", "y2")),
     Headline("two forces: pair accuracy, order-free", "two_force", "pairs", None,
              "pair_accuracy"),
@@ -83,8 +83,14 @@ def _value(metrics: Mapping, row: Headline, scheme: str) -> str:
 
 def headline_rows(metrics: Mapping[tuple[str, str], Mapping]) -> list[list[str]]:
     """[metric, stratified, grouped, paper] per headline, as display strings."""
-    return [[row.label, *(_value(metrics, row, s) for s in SCHEMES), row.paper]
+    return [[_label(metrics, row), *(_value(metrics, row, s) for s in SCHEMES), row.paper]
             for row in HEADLINES]
+
+
+def _label(metrics: Mapping, row: Headline) -> str:
+    """The row's label with the model that produced its number (the paper's, or another)."""
+    model = metrics.get((row.scene, row.task), {}).get("model")
+    return f"{row.label} [{model}]" if model else row.label
 
 
 def headline_markdown(metrics: Mapping[tuple[str, str], Mapping]) -> str:
@@ -173,7 +179,8 @@ Mean ± std over the folds of each cross-validation scheme: <em>stratified</em> 
 {_table(["scene", "DVC md5", "rows", "source"], datasets(metrics))}
 <h2>Models</h2>
 <p>Each model file's md5 is the one in <code>dvc.lock</code>; its MLflow run carries it as the tag
-<code>eskin.model_md5</code> (<code>mlflow.search_runs(filter_string="tags.`eskin.model_md5` = '…'")</code>).</p>
+<code>eskin.model_md5</code>
+(<code>mlflow.search_runs(filter_string="tags.`eskin.model_md5` = '…'")</code>).</p>
 {_table(["scene/task", "model", "model md5"], models(metrics))}
 <h2>Figures</h2>
 {figure_html}

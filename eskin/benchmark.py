@@ -1,0 +1,406 @@
+"""Run time against error: model variants side by side on the same folds.
+
+For each task, every variant in ``bench.tasks.<task>`` is fitted and scored
+on the same folds of the pipeline's split (``cv``), timed (fit + predict,
+seconds per fold) and measured for peak memory (the process's peak resident
+set, reset before each variant through ``/proc/self/clear_refs``). Variants
+run one after another in this process, so their times are comparable; the
+ratios the issue asks for are computed from these numbers, in one run.
+
+The Bayes bound (:mod:`eskin.oracle`) is scored on the same folds, so each
+task's table says how far each variant is from the best possible and what
+share of the paper configuration's gap it closes.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from sklearn.base import BaseEstimator, clone
+
+from eskin.data.schema import CHANNELS
+from eskin.evaluation import metrics
+from eskin.evaluation.cv import assign_folds
+from eskin.models import build_model
+from eskin.tasks import Task
+
+# The score each task is judged on: (target, score, higher is better).
+HEADLINE: dict[str, list[tuple[str, str]]] = {
+    "stretch": [("stretch", "r2")],
+    "force": [("force", "r2")],
+    "detect": [("contact", "accuracy")],
+    "localise": [("x", "accuracy"), ("y", "accuracy")],
+}
+
+
+def peak_memory_mb() -> float | None:
+    """Peak resident set of this process since the last reset (Linux), in MiB."""
+    try:
+        with open("/proc/self/status") as status:
+            for line in status:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024
+    except OSError:
+        return None
+    return None
+
+
+def reset_peak_memory() -> None:
+    try:
+        with open("/proc/self/clear_refs", "w") as clear:
+            clear.write("5")
+    except OSError:
+        pass
+
+
+def variant_estimator(role: str, spec: Mapping[str, Any]) -> tuple[BaseEstimator, bool]:
+    """(estimator, share hyperparameters across folds) from a ``bench.tasks`` entry."""
+    spec = dict(spec)
+    model = spec.pop("model")
+    share = bool(spec.pop("share_hyperparameters", False))
+    return build_model(role, model, spec), share
+
+
+def _fit_predict(estimator: BaseEstimator, X: np.ndarray, y: np.ndarray, train: np.ndarray,
+                 test: np.ndarray) -> tuple[np.ndarray, float, float, BaseEstimator]:
+    model = clone(estimator)
+    start = time.perf_counter()
+    model.fit(X[train], y[train])
+    fit_s = time.perf_counter() - start
+    start = time.perf_counter()
+    predicted = np.asarray(model.predict(X[test]))
+    return predicted, fit_s, time.perf_counter() - start, model
+
+
+def run_variant(task: Task, data: pd.DataFrame, fold_of: np.ndarray, fold_ids: list[int],
+                estimator: BaseEstimator, share: bool) -> dict[str, Any]:
+    """Score one variant on the given folds: per-target mean scores, seconds, peak MiB."""
+    X = data[CHANNELS].to_numpy(dtype=np.float64)
+    score: Callable = metrics.SCORERS[task.scorer]
+    per_target: dict[str, list[dict[str, float]]] = {}
+    fit_s = predict_s = 0.0
+    reset_peak_memory()
+    for name, y in task.target_values(data).items():
+        per_target[name] = []
+        shared = estimator
+        for k, fold in enumerate(fold_ids):
+            train, test = np.flatnonzero(fold_of != fold), np.flatnonzero(fold_of == fold)
+            predicted, f_s, p_s, fitted = _fit_predict(shared, X, y, train, test)
+            if share and k == 0:
+                # Hyperparameters fitted once (on the first training fold, timed above)
+                # and reused: later folds only condition on their data.
+                shared = clone(estimator).set_params(hyperparameters=fitted.hyperparameters_)
+            fit_s += f_s
+            predict_s += p_s
+            per_target[name].append(score(y[test], predicted))
+    n = len(fold_ids)
+    return {"scores": {name: metrics.summarise(folds) for name, folds in per_target.items()},
+            "fit_seconds_per_fold": fit_s / n, "predict_seconds_per_fold": predict_s / n,
+            "seconds_per_fold": (fit_s + predict_s) / n, "peak_memory_mb": peak_memory_mb()}
+
+
+def scaling(task: Task, data: pd.DataFrame, estimator: BaseEstimator, fractions: list[float],
+            seed: int) -> dict[str, Any]:
+    """Fit time at each fraction of the data, resampled with replacement (seeded)."""
+    X = data[CHANNELS].to_numpy(dtype=np.float64)
+    y = next(iter(task.target_values(data).values()))
+    rng = np.random.default_rng(seed)
+    times = {}
+    for fraction in fractions:
+        rows = rng.choice(len(data), size=int(round(fraction * len(data))), replace=True)
+        start = time.perf_counter()
+        clone(estimator).fit(X[rows], y[rows])
+        times[str(fraction)] = time.perf_counter() - start
+    ordered = [times[str(f)] for f in sorted(fractions)]
+    return {"rows_at_1": len(data), "fit_seconds": times,
+            "growth_per_doubling": [b / a for a, b in zip(ordered, ordered[1:], strict=False)]}
+
+
+def bound_scores(task: Task, data: pd.DataFrame, oracle: pd.DataFrame, fold_of: np.ndarray,
+                 fold_ids: list[int]) -> dict[str, dict[str, float]]:
+    """The oracle's scores on the same folds (``oracle`` aligned with ``data``'s rows)."""
+    score: Callable = metrics.SCORERS[task.scorer]
+    out = {}
+    for name, y in task.target_values(data).items():
+        column = "contact" if name == "contact" else name
+        folds = []
+        for fold in fold_ids:
+            test = np.flatnonzero(fold_of == fold)
+            extra = oracle["contact_probability"].to_numpy()[test] if name == "contact" else None
+            folds.append(score(y[test], oracle[column].to_numpy()[test], extra))
+        out[name] = metrics.summarise(folds)
+    return out
+
+
+def pareto_front(points: Mapping[str, tuple[float, float]]) -> list[str]:
+    """Names not dominated in (seconds, error): nothing is both faster and more accurate."""
+    front = []
+    for name, (seconds, error) in points.items():
+        if not any((s <= seconds and e <= error) and (s < seconds or e < error)
+                   for other, (s, e) in points.items() if other != name):
+            front.append(name)
+    return sorted(front, key=lambda n: points[n][0])
+
+
+def headline_error(task_name: str, scores: Mapping[str, Mapping[str, float]]) -> float:
+    """1 − the task's headline score (mean over its targets): lower is better."""
+    values = [scores[target][name] for target, name in HEADLINE[task_name]]
+    return 1.0 - float(np.mean(values))
+
+
+def benchmark_task(task: Task, frame: pd.DataFrame, kind: str, variants: Mapping[str, Mapping],
+                   *, schemes: list[str], folds: int, seed: int, evaluate_folds: int,
+                   oracle: pd.DataFrame | None, log=print) -> dict[str, Any]:
+    """Every variant of one task under each scheme, the bound, the front and the gaps."""
+    rows = task.rows(frame)
+    data = frame[rows].reset_index(drop=True)
+    oracle_rows = oracle[rows].reset_index(drop=True) if oracle is not None else None
+    doc: dict[str, Any] = {"task": task.name, "rows": int(rows.sum()),
+                           "evaluate_folds": evaluate_folds, "folds": folds, "schemes": {}}
+    for scheme in schemes:
+        fold_of = assign_folds(frame, kind, scheme, folds, seed)[rows]
+        fold_ids = [f for f in np.unique(fold_of) if f >= 0][:evaluate_folds]
+        results = {}
+        for name, spec in variants.items():
+            estimator, share = variant_estimator(task.role, spec)
+            log(f"  {task.name} {scheme}: {name} …")
+            results[name] = {"spec": dict(spec),
+                             **run_variant(task, data, fold_of, fold_ids, estimator, share)}
+            log(f"  {task.name} {scheme}: {name} {results[name]['seconds_per_fold']:.2f} s/fold, "
+                f"error {headline_error(task.name, results[name]['scores']):.4f}")
+        points = {n: (r["seconds_per_fold"], headline_error(task.name, r["scores"]))
+                  for n, r in results.items()}
+        entry: dict[str, Any] = {"variants": results, "pareto_front": pareto_front(points)}
+        if oracle_rows is not None:
+            bound = bound_scores(task, data, oracle_rows, fold_of, fold_ids)
+            bound_error = headline_error(task.name, bound)
+            paper_error = points["paper"][1] if "paper" in points else float("nan")
+            gap = paper_error - bound_error
+            entry["bayes_bound"] = {"scores": bound, "error": bound_error}
+            entry["gap_closed"] = {n: ((paper_error - e) / gap if gap > 0 else float("nan"))
+                                   for n, (_, e) in points.items()}
+        doc["schemes"][scheme] = entry
+    return doc
+
+
+# ---------------------------------------------------------------- pipeline steps
+
+def bayes_bound(params: Mapping[str, Any], dataset_path: Path, out_path: Path, *,
+                log=print) -> str:
+    """The oracle's answers for every sample of a simulated single-force dataset → Parquet."""
+    from eskin.config import section, skin_params
+    from eskin.data.schema import read_dataset, read_metadata
+    from eskin.oracle import posterior_predictions
+
+    meta = read_metadata(dataset_path)
+    if meta.get("kind") != "single_force" or meta.get("source", {}).get("kind") != "simulated":
+        raise ValueError(f"{dataset_path}: the Bayes bound needs a simulated single-force "
+                         f"dataset (this one: {meta.get('kind')}, "
+                         f"{meta.get('source', {}).get('kind')})")
+    frame = read_dataset(dataset_path)
+    scene = section(params, f"scenes.{meta.get('scene', 'single_force')}")
+    last = [0.0]
+
+    def progress(done: int, total: int) -> None:
+        if done == total or time.perf_counter() - last[0] > 10:
+            last[0] = time.perf_counter()
+            log(f"  Bayes bound: {done:,}/{total:,} samples")
+
+    answers = posterior_predictions(frame, skin_params(params), scene["stretches"],
+                                    scene["forces"], progress=progress)
+    answers.insert(0, "sample", frame["sample"].to_numpy())
+    answers.insert(0, "trial", frame["trial"].to_numpy())
+    answers.insert(0, "session", frame["session"].to_numpy())
+    out_path = Path(out_path)
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    answers.to_parquet(out_path, index=False)
+    return f"Bayes bound: {len(answers):,} samples → {out_path}"
+
+
+def bench(params: Mapping[str, Any], task_name: str, features_path: Path, bound_path: Path,
+          out_dir: Path, *, log=print) -> str:
+    """One task's variants on the same folds, with the bound → ``<out>/<task>.json``."""
+    import json
+
+    from eskin.config import section
+    from eskin.data.schema import read_dataset, read_metadata
+    from eskin.tasks import get_task
+
+    settings = section(params, "bench")
+    cv = section(params, "cv")
+    meta = read_metadata(features_path)
+    frame = read_dataset(features_path)
+    task = get_task(meta["kind"], task_name)
+    answers = pd.read_parquet(bound_path)
+    oracle = frame[["session", "trial", "sample"]].merge(
+        answers, on=["session", "trial", "sample"], how="left", validate="one_to_one")
+    if oracle["stretch"].isna().any():
+        raise ValueError(f"{bound_path}: does not cover every sample of {features_path}; "
+                         "rerun `dvc repro bench/dvc.yaml:bound`")
+    doc = benchmark_task(task, frame, meta["kind"], section(params, f"bench.tasks.{task_name}"),
+                         schemes=list(settings["schemes"]), folds=int(cv["folds"]),
+                         seed=int(cv["seed"]), evaluate_folds=int(settings["evaluate_folds"]),
+                         oracle=oracle, log=log)
+    doc.update(scene=meta.get("scene", "single_force"), dataset_md5=meta["dataset"]["md5"])
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / f"{task_name}.json").write_text(
+        json.dumps(doc, indent=2, sort_keys=True, allow_nan=True) + "\n")
+    return "\n".join(f"{task_name}: {scheme} Pareto front {', '.join(entry['pareto_front'])}"
+                     for scheme, entry in doc["schemes"].items())
+
+
+def default_variant(params: Mapping[str, Any], task_name: str,
+                    variants: Mapping[str, Mapping]) -> str:
+    """The bench variant whose model and hyperparameters the training stage uses by default."""
+    from eskin.config import section
+    from eskin.models import model_settings
+
+    model, hyper = model_settings(section(params, f"train.single_force.{task_name}"),
+                                  section(params, "train.configuration"))
+    wanted = {"model": model, **hyper}
+    for name, spec in variants.items():
+        if {k: v for k, v in spec.items() if k != "share_hyperparameters"} == wanted \
+                and not spec.get("share_hyperparameters"):
+            return name
+    raise ValueError(f"the default {task_name} model {wanted} is not among the benchmark's "
+                     f"variants (bench.tasks.{task_name}); add it there")
+
+
+def summarise(params: Mapping[str, Any], bench_dir: Path, features_path: Path, *,
+              log=print) -> str:
+    """Targets (as ratios measured in the bench runs), tables and a plot per task."""
+    import json
+
+    from eskin.config import section
+    from eskin.data.schema import read_dataset, read_metadata
+    from eskin.tasks import get_task
+
+    settings = section(params, "bench")
+    bench_dir = Path(bench_dir)
+    docs = {task: json.loads((bench_dir / f"{task}.json").read_text()) for task in HEADLINE}
+    summary: dict[str, Any] = {"defaults": {}, "targets": {}}
+    for task_name, doc in docs.items():
+        variants = section(params, f"bench.tasks.{task_name}")
+        doc["default"] = default_variant(params, task_name, variants)
+        summary["defaults"][task_name] = doc["default"]
+        summary["targets"].update(targets(doc))
+        figure = benchmark_figure(doc)
+        figure.savefig(bench_dir / f"{task_name}.png", dpi=150, metadata={"Software": None})
+    # Cost on doubling: the default force model refitted at ½, 1 and 2× a training fold.
+    meta = read_metadata(features_path)
+    task = get_task(meta["kind"], "force")
+    frame = read_dataset(features_path)
+    default = summary["defaults"]["force"]
+    estimator, _ = variant_estimator("force", section(params, f"bench.tasks.force.{default}"))
+    log(f"scaling: {default} at {settings['scaling_fractions']} × the data …")
+    grown = scaling(task, frame[task.rows(frame)].reset_index(drop=True), estimator,
+                    list(settings["scaling_fractions"]), seed=int(settings["seed"]))
+    worst = max(grown["growth_per_doubling"])
+    summary["targets"]["cost_on_doubling"] = {
+        **grown, "met": bool(worst <= 2.3),
+        "text": f"force default ({default}) fit time grows "
+                f"{' then '.join(f'{g:.2f}×' for g in grown['growth_per_doubling'])} per "
+                "doubling of the data (target ≤ 2.3×)"}
+    (bench_dir / "summary.json").write_text(
+        json.dumps(summary, indent=2, sort_keys=True, allow_nan=True) + "\n")
+    (bench_dir / "summary.md").write_text(summary_markdown(docs, summary))
+    return "\n".join(f"target {'met ' if t['met'] else 'MISSED'}: {t['text']}"
+                     for t in summary["targets"].values())
+
+
+def targets(doc: Mapping[str, Any]) -> dict[str, Any]:
+    """The issue's targets for one task, as ratios of numbers measured in one bench run."""
+    out: dict[str, Any] = {}
+    default = doc["default"]
+    for scheme, entry in doc["schemes"].items():
+        results = entry["variants"]
+        if doc["task"] == "force" and "exact_gp" in results:
+            ref, fast = results["exact_gp"], results[default]
+            speedup = ref["seconds_per_fold"] / fast["seconds_per_fold"]
+            r2_gap = ref["scores"]["force"]["r2"] - fast["scores"]["force"]["r2"]
+            out[f"force_speed_vs_exact_gp_{scheme}"] = {
+                "speedup": speedup, "r2_below_reference": r2_gap,
+                "met": bool(speedup >= 20 and r2_gap <= 0.01),
+                "text": f"force default ({default}) {speedup:.1f}× faster than exact_gp "
+                        f"(target ≥ 20×), R² {r2_gap:+.4f} below it (target ≤ 0.01), "
+                        f"{scheme} CV"}
+        if scheme == "grouped" and "gap_closed" in entry:
+            closed = {n: v for n, v in entry["gap_closed"].items()
+                      if n != "paper" and np.isfinite(v)}
+            if closed:
+                best = max(closed, key=lambda n: closed[n])
+                out[f"{doc['task']}_gap_closed_grouped"] = {
+                    "best": best, "share": closed[best], "default": default,
+                    "default_share": entry["gap_closed"].get(default),
+                    "met": bool(closed[best] >= 0.8),
+                    "text": f"{doc['task']}: {best} closes {closed[best]:.0%} of the gap between "
+                            f"paper and the Bayes bound, grouped CV (target ≥ 80%); default "
+                            f"{default} {entry['gap_closed'].get(default, float('nan')):.0%}"}
+    return out
+
+
+def summary_markdown(docs: Mapping[str, Mapping], summary: Mapping[str, Any]) -> str:
+    """Per task and scheme: each variant's time, memory, error, gap closed; front marked."""
+    lines = ["# Benchmark", "",
+             "Seconds and peak memory per fold (fit + predict), error = 1 − the task's headline "
+             "score, on the same folds for every variant. ★ default, ◆ on the Pareto front.", ""]
+    for task_name, doc in docs.items():
+        for scheme, entry in doc["schemes"].items():
+            bound = entry.get("bayes_bound", {}).get("error", float("nan"))
+            lines += [f"## {task_name} — {scheme} CV (Bayes bound error {bound:.4f})", "",
+                      "| variant | s/fold | peak MiB | error | gap closed |",
+                      "|---|---|---|---|---|"]
+            for name, result in sorted(entry["variants"].items(),
+                                       key=lambda kv: kv[1]["seconds_per_fold"]):
+                mark = ("★" if name == doc["default"] else "") + \
+                       ("◆" if name in entry["pareto_front"] else "")
+                gap = entry.get("gap_closed", {}).get(name, float("nan"))
+                memory = result.get("peak_memory_mb") or float("nan")
+                lines.append(f"| {name} {mark} | {result['seconds_per_fold']:.3g} | "
+                             f"{memory:,.0f} | {headline_error(task_name, result['scores']):.4f} "
+                             f"| {gap:.0%} |")
+            lines.append("")
+    lines += ["## Targets", ""] + [f"- {'met' if t['met'] else '**missed**'}: {t['text']}"
+                                   for t in summary["targets"].values()]
+    return "\n".join(lines) + "\n"
+
+
+def benchmark_figure(doc: Mapping[str, Any]):
+    """Seconds per fold (log) against error, per scheme; the front joined, the bound dashed."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    schemes = list(doc["schemes"])
+    figure, axes = plt.subplots(1, len(schemes), figsize=(4.2 * len(schemes), 3.6),
+                                sharey=True, squeeze=False, layout="constrained")
+    for ax, scheme in zip(axes[0], schemes, strict=True):
+        entry = doc["schemes"][scheme]
+        for name, result in entry["variants"].items():
+            seconds = result["seconds_per_fold"]
+            error = headline_error(doc["task"], result["scores"])
+            memory = result.get("peak_memory_mb") or 0.0
+            marker = "*" if name == doc["default"] else ("s" if name == "paper" else "o")
+            ax.scatter(seconds, error, marker=marker, s=80 if marker == "*" else 30, zorder=3)
+            ax.annotate(f"{name}\n{memory:,.0f} MiB", (seconds, error), fontsize=7,
+                        xytext=(4, 2), textcoords="offset points")
+        front = entry["pareto_front"]
+        ax.plot([entry["variants"][n]["seconds_per_fold"] for n in front],
+                [headline_error(doc["task"], entry["variants"][n]["scores"]) for n in front],
+                color="grey", lw=1, ls="-", zorder=1, label="Pareto front")
+        if "bayes_bound" in entry:
+            ax.axhline(entry["bayes_bound"]["error"], color="black", ls="--", lw=1,
+                       label="Bayes bound")
+        ax.set_xscale("log")
+        ax.set_xlabel("fit + predict, seconds per fold")
+        ax.set_title(f"{doc['task']} — {scheme} CV")
+        ax.legend(fontsize=7, loc="upper right")
+    axes[0][0].set_ylabel("error (1 − " + " / ".join(s for _, s in HEADLINE[doc["task"]]) + ")")
+    return figure

@@ -1,0 +1,158 @@
+"""Fast Gaussian processes, the Bayes-bound oracle, and the benchmark's bookkeeping."""
+
+import numpy as np
+import pytest
+from conftest import small_scenes
+from scipy.linalg import LinAlgError
+from sklearn.metrics import r2_score
+from sklearn.utils.estimator_checks import check_estimator
+
+from eskin import benchmark, steps
+from eskin.data.schema import contact_mask, read_dataset
+from eskin.device.physics import SkinParams
+from eskin.gp import FixedKernelGaussianProcess, SparseGaussianProcess, stable_cholesky
+from eskin.oracle import plan_conditions, posterior_predictions, truth
+from eskin.tasks import get_task
+
+
+def smooth_problem(n=1500, d=4, seed=0):
+    rng = np.random.default_rng(seed)
+    X = rng.normal(size=(n, d)) * np.array([1.0, 10.0, 0.1, 1.0])[:d]
+    y = np.sin(X[:, 0]) + 0.5 * X[:, 1] / 10 + 0.05 * rng.normal(size=n)
+    return X, y
+
+
+@pytest.mark.parametrize("estimator", [SparseGaussianProcess(n_inducing=20, hyper_subsample=30),
+                                       FixedKernelGaussianProcess(hyper_subsample=30)])
+def test_gaussian_processes_follow_the_scikit_learn_contract(estimator):
+    check_estimator(estimator)
+
+
+def test_sparse_gp_comes_within_a_hair_of_the_exact_gp():
+    X, y = smooth_problem()
+    train, test = slice(0, 1200), slice(1200, None)
+    exact = FixedKernelGaussianProcess(hyper_subsample=400, random_state=1).fit(X[train], y[train])
+    sparse = SparseGaussianProcess(n_inducing=300, hyper_subsample=400, ard=False,
+                                   random_state=1).fit(X[train], y[train])
+    r2_exact = r2_score(y[test], exact.predict(X[test]))
+    r2_sparse = r2_score(y[test], sparse.predict(X[test]))
+    assert r2_exact > 0.95
+    assert r2_sparse > r2_exact - 0.01
+
+
+def test_sparse_gp_reuses_given_hyperparameters_without_optimising():
+    X, y = smooth_problem()
+    first = SparseGaussianProcess(n_inducing=100, hyper_subsample=200).fit(X, y)
+    again = SparseGaussianProcess(n_inducing=100, hyperparameters=first.hyperparameters_).fit(X, y)
+    assert again.hyperparameters_ == first.hyperparameters_
+    np.testing.assert_allclose(again.predict(X[:50]), first.predict(X[:50]))
+
+
+def test_repeated_samples_and_a_dead_channel_factorise_with_jitter():
+    X, y = smooth_problem(n=300)
+    X = np.repeat(X, 3, axis=0)         # every sample three times: singular kernel matrices
+    X[:, 2] = 7.0                       # a dead channel
+    y = np.repeat(y, 3)
+    model = SparseGaussianProcess(n_inducing=200, hyper_subsample=200).fit(X, y)
+    assert np.all(np.isfinite(model.predict(X)))
+    assert model.jitter_ > 0            # the inducing points repeat: it needed jitter
+
+
+def test_stable_cholesky_names_what_it_cannot_factorise():
+    with pytest.raises(LinAlgError, match="NaN"):
+        stable_cholesky(np.array([[1.0, np.nan], [np.nan, 1.0]]))
+    with pytest.raises(LinAlgError, match="jitter"):
+        stable_cholesky(np.array([[1.0, 0.0], [0.0, -1.0]]))
+
+
+def test_pareto_front_keeps_only_the_undominated():
+    points = {"fast": (1.0, 0.3), "slow_good": (10.0, 0.1), "dominated": (5.0, 0.4),
+              "tie_slower": (2.0, 0.3)}
+    assert benchmark.pareto_front(points) == ["fast", "slow_good"]
+
+
+# ------------------------------------------------------------------ the oracle
+
+def test_oracle_conditions_cover_the_plan(repo_params):
+    sim = SkinParams.from_mapping(repo_params["sim"])
+    cond = plan_conditions(sim, [1.0, 1.1], [0.0, 1.0, 3.0], offset_points=3, load_points=3)
+    # per stretch: one contact-free condition and 100 nodes × 2 pressing forces
+    assert cond.means.shape == (2 * (1 + 200), 27, 20)
+    assert np.isclose(np.exp(cond.log_prior).sum(), 1.0)
+    assert np.isclose(np.exp(cond.log_weights).sum(), 1.0)
+
+
+@pytest.fixture(scope="module")
+def small_dataset(tmp_path_factory, repo_params):
+    params = small_scenes(repo_params)
+    root = tmp_path_factory.mktemp("oracle")
+    steps.acquire(params, "single_force", root / "raw", progress=False)
+    steps.ingest(params, "single_force", root / "raw", root / "processed")
+    return params, read_dataset(root / "processed" / "single_force.parquet")
+
+
+def test_oracle_is_near_perfect_where_the_physics_is_unambiguous(small_dataset):
+    params, frame = small_dataset
+    scene = params["scenes"]["single_force"]
+    sim = SkinParams.from_mapping(params["sim"])
+    answers = posterior_predictions(frame, sim, scene["stretches"], scene["forces"])
+    labels = truth(frame)
+    assert answers.shape[0] == len(frame)
+    assert np.all(answers["contact_probability"].between(0, 1))
+    assert (answers["contact"] == labels["contact"]).mean() > 0.99
+    touching = labels["contact"].to_numpy()
+    assert (answers["x"][touching] == labels["x"][touching]).mean() > 0.97
+    assert r2_score(labels["stretch"], answers["stretch"]) > 0.99
+
+
+def test_oracle_bound_drops_when_the_simulator_is_noisier(small_dataset):
+    """A bound that does not move with the noise would be typed in, not computed."""
+    params, frame = small_dataset
+    scene = params["scenes"]["single_force"]
+    sim = SkinParams.from_mapping(params["sim"])
+    noisy = SkinParams.from_mapping({**params["sim"], "noise_pf": 1.0})
+    rows = frame.iloc[::7].reset_index(drop=True)
+    touching = contact_mask(rows)
+    exact = posterior_predictions(rows, sim, scene["stretches"], scene["forces"])
+    blurred = posterior_predictions(rows, noisy, scene["stretches"], scene["forces"])
+    accuracy = [(a["x"][touching] == rows["x"][touching]).mean() for a in (exact, blurred)]
+    assert accuracy[1] < accuracy[0]
+
+
+def test_bound_scores_use_the_task_metrics(small_dataset):
+    params, frame = small_dataset
+    oracle = truth(frame).assign(contact_probability=contact_mask(frame).astype(float))
+    task = get_task("single_force", "detect")
+    folds = np.arange(len(frame)) % 3
+    scores = benchmark.bound_scores(task, frame, oracle, folds, [0, 1, 2])
+    assert scores["contact"]["accuracy"] == 1.0
+
+
+def test_a_variant_is_scored_on_the_given_folds_only(small_dataset):
+    _, frame = small_dataset
+    task = get_task("single_force", "stretch")
+    folds = np.arange(len(frame)) % 5
+    estimator, share = benchmark.variant_estimator("stretch", {"model": "paper"})
+    result = benchmark.run_variant(task, frame, folds, [0, 1], estimator, share)
+    assert result["scores"]["stretch"]["r2"] > 0.9
+    assert result["seconds_per_fold"] > 0
+    assert result["peak_memory_mb"] is None or result["peak_memory_mb"] > 0
+
+
+def test_shared_hyperparameters_are_fitted_once(small_dataset, monkeypatch):
+    from eskin import gp
+
+    _, frame = small_dataset
+    calls = []
+    original = gp.fit_rbf_hyperparameters
+    monkeypatch.setattr(gp, "fit_rbf_hyperparameters",
+                        lambda *a, **k: calls.append(1) or original(*a, **k))
+    task = get_task("single_force", "force")
+    folds = np.arange(len(frame)) % 4
+    spec = {"model": "sparse_gp", "n_inducing": 50, "hyper_subsample": 100}
+    for share, expected in ((True, 1), (False, 3)):
+        calls.clear()
+        estimator, _ = benchmark.variant_estimator("force", spec)
+        result = benchmark.run_variant(task, frame, folds, [0, 1, 2], estimator, share)
+        assert len(calls) == expected
+        assert np.isfinite(result["scores"]["force"]["r2"])
