@@ -9,6 +9,8 @@ from __future__ import annotations
 import matplotlib
 
 matplotlib.use("Agg")  # files only: no display on a build machine
+# SVG element ids are random (uuid4) unless salted: salted, the same figure is the same file.
+matplotlib.rcParams["svg.hashsalt"] = "eskin"
 
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
