@@ -32,24 +32,21 @@ from sklearn.ensemble import (
 )
 from sklearn.exceptions import ConvergenceWarning
 from sklearn.gaussian_process import GaussianProcessRegressor
-from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
 from sklearn.linear_model import LinearRegression, LogisticRegression, Ridge
-from sklearn.model_selection import train_test_split
 from sklearn.neighbors import KNeighborsClassifier
 from sklearn.pipeline import Pipeline, make_pipeline
 from sklearn.preprocessing import StandardScaler
 from sklearn.svm import SVC, LinearSVC
 from sklearn.utils.validation import check_is_fitted, validate_data
 
-from eskin.gp import FixedKernelGaussianProcess, SparseGaussianProcess
+from eskin.gp import (
+    FixedKernelGaussianProcess,
+    SparseGaussianProcess,
+    rbf_gp_kernel,
+    subsample_rows,
+)
 
 ROLES = ("stretch", "force", "detect", "localise")
-
-
-def rbf_gp_kernel(length_scale: float = 1.0, noise_level: float = 0.1):
-    """Signal variance × RBF + white noise; all three optimised by the GP."""
-    return (ConstantKernel(1.0, (1e-3, 1e3)) * RBF(length_scale, (1e-2, 1e3))
-            + WhiteKernel(noise_level, (1e-6, 1e1)))
 
 
 class SubsampledGaussianProcess(RegressorMixin, BaseEstimator):
@@ -82,13 +79,7 @@ class SubsampledGaussianProcess(RegressorMixin, BaseEstimator):
         X, y = validate_data(self, X, y, dtype=np.float64, y_numeric=True)
         if self.subsample < 2:
             raise ValueError(f"subsample must be at least 2, got {self.subsample}")
-        rows = np.arange(len(y))
-        if len(y) > self.subsample:
-            levels, counts = np.unique(y, return_counts=True)
-            stratify = y if len(levels) <= self.subsample // 2 and counts.min() >= 2 else None
-            rows, _ = train_test_split(rows, train_size=self.subsample, stratify=stratify,
-                                       random_state=self.random_state)
-        self.subsample_index_ = np.sort(rows)
+        self.subsample_index_ = subsample_rows(y, self.subsample, self.random_state)
         self.model_ = make_pipeline(StandardScaler(), GaussianProcessRegressor(
             rbf_gp_kernel(), normalize_y=True, n_restarts_optimizer=self.n_restarts_optimizer,
             random_state=self.random_state))

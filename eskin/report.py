@@ -1,6 +1,6 @@
 """Pipeline step of reporting: figures, DVC plot data, the report page, the README table.
 
-Reads only the training stages' predictions, metrics and run ids, and its own
+Reads only the training stages' predictions and metrics, and its own
 params (``report:``), so a change of figure style reruns only this step.
 """
 
