@@ -4,8 +4,10 @@ For each task, every variant in ``bench.tasks.<task>`` is fitted and scored
 on the same folds of the pipeline's split (``cv``), timed (fit + predict,
 seconds per fold) and measured for peak memory (the process's peak resident
 set, reset before each variant through ``/proc/self/clear_refs``). Variants
-run one after another in this process, so their times are comparable; the
-ratios the issue asks for are computed from these numbers, in one run.
+go through joblib (``bench.n_jobs``, ``bench.backend``), one at a time in this
+process by default, so their times and memory are comparable; the ratios the
+issue asks for are computed from these numbers, in one run. More jobs, or a
+cluster backend, trade that comparability for throughput.
 
 The Bayes bound (:mod:`eskin.oracle`) is scored on the same folds, so each
 task's table says how far each variant is from the best possible and what
@@ -21,15 +23,17 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+from joblib import Parallel, delayed
 from sklearn.base import BaseEstimator, clone
 
 from eskin.data.schema import CHANNELS
 from eskin.evaluation import metrics
+from eskin.evaluation.crossval import parallel_backend
 from eskin.evaluation.cv import assign_folds
 from eskin.models import build_model
 from eskin.tasks import Task
 
-# The score each task is judged on: (target, score, higher is better).
+# The score each task is judged on, higher is better: (target, score) pairs, averaged.
 HEADLINE: dict[str, list[tuple[str, str]]] = {
     "stretch": [("stretch", "r2")],
     "force": [("force", "r2")],
@@ -58,12 +62,18 @@ def reset_peak_memory() -> None:
         pass
 
 
+def variant_settings(spec: Mapping[str, Any]) -> tuple[str, dict[str, Any], bool]:
+    """(model name, hyperparameters, share hyperparameters across folds) of a ``bench.tasks``
+    entry."""
+    hyper = dict(spec)
+    model = hyper.pop("model")
+    return model, hyper, bool(hyper.pop("share_hyperparameters", False))
+
+
 def variant_estimator(role: str, spec: Mapping[str, Any]) -> tuple[BaseEstimator, bool]:
     """(estimator, share hyperparameters across folds) from a ``bench.tasks`` entry."""
-    spec = dict(spec)
-    model = spec.pop("model")
-    share = bool(spec.pop("share_hyperparameters", False))
-    return build_model(role, model, spec), share
+    model, hyper, share = variant_settings(spec)
+    return build_model(role, model, hyper), share
 
 
 def _fit_predict(estimator: BaseEstimator, X: np.ndarray, y: np.ndarray, train: np.ndarray,
@@ -127,12 +137,11 @@ def bound_scores(task: Task, data: pd.DataFrame, oracle: pd.DataFrame, fold_of: 
     score: Callable = metrics.SCORERS[task.scorer]
     out = {}
     for name, y in task.target_values(data).items():
-        column = "contact" if name == "contact" else name
         folds = []
         for fold in fold_ids:
             test = np.flatnonzero(fold_of == fold)
             extra = oracle["contact_probability"].to_numpy()[test] if name == "contact" else None
-            folds.append(score(y[test], oracle[column].to_numpy()[test], extra))
+            folds.append(score(y[test], oracle[name].to_numpy()[test], extra))
         out[name] = metrics.summarise(folds)
     return out
 
@@ -155,7 +164,8 @@ def headline_error(task_name: str, scores: Mapping[str, Mapping[str, float]]) ->
 
 def benchmark_task(task: Task, frame: pd.DataFrame, kind: str, variants: Mapping[str, Mapping],
                    *, schemes: list[str], folds: int, seed: int, evaluate_folds: int,
-                   oracle: pd.DataFrame | None, log=print) -> dict[str, Any]:
+                   oracle: pd.DataFrame | None, n_jobs: int = 1,
+                   log=print) -> dict[str, Any]:
     """Every variant of one task under each scheme, the bound, the front and the gaps."""
     rows = task.rows(frame)
     data = frame[rows].reset_index(drop=True)
@@ -165,14 +175,16 @@ def benchmark_task(task: Task, frame: pd.DataFrame, kind: str, variants: Mapping
     for scheme in schemes:
         fold_of = assign_folds(frame, kind, scheme, folds, seed)[rows]
         fold_ids = [f for f in np.unique(fold_of) if f >= 0][:evaluate_folds]
+        log(f"  {task.name} {scheme}: {len(variants)} variants, {len(fold_ids)} folds …")
+        runs = Parallel(n_jobs=n_jobs, return_as="generator")(
+            delayed(run_variant)(task, data, fold_of, fold_ids,
+                                 *variant_estimator(task.role, spec))
+            for spec in variants.values())
         results = {}
-        for name, spec in variants.items():
-            estimator, share = variant_estimator(task.role, spec)
-            log(f"  {task.name} {scheme}: {name} …")
-            results[name] = {"spec": dict(spec),
-                             **run_variant(task, data, fold_of, fold_ids, estimator, share)}
-            log(f"  {task.name} {scheme}: {name} {results[name]['seconds_per_fold']:.2f} s/fold, "
-                f"error {headline_error(task.name, results[name]['scores']):.4f}")
+        for (name, spec), outcome in zip(variants.items(), runs, strict=True):
+            results[name] = {"spec": dict(spec), **outcome}
+            log(f"  {task.name} {scheme}: {name} {outcome['seconds_per_fold']:.2f} s/fold, "
+                f"error {headline_error(task.name, outcome['scores']):.4f}")
         points = {n: (r["seconds_per_fold"], headline_error(task.name, r["scores"]))
                   for n, r in results.items()}
         entry: dict[str, Any] = {"variants": results, "pareto_front": pareto_front(points)}
@@ -242,10 +254,12 @@ def bench(params: Mapping[str, Any], task_name: str, features_path: Path, bound_
     if oracle["stretch"].isna().any():
         raise ValueError(f"{bound_path}: does not cover every sample of {features_path}; "
                          "rerun `dvc repro bench/dvc.yaml:bound`")
-    doc = benchmark_task(task, frame, meta["kind"], section(params, f"bench.tasks.{task_name}"),
-                         schemes=list(settings["schemes"]), folds=int(cv["folds"]),
-                         seed=int(cv["seed"]), evaluate_folds=int(settings["evaluate_folds"]),
-                         oracle=oracle, log=log)
+    with parallel_backend(settings.get("backend", "loky")):
+        doc = benchmark_task(task, frame, meta["kind"],
+                             section(params, f"bench.tasks.{task_name}"),
+                             schemes=list(settings["schemes"]), folds=int(cv["folds"]),
+                             seed=int(cv["seed"]), evaluate_folds=int(settings["evaluate_folds"]),
+                             oracle=oracle, n_jobs=int(settings.get("n_jobs", 1)), log=log)
     doc.update(scene=meta.get("scene", "single_force"), dataset_md5=meta["dataset"]["md5"])
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -263,12 +277,10 @@ def default_variant(params: Mapping[str, Any], task_name: str,
 
     model, hyper = model_settings(section(params, f"train.single_force.{task_name}"),
                                   section(params, "train.configuration"))
-    wanted = {"model": model, **hyper}
     for name, spec in variants.items():
-        if {k: v for k, v in spec.items() if k != "share_hyperparameters"} == wanted \
-                and not spec.get("share_hyperparameters"):
+        if variant_settings(spec) == (model, hyper, False):
             return name
-    raise ValueError(f"the default {task_name} model {wanted} is not among the benchmark's "
+    raise ValueError(f"the default {task_name} model {model} {hyper} is not among the benchmark's "
                      f"variants (bench.tasks.{task_name}); add it there")
 
 

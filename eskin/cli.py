@@ -115,7 +115,87 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--params", type=Path, default=Path("params.yaml"))
     train.add_argument("--no-track", action="store_true", help="do not log to MLflow")
     train.set_defaults(run=_learning_step)
+
+    compare = commands.add_parser(
+        "compare", help="the latest run of every variant side by side, from MLflow: "
+        "the params that differ, headline scores, run time")
+    compare.add_argument("--scheme", default="grouped", help="CV scheme of the scores "
+                         "(grouped, stratified; default grouped)")
+    compare.add_argument("--last", type=int, metavar="N", help="only the N newest variants")
+    compare.add_argument("--variant", action="append", metavar="NAME",
+                         help="only this variant (repeatable), e.g. a `dvc exp` name")
+    _table_options(compare)
+    compare.set_defaults(run=_compare)
+
+    audit = commands.add_parser(
+        "audit", help="dataset versions (DVC md5) and the MLflow runs each trained; "
+        "with --run, one run's lineage checked against the workspace")
+    audit.add_argument("--run", dest="run_id", metavar="RUN_ID", help="audit this run")
+    _table_options(audit)
+    audit.set_defaults(run=_audit)
+
+    reproduce = commands.add_parser(
+        "reproduce", help="rerun a registered model's cross-validation on its dataset "
+        "version and compare with its run's out-of-fold predictions")
+    reproduce.add_argument("model", help="a registered model, e.g. single_force.force")
+    reproduce.add_argument("--version", help="default: the newest")
+    reproduce.set_defaults(run=_reproduce)
     return parser
+
+
+def _table_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--format", choices=["table", "markdown", "csv"], default="table")
+    parser.add_argument("--output", type=Path, help="write the table here instead of printing")
+
+
+def _emit(text: str, output: Path | None) -> None:
+    if output is None:
+        print(text, end="")
+        return
+    output.parent.mkdir(parents=True, exist_ok=True)
+    output.write_text(text)
+    print(f"wrote {output}")
+
+
+def _compare(args: argparse.Namespace) -> int:
+    from eskin import experiments
+
+    table = experiments.variant_table(experiments.load_runs(), scheme=args.scheme,
+                                      variants=args.variant, last=args.last)
+    _emit(experiments.render(table, args.format), args.output)
+    return 0
+
+
+def _audit(args: argparse.Namespace) -> int:
+    from eskin import experiments
+
+    root = Path.cwd()
+    if args.run_id:
+        _emit(experiments.render_audit(experiments.run_audit(args.run_id, root)), args.output)
+        return 0
+    runs = experiments.load_runs()
+    versions = experiments.dataset_versions(
+        runs, experiments.workspace_digests(root, ["single_force", "two_force"]))
+    versions["committed"] = versions["dataset md5"].map(
+        experiments.commit_dates(root, list(versions["dataset md5"])))
+    if args.format != "table":
+        _emit(experiments.render(versions, args.format), args.output)
+        return 0
+    parts = [experiments.render(versions, "table")]
+    for digest in versions["dataset md5"]:
+        parts.append(f"\n{digest} trained:\n"
+                     + experiments.render(experiments.runs_of_dataset(runs, digest), "table"))
+    _emit("".join(parts), args.output)
+    return 0
+
+
+def _reproduce(args: argparse.Namespace) -> int:
+    from eskin import registry
+
+    result = registry.reproduce(args.model, args.version, root=Path.cwd(),
+                                log=lambda message: print(message, file=sys.stderr))
+    print(registry.render_reproduction(result), end="")
+    return 0 if result["reproduced"] else 1
 
 
 def _learning_step(args: argparse.Namespace) -> int:
@@ -162,6 +242,7 @@ def run_friendly(call, *, debug: bool = False) -> int:
     from eskin.acquisition.runner import AcquisitionError
     from eskin.data.schema import DatasetError
     from eskin.device.link import LinkError
+    from eskin.experiments import NoRunsError
 
     try:
         return call() or 0
@@ -169,8 +250,8 @@ def run_friendly(call, *, debug: bool = False) -> int:
         print("eskin: interrupted; everything received so far is on disk, rerun to resume",
               file=sys.stderr)
         return 130
-    except (DatasetError, LinkError, AcquisitionError, RawLogError, ValueError, KeyError,
-            FileNotFoundError) as err:
+    except (DatasetError, LinkError, AcquisitionError, RawLogError, NoRunsError, ValueError,
+            KeyError, FileNotFoundError) as err:
         if debug:
             raise
         message = err.args[0] if isinstance(err, KeyError) and err.args else err

@@ -9,6 +9,7 @@ MLflow run; ``score_pairs`` scores a two-force scene's contacts as sets.
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 from typing import Any
 
@@ -17,7 +18,7 @@ import pandas as pd
 
 from eskin.config import section
 from eskin.data.schema import md5_file, read_dataset, read_metadata, write_dataset
-from eskin.evaluation.crossval import cross_validate, fit_final
+from eskin.evaluation.crossval import cross_validate, fit_final, parallel_backend
 from eskin.evaluation.cv import assign_folds
 from eskin.features import featurize as featurize_frame
 from eskin.features import fit_featurizer
@@ -49,6 +50,7 @@ def train(params: dict[str, Any], scene: str, task_name: str, features_dir: Path
           metrics_path: Path, predictions_path: Path, model_path: Path,
           params_text: str = "", track: bool = True) -> str:
     """Cross-validate one task under each CV scheme, refit, save, and log to MLflow."""
+    started = time.perf_counter()
     source = Path(features_dir) / f"{scene}.parquet"
     if not source.exists():
         raise FileNotFoundError(f"{source}: no features; run `dvc repro featurize@{scene}` first")
@@ -72,10 +74,11 @@ def train(params: dict[str, Any], scene: str, task_name: str, features_dir: Path
         return f"{scene}/{task_name}: skipped — {reason}"
 
     results = []
-    for scheme in cv["schemes"]:
-        folds = assign_folds(frame, kind, scheme, int(cv["folds"]), int(cv["seed"]))
-        results.append(cross_validate(task, frame, folds, estimator, scheme,
-                                      n_jobs=int(cv.get("n_jobs", 1))))
+    with parallel_backend(cv.get("backend", "loky")):
+        for scheme in cv["schemes"]:
+            folds = assign_folds(frame, kind, scheme, int(cv["folds"]), int(cv["seed"]))
+            results.append(cross_validate(task, frame, folds, estimator, scheme,
+                                          n_jobs=int(cv.get("n_jobs", 1))))
     models = fit_final(task, frame, estimator)
     save_models(models, model_path)
     # The model file's md5 (as in dvc.lock) links metrics, DVC and the MLflow run.
@@ -92,17 +95,30 @@ def train(params: dict[str, Any], scene: str, task_name: str, features_dir: Path
     if track:
         from eskin import tracking  # MLflow takes seconds to import; only training needs it
 
-        run_id = tracking.log_task_run(
+        tracked = tracking.log_task_run(
             scene=scene, task=task_name, params={"model": model_name, model_name: hyper, "cv": cv},
             params_text=params_text, results=results, models=models,
             dataset=frame.drop(columns=["session", "trial", "seq", "t_ms"]),
             dataset_digest=meta["dataset"]["md5"], dataset_source=meta["dataset"]["path"],
-            extra_tags={"eskin.model_md5": header["model_md5"], "eskin.model": model_name})
-        run_note = f"; MLflow run {run_id}"
+            started=started,
+            extra_tags={"eskin.model_md5": header["model_md5"], "eskin.model": model_name,
+                        "eskin.features_md5": md5_file(source),
+                        "eskin.featurize_method": meta["featurize"]["method"],
+                        "eskin.dataset_rows": str(meta["dataset"]["rows"]),
+                        "eskin.dataset_source": _describe_source(meta)})
+        run_note = (f"; MLflow run {tracked.run_id}, registered "
+                    f"{', '.join(tracked.registered)}")
     headline = ", ".join(f"{r.scheme} {_headline(r.summary)}" for r in results)
     notes = "".join(f"\n  note ({r.scheme}, {n} of {len(r.per_fold[next(iter(r.per_fold))])} "
                     f"folds): {text}" for r in results for text, n in sorted(r.notes.items()))
     return f"{scene}/{task_name} [{model_name}]: {headline}{run_note}{notes}"
+
+
+def _describe_source(meta: dict[str, Any]) -> str:
+    """Where a dataset came from, in a few words: ``simulated (seed 7)``, ``serial``."""
+    kind = meta.get("source", {}).get("kind", "unknown")
+    seed = meta.get("simulator", {}).get("seed")
+    return f"{kind} (seed {seed})" if kind == "simulated" and seed is not None else kind
 
 
 def _headline(summary: dict[str, dict[str, float]]) -> str:

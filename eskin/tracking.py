@@ -9,7 +9,9 @@ experiment logs to the same store. ``MLFLOW_TRACKING_URI`` overrides it all.
 A pipeline run — all the stages of one ``dvc repro`` or one ``dvc exp run``
 — is a parent run keyed by the DVC experiment name, or, outside ``dvc exp``,
 by the git commit and the params file; each stage finds its parent by that
-key (creating it on first use) and logs its own run under it.
+key (creating it on first use) and logs its own run under it. The parent
+carries the whole params file (for ``eskin compare``); each task run registers
+its final models with the run's lineage as version tags (for ``eskin reproduce``).
 """
 
 from __future__ import annotations
@@ -19,16 +21,21 @@ import logging
 import os
 import subprocess
 import tempfile
+import time
 import warnings
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 os.environ.setdefault("MLFLOW_ENABLE_TELEMETRY", "false")
 os.environ.setdefault("MLFLOW_DISABLE_TELEMETRY", "true")
+os.environ.setdefault("MLFLOW_SUPPRESS_PRINTING_URL_TO_STDOUT", "true")  # stage output: ours
+os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
 
 import mlflow  # noqa: E402 - telemetry must be off before import
 import pandas as pd  # noqa: E402
+import yaml  # noqa: E402
+from mlflow.entities import Param  # noqa: E402
 from mlflow.models import infer_signature  # noqa: E402
 from mlflow.tracking import MlflowClient  # noqa: E402
 
@@ -83,8 +90,12 @@ def _experiment_id(client: MlflowClient, name: str) -> str:
 
 
 def parent_run(client: MlflowClient, experiment_id: str, key: str,
-               tags: Mapping[str, str]) -> str:
-    """The id of the pipeline run keyed ``key``, created on first use."""
+               tags: Mapping[str, str], params: Mapping[str, Any] | None = None) -> str:
+    """The id of the pipeline run keyed ``key``, created on first use.
+
+    It carries the whole params file, flattened, so that variants can be told
+    apart by the params that differ (``eskin compare``).
+    """
     found = client.search_runs([experiment_id], filter_string=f"tags.`{PIPELINE_TAG}` = '{key}'"
                                " and tags.`eskin.kind` = 'pipeline'", max_results=1)
     if found:
@@ -92,6 +103,9 @@ def parent_run(client: MlflowClient, experiment_id: str, key: str,
     name = dvc_experiment() or f"repro {key.split(':', 1)[1]}"
     run = client.create_run(experiment_id, run_name=name,
                             tags={**tags, PIPELINE_TAG: key, "eskin.kind": "pipeline"})
+    entries = [Param(k, str(v)) for k, v in flatten(params or {}).items()]
+    for start in range(0, len(entries), 100):  # the REST API takes 100 params per batch
+        client.log_batch(run.info.run_id, params=entries[start:start + 100])
     client.set_terminated(run.info.run_id)
     return run.info.run_id
 
@@ -117,19 +131,22 @@ def _pipeline(scene: str, params_text: str) -> tuple[str, str, str, dict[str, st
     key = pipeline_key(params_text, commit)
     tags = {"eskin.git_commit": commit, "mlflow.source.git.commit": commit,
             "eskin.dvc_experiment": dvc_experiment(), "eskin.scene": scene}
-    return experiment_id, parent_run(client, experiment_id, key, tags), key, tags
+    params = yaml.safe_load(params_text) if params_text else {}
+    return (experiment_id, parent_run(client, experiment_id, key, tags, params or {}), key,
+            tags)
 
 
 def log_task_run(*, scene: str, task: str, params: Mapping[str, Any], params_text: str,
                  results: list, models: Mapping[str, Any], dataset: pd.DataFrame,
-                 dataset_digest: str, dataset_source: str,
-                 extra_tags: Mapping[str, str] | None = None) -> str:
-    """Log one task execution; returns its run id.
+                 dataset_digest: str, dataset_source: str, started: float | None = None,
+                 extra_tags: Mapping[str, str] | None = None) -> TrackedRun:
+    """Log one task execution and register its models; returns the run id and versions.
 
     ``results`` are :class:`~eskin.evaluation.crossval.CVResult` per scheme;
     ``models`` maps target name → fitted final model; ``dataset`` is the
     frame that trained them (features and labels), logged as an MLflow input
-    whose digest is the DVC md5 of the dataset's Parquet file.
+    whose digest is the DVC md5 of the dataset's Parquet file; ``started``, the
+    step's ``time.perf_counter()`` at its start, gives the metric ``wall_seconds``.
     """
     experiment_id, parent, key, tags = _pipeline(scene, params_text)
     run_tags = {**tags, **(extra_tags or {}), "eskin.task": task, "eskin.kind": "task",
@@ -142,7 +159,7 @@ def log_task_run(*, scene: str, task: str, params: Mapping[str, Any], params_tex
         warnings.filterwarnings("ignore", message="The specified dataset source can be")
         warnings.filterwarnings("ignore", message="Hint: Inferred schema contains integer")
         return _log_run(experiment_id, parent, scene, task, run_tags, params, results, models,
-                         dataset, dataset_digest, dataset_source)
+                         dataset, dataset_digest, dataset_source, started)
 
 
 class _quiet:
@@ -164,7 +181,7 @@ class _quiet:
 
 
 def _log_run(experiment_id, parent, scene, task, run_tags, params, results, models, dataset,
-             dataset_digest, dataset_source) -> str:
+             dataset_digest, dataset_source, started) -> TrackedRun:
     with mlflow.start_run(experiment_id=experiment_id, run_name=f"{scene}/{task}",
                           parent_run_id=parent, tags=run_tags) as run:
         mlflow.log_params({k: str(v) for k, v in flatten(params).items()})
@@ -175,7 +192,9 @@ def _log_run(experiment_id, parent, scene, task, run_tags, params, results, mode
         for result in results:
             for target, folds in result.per_fold.items():
                 for fold, scores in enumerate(folds):
-                    mlflow.log_metrics({f"{result.scheme}.{target}.{k}": v
+                    # Its own key: under the mean's key, MLflow's "latest" value (the
+                    # highest step) would be the last fold's score, not the mean.
+                    mlflow.log_metrics({f"{result.scheme}.fold.{target}.{k}": v
                                         for k, v in scores.items()}, step=fold)
             mlflow.log_metrics(flatten({result.scheme: result.summary}))
             mlflow.log_metrics({f"{result.scheme}.fit_seconds": result.fit_seconds,
@@ -188,12 +207,46 @@ def _log_run(experiment_id, parent, scene, task, run_tags, params, results, mode
                 if result.confusion:
                     mlflow.log_dict(result.confusion, f"confusion/{result.scheme}.json")
         example = dataset[CHANNELS].head(5)
+        client = MlflowClient()
+        lineage = {k: v for k, v in run_tags.items()
+                   if k.startswith("eskin.") and k not in ("eskin.kind", "eskin.cv_scheme")}
+        registered = []
         for target, model in models.items():
-            mlflow.sklearn.log_model(
+            info = mlflow.sklearn.log_model(
                 model, name=f"{task}_{target}", input_example=example,
                 signature=infer_signature(example, model.predict(example)),
                 pip_requirements=_requirements(), serialization_format="cloudpickle")
-        return run.info.run_id
+            # Registered with the run's lineage: `eskin reproduce` finds the dataset
+            # version by these tags and reruns the cross-validation on it.
+            name = registered_name(scene, task, target)
+            _ensure_registered_model(client, name)
+            version = client.create_model_version(
+                name, source=info.model_uri, run_id=run.info.run_id, model_id=info.model_id,
+                tags={**lineage, "eskin.target": target}, await_creation_for=0,
+                description=f"{scene}/{task}, target {target}: {run_tags.get('eskin.model')}")
+            registered.append(f"{name} v{version.version}")
+        if started is not None:
+            mlflow.log_metric("wall_seconds", time.perf_counter() - started)
+        return TrackedRun(run.info.run_id, registered)
+
+
+class TrackedRun(NamedTuple):
+    run_id: str
+    registered: list[str]   # "<registered model> v<version>" per target
+
+
+def _ensure_registered_model(client: MlflowClient, name: str) -> None:
+    try:
+        client.create_registered_model(name)
+    except mlflow.exceptions.MlflowException as err:
+        if err.error_code not in ("RESOURCE_ALREADY_EXISTS", "ALREADY_EXISTS"):
+            raise  # (another stage may have created it since)
+
+
+def registered_name(scene: str, task: str, target: str) -> str:
+    """The model registry's name for a target's model: ``single_force.force``,
+    ``single_force.localise.x``."""
+    return f"{scene}.{task}" if target == task else f"{scene}.{task}.{target}"
 
 
 def _requirements() -> list[str]:

@@ -1,6 +1,7 @@
 """Fast Gaussian processes, the Bayes-bound oracle, and the benchmark's bookkeeping."""
 
 import numpy as np
+import pandas as pd
 import pytest
 from conftest import small_scenes
 from scipy.linalg import LinAlgError
@@ -11,7 +12,7 @@ from eskin import benchmark, steps
 from eskin.data.schema import contact_mask, read_dataset
 from eskin.device.physics import SkinParams
 from eskin.gp import FixedKernelGaussianProcess, SparseGaussianProcess, stable_cholesky
-from eskin.oracle import plan_conditions, posterior_predictions, truth
+from eskin.oracle import plan_conditions, posterior_predictions
 from eskin.tasks import get_task
 
 
@@ -82,6 +83,14 @@ def test_oracle_conditions_cover_the_plan(repo_params):
     assert np.isclose(np.exp(cond.log_weights).sum(), 1.0)
 
 
+def task_labels(frame):
+    """The single-force tasks' targets for every row (x and y as recorded)."""
+    labels = {}
+    for name in ("stretch", "force", "detect"):
+        labels.update(get_task("single_force", name).target_values(frame))
+    return pd.DataFrame({**labels, "x": frame["x"].to_numpy(), "y": frame["y"].to_numpy()})
+
+
 @pytest.fixture(scope="module")
 def small_dataset(tmp_path_factory, repo_params):
     params = small_scenes(repo_params)
@@ -96,7 +105,7 @@ def test_oracle_is_near_perfect_where_the_physics_is_unambiguous(small_dataset):
     scene = params["scenes"]["single_force"]
     sim = SkinParams.from_mapping(params["sim"])
     answers = posterior_predictions(frame, sim, scene["stretches"], scene["forces"])
-    labels = truth(frame)
+    labels = task_labels(frame)
     assert answers.shape[0] == len(frame)
     assert np.all(answers["contact_probability"].between(0, 1))
     assert (answers["contact"] == labels["contact"]).mean() > 0.99
@@ -121,7 +130,7 @@ def test_oracle_bound_drops_when_the_simulator_is_noisier(small_dataset):
 
 def test_bound_scores_use_the_task_metrics(small_dataset):
     params, frame = small_dataset
-    oracle = truth(frame).assign(contact_probability=contact_mask(frame).astype(float))
+    oracle = task_labels(frame).assign(contact_probability=contact_mask(frame).astype(float))
     task = get_task("single_force", "detect")
     folds = np.arange(len(frame)) % 3
     scores = benchmark.bound_scores(task, frame, oracle, folds, [0, 1, 2])
@@ -156,3 +165,22 @@ def test_shared_hyperparameters_are_fitted_once(small_dataset, monkeypatch):
         result = benchmark.run_variant(task, frame, folds, [0, 1, 2], estimator, share)
         assert len(calls) == expected
         assert np.isfinite(result["scores"]["force"]["r2"])
+
+
+def test_variants_go_through_joblib_and_a_parallel_run_scores_the_same(small_dataset):
+    """bench.n_jobs / bench.backend: a cluster backend takes the variants without code changes."""
+    from eskin.evaluation.crossval import parallel_backend
+
+    params, frame = small_dataset
+    task = get_task("single_force", "stretch")
+    variants = {"paper": {"model": "paper"}, "ridge": {"model": "ridge", "alpha": 1.0}}
+    common = dict(schemes=["grouped"], folds=3, seed=0, evaluate_folds=2, oracle=None,
+                  log=lambda _: None)
+    one = benchmark.benchmark_task(task, frame, "single_force", variants, n_jobs=1, **common)
+    with parallel_backend("threading"):
+        two = benchmark.benchmark_task(task, frame, "single_force", variants, n_jobs=2, **common)
+    for doc in (one, two):
+        assert list(doc["schemes"]["grouped"]["variants"]) == ["paper", "ridge"]
+    for name in variants:
+        assert (one["schemes"]["grouped"]["variants"][name]["scores"]
+                == two["schemes"]["grouped"]["variants"][name]["scores"])

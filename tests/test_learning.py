@@ -10,7 +10,7 @@ from sklearn.utils.estimator_checks import check_estimator
 
 from eskin import learn, steps
 from eskin.data.schema import CHANNELS, md5_file, node_id
-from eskin.evaluation.crossval import cross_validate
+from eskin.evaluation.crossval import cross_validate, parallel_backend
 from eskin.evaluation.cv import assign_folds, strata
 from eskin.features import BaselineDelta, fit_featurizer
 from eskin.models import REGISTRY, SubsampledGaussianProcess, build_model, model_settings
@@ -240,3 +240,25 @@ def test_the_paper_configuration_switch_picks_every_tasks_paper_entry():
     assert model_settings(section, "paper") == ("paper", {"subsample": 10})
     with pytest.raises(ValueError, match="train.configuration"):
         model_settings(section, "best")
+
+
+@pytest.mark.parametrize("backend", ["sequential", "threading", "loky"])
+def test_folds_give_the_same_predictions_on_every_joblib_backend(backend, project):
+    """cv.backend: a Dask or Ray cluster would take the folds through the same joblib path."""
+    frame, kind = features(project), "single_force"
+    task_ = get_task(kind, "force")
+    folds = assign_folds(frame, kind, "grouped", 4, 0)
+    estimator = build_model("force", "hist_gradient_boosting",
+                            {"max_iter": 20, "learning_rate": 0.1, "seed": 0})
+    with parallel_backend("sequential"):
+        reference = cross_validate(task_, frame, folds, estimator, "grouped", n_jobs=1)
+    with parallel_backend(backend):
+        result = cross_validate(task_, frame, folds, estimator, "grouped", n_jobs=2)
+    pd.testing.assert_frame_equal(result.predictions, reference.predictions)
+    assert result.per_fold == reference.per_fold
+
+
+def test_an_unavailable_cluster_backend_is_a_clear_error():
+    with pytest.raises(ValueError, match="pip install ray"):
+        with parallel_backend("ray"):
+            pass

@@ -1,7 +1,10 @@
-"""The pipeline under real DVC and MLflow: `dvc repro`, `dvc exp run -S`, `dvc metrics show`.
+"""The pipeline under real DVC and a real MLflow server: `dvc repro`, `dvc exp run -S`,
+`dvc exp run --queue` + `dvc queue start -j 2`, `dvc metrics show`, `eskin compare`,
+`eskin audit`, `eskin reproduce`.
 
 A scratch copy of the project (small scenes) runs the real stages; MLflow logs
-to an SQLite store in the scratch directory through MLFLOW_TRACKING_URI.
+to an `mlflow server` on 127.0.0.1 (SQLite backend in a temporary directory)
+through MLFLOW_TRACKING_URI, and the tests read the runs back through its client.
 """
 
 import json
@@ -9,13 +12,15 @@ import os
 import shutil
 import subprocess
 import sys
+import time
 from pathlib import Path
 
+import pandas as pd
 import pytest
 import yaml
 from conftest import ROOT, small_scenes, write_params
 
-from eskin.data.schema import md5_file
+from eskin.data.schema import CHANNELS, md5_file
 
 COPIED = ["eskin", "stages", "dvc.yaml", ".dvcignore", ".gitignore", "pyproject.toml",
           "README.md"]
@@ -28,7 +33,7 @@ def run(args, cwd, env):
 
 
 @pytest.fixture(scope="module")
-def scratch(tmp_path_factory, repo_params):
+def scratch(tmp_path_factory, repo_params, mlflow_server):
     root = tmp_path_factory.mktemp("pipeline")
     for name in COPIED:
         source = ROOT / name
@@ -48,7 +53,7 @@ def scratch(tmp_path_factory, repo_params):
     bin_dir = str(Path(sys.executable).parent)  # dvc, and the python DVC's stages call
     env = {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ.get('PATH', '')}",
            "DVC_NO_ANALYTICS": "1", "MLFLOW_ENABLE_TELEMETRY": "false",
-           "MLFLOW_TRACKING_URI": f"sqlite:///{root / 'mlflow.db'}",
+           "MLFLOW_TRACKING_URI": mlflow_server,
            "GIT_AUTHOR_NAME": "t", "GIT_AUTHOR_EMAIL": "t@t", "GIT_COMMITTER_NAME": "t",
            "GIT_COMMITTER_EMAIL": "t@t"}
     env.pop("DVC_ROOT", None)
@@ -132,5 +137,128 @@ def test_a_repro_groups_its_task_runs_under_one_pipeline_run(scratch):
                                             "tags.`eskin.dvc_experiment` = ''")
     assert len(runs) == 7
     assert runs["tags.mlflow.parentRunId"].nunique() == 1
-    model_dir = Path(runs.iloc[0]["artifact_uri"].removeprefix("file://"))
-    assert model_dir.is_relative_to(root)
+    # Artifacts go through the server: predictions and models come back from it.
+    run_id = runs[runs["tags.eskin.task"] == "detect"].iloc[0]["run_id"]
+    listed = {a.path for a in mlflow.MlflowClient().list_artifacts(run_id, "predictions")}
+    assert listed == {"predictions/oof_stratified.parquet", "predictions/oof_grouped.parquet"}
+    # A run's headline metric is the mean over folds, as in the metrics file; the
+    # folds are a history of their own.
+    logged = mlflow.MlflowClient().get_run(run_id).data.metrics
+    written = json.loads((root / "reports" / "metrics" / "single_force" / "detect.json")
+                         .read_text())
+    assert logged["grouped.contact.accuracy"] == written["grouped"]["contact"]["accuracy"]
+    history = mlflow.MlflowClient().get_metric_history(run_id, "grouped.fold.contact.accuracy")
+    assert sorted(m.step for m in history) == [0, 1, 2, 3, 4]
+    model = mlflow.sklearn.load_model(f"runs:/{run_id}/detect_contact")
+    features = pd.read_parquet(root / "data" / "features" / "single_force.parquet")
+    assert set(model.predict(features[CHANNELS].head(50))) <= {False, True}
+    # The pipeline run carries the whole params file, for `eskin compare`.
+    parent = mlflow.MlflowClient().get_run(runs.iloc[0]["tags.mlflow.parentRunId"])
+    assert parent.data.params["sim.seed"] == str(yaml.safe_load(
+        (root / "params.yaml").read_text())["sim"]["seed"])
+
+
+def eskin_cli(args, root, env, check=True):
+    done = subprocess.run([sys.executable, "-m", "eskin", *args], cwd=root, env=env, text=True,
+                          capture_output=True, timeout=600)
+    if check:
+        assert done.returncode == 0, f"eskin {' '.join(args)}:\n{done.stdout}\n{done.stderr}"
+    return done
+
+
+def wait_for_queue(root, env, timeout=600):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        status = run(["dvc", "queue", "status"], root, env)
+        if "Queued" not in status and "Running" not in status:
+            return status
+        time.sleep(3)
+    raise AssertionError(f"queue still busy after {timeout} s:\n{status}")
+
+
+def test_queued_experiments_run_two_at_a_time_and_compare_side_by_side(scratch):
+    root, env = scratch
+    # Against the workspace, which the force-rf experiment above left with its params.
+    for name, setting in (("q-logistic", "train.single_force.detect.model=logistic"),
+                          ("q-ridge", "train.single_force.stretch.model=ridge")):
+        run(["dvc", "exp", "run", "--queue", "-n", name, "-S", setting], root, env)
+    run(["dvc", "queue", "start", "-j", "2"], root, env)
+    status = wait_for_queue(root, env)
+    assert status.count("Success") == 2, status
+
+    import mlflow
+    mlflow.set_tracking_uri(env["MLFLOW_TRACKING_URI"])
+    digest = md5_file(root / "data" / "processed" / "single_force.parquet")
+    head = run(["git", "rev-parse", "HEAD"], root, env).strip()
+    for name, task in (("q-logistic", "detect"), ("q-ridge", "stretch")):
+        found = mlflow.search_runs(experiment_names=["eskin"], filter_string=(
+            f"tags.`eskin.dvc_experiment` = '{name}' and tags.`eskin.kind` = 'task'"))
+        assert list(found["tags.eskin.task"]) == [task]  # only what the setting changes
+        trained = found.iloc[0]
+        assert trained["tags.eskin.dataset_digest"] == digest
+        assert trained["tags.eskin.git_commit"] == head
+
+    csv = root / "compare.csv"
+    eskin_cli(["compare", "--format", "csv", "--output", str(csv)], root, env)
+    table = pd.read_csv(csv).set_index("variant")
+    assert {"q-logistic", "q-ridge", "force-rf"} <= set(table.index)
+    assert table.loc["q-logistic", "train.single_force.detect.model"] == "logistic"
+    assert table.loc["q-ridge", "train.single_force.stretch.model"] == "ridge"
+    assert table.loc["force-rf", "train.single_force.force.model"] == "random_forest"
+    assert table.loc["q-logistic", "runs"] == 1 and table.loc["q-logistic", "run time s"] > 0
+    assert 0.5 < table.loc["q-logistic", "contact acc"] <= 1
+    assert -1 < table.loc["force-rf", "force R²"] <= 1
+    printed = eskin_cli(["compare", "--scheme", "stratified"], root, env).stdout
+    assert "q-ridge" in printed and "stretch R²" in printed
+
+
+def test_a_registered_model_reproduces_its_runs_out_of_fold_predictions(scratch):
+    root, env = scratch
+    done = eskin_cli(["reproduce", "single_force.localise.x"], root, env)
+    assert "reproduced" in done.stdout and "NOT" not in done.stdout, done.stdout
+    import mlflow
+    mlflow.set_tracking_uri(env["MLFLOW_TRACKING_URI"])
+    version = mlflow.MlflowClient().get_model_version("single_force.localise.x", "1")
+    assert version.tags["eskin.dataset_digest"] == md5_file(
+        root / "data" / "processed" / "single_force.parquet")
+    assert version.tags["eskin.features_md5"] == md5_file(
+        root / "data" / "features" / "single_force.parquet")
+    missing = eskin_cli(["reproduce", "single_force.nothing"], root, env, check=False)
+    assert missing.returncode == 1 and "no registered model 'single_force.nothing'" in \
+        missing.stderr
+
+
+def test_another_seed_is_a_second_dataset_version_and_the_audit_shows_both(scratch):
+    root, env = scratch
+    first = md5_file(root / "data" / "processed" / "single_force.parquet")
+    run(["dvc", "exp", "run", "-n", "seed7", "-S", "sim.seed=7"], root, env)
+    second = md5_file(root / "data" / "processed" / "single_force.parquet")
+    assert second != first
+
+    csv = root / "audit.csv"
+    eskin_cli(["audit", "--format", "csv", "--output", str(csv)], root, env)
+    versions = pd.read_csv(csv, dtype=str).fillna("").set_index("dataset md5")
+    assert {first, second} <= set(versions.index)
+    assert versions.loc[second, "workspace"] == "yes" and versions.loc[first, "workspace"] == ""
+    assert versions.loc[second, "source"] == "simulated (seed 7)"
+    assert versions.loc[second, "variants"] == "seed7"
+    assert int(versions.loc[second, "runs"]) == 4  # stretch, force, detect, localise
+    assert int(versions.loc[first, "runs"]) == 7   # the repro's 4, force-rf, q-logistic, q-ridge
+    assert versions.loc[first, "committed"].split()[0] != "not"  # in the repro commit's lock
+    printed = eskin_cli(["audit"], root, env).stdout
+    assert f"{first} trained:" in printed and f"{second} trained:" in printed
+
+    import mlflow
+    mlflow.set_tracking_uri(env["MLFLOW_TRACKING_URI"])
+    old = mlflow.search_runs(experiment_names=["eskin"], filter_string=(
+        f"tags.`eskin.dataset_digest` = '{first}' and tags.`eskin.task` = 'force'"))
+    report = eskin_cli(["audit", "--run", old.iloc[-1]["run_id"]], root, env).stdout
+    assert f"dataset md5     {first}" in report
+    assert "dataset in workspace  differs" in report and "dataset in DVC cache  ok" in report
+    new = mlflow.search_runs(experiment_names=["eskin"], filter_string=(
+        f"tags.`eskin.dataset_digest` = '{second}' and tags.`eskin.task` = 'force'"))
+    report = eskin_cli(["audit", "--run", new.iloc[0]["run_id"]], root, env).stdout
+    assert "dataset in workspace  ok" in report and "model in workspace    ok" in report
+    # The first dataset's model still reproduces: its features come back from DVC's cache.
+    done = eskin_cli(["reproduce", "single_force.localise.x", "--version", "1"], root, env)
+    assert "reproduced" in done.stdout and ".dvc/cache" in done.stdout, done.stdout

@@ -1,7 +1,8 @@
 """Cross-validate a task: out-of-fold predictions, per-fold scores, a final refit.
 
-Folds run in parallel through joblib (``n_jobs``), so a Dask or Ray backend
-(``joblib.parallel_config(backend=...)``) takes them without code changes.
+Folds run in parallel through joblib (``n_jobs``) under whatever backend
+``joblib.parallel_config`` sets, so a Dask or Ray cluster takes them without
+code changes: ``cv.backend`` in params.yaml (see ``parallel_backend``).
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
-from joblib import Parallel, delayed
+from joblib import Parallel, delayed, parallel_config
 from sklearn.base import BaseEstimator, clone
 
 from eskin.data.schema import CHANNELS
@@ -33,6 +34,33 @@ class CVResult:
     fit_seconds: float = 0.0               # summed over folds
     predict_seconds: float = 0.0
     notes: dict[str, int] = field(default_factory=dict)  # fit remark → folds that made it
+
+
+def parallel_backend(name: str = "loky"):
+    """The joblib backend folds run on, as a context manager.
+
+    ``loky`` (processes, joblib's default), ``threading``, ``multiprocessing`` and
+    ``sequential`` are joblib's own; ``dask`` runs them on the Dask cluster that
+    ``DASK_SCHEDULER_ADDRESS`` names (``pip install distributed``) and ``ray`` on the
+    Ray cluster of ``RAY_ADDRESS`` (``pip install ray``). Results do not depend on it.
+    """
+    if name == "ray":
+        try:
+            from ray.util.joblib import register_ray
+        except ImportError as err:
+            raise ValueError("cv.backend: ray needs Ray installed (pip install ray)") from err
+        register_ray()
+    elif name == "dask":
+        try:
+            from distributed import Client, default_client
+        except ImportError as err:
+            raise ValueError("cv.backend: dask needs Dask installed "
+                             "(pip install distributed)") from err
+        try:
+            default_client()
+        except ValueError:
+            Client()  # DASK_SCHEDULER_ADDRESS, or a local cluster
+    return parallel_config(backend=name)
 
 
 def decision_scores(model: BaseEstimator, X: np.ndarray) -> np.ndarray | None:

@@ -1,0 +1,357 @@
+"""Compare variants and audit dataset versions, from the MLflow store and DVC's cache.
+
+A *variant* is one pipeline run (one ``dvc repro`` at a commit and params,
+or one ``dvc exp run``; see :mod:`eskin.tracking`): its task runs are its
+children, and it carries the whole params file. ``variant_table`` puts the
+latest run of every task of every variant side by side; ``dataset_versions``
+groups task runs by the DVC md5 of the dataset that trained them.
+
+The tables are pure functions of ``mlflow.search_runs`` frames; reading the
+store, git and the workspace happens in the ``load_*`` and ``check_*`` helpers.
+"""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from eskin.data.schema import md5_file
+
+TASK_KINDS = ("task", "scores")
+# The score that stands for a target in a table, by what the target is.
+HEADLINE_SCORES = ("r2", "accuracy")
+SCENE_ORDER = {"single_force": 0, "two_force": 1}
+TASK_ORDER = {t: i for i, t in enumerate(
+    ("stretch", "force", "detect", "localise", "force1", "force2", "pairs"))}
+
+
+class NoRunsError(LookupError):
+    """The tracking store holds nothing to compare or audit."""
+
+
+def _tag(runs: pd.DataFrame, name: str) -> pd.Series:
+    column = f"tags.{name}"
+    return runs[column] if column in runs else pd.Series("", index=runs.index, dtype=object)
+
+
+def _seconds(runs: pd.DataFrame) -> pd.Series:
+    return (runs["end_time"] - runs["start_time"]).dt.total_seconds()
+
+
+def split_runs(runs: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """(pipeline runs, task and scoring runs) of an ``mlflow.search_runs`` frame."""
+    if runs.empty:
+        raise NoRunsError("no runs in the tracking store: run `dvc repro` (or `dvc exp run`)")
+    kind = _tag(runs, "eskin.kind")
+    return runs[kind == "pipeline"], runs[kind.isin(TASK_KINDS)]
+
+
+def latest_per_task(children: pd.DataFrame) -> pd.DataFrame:
+    """The newest run of each (pipeline, scene, task)."""
+    keyed = children.assign(_parent=_tag(children, "mlflow.parentRunId"),
+                            _scene=_tag(children, "eskin.scene"),
+                            _task=_tag(children, "eskin.task"))
+    keyed = keyed.sort_values("start_time")
+    return keyed.drop_duplicates(["_parent", "_scene", "_task"], keep="last")
+
+
+def headline_columns(children: pd.DataFrame, scheme: str) -> list[str]:
+    """``metrics.<scheme>.<target>.<r2|accuracy>`` columns, and scoring runs' pair accuracy."""
+    prefix = f"metrics.{scheme}."
+    found = []
+    for column in children.columns:
+        if not column.startswith(prefix) or children[column].isna().all():
+            continue
+        parts = column[len(prefix):].split(".")
+        if (len(parts) == 2 and parts[1] in HEADLINE_SCORES) or parts == ["pair_accuracy"]:
+            found.append(column)
+    return found
+
+
+def _metric_label(column: str, scheme: str) -> str:
+    name = column.removeprefix(f"metrics.{scheme}.")
+    if name == "pair_accuracy":
+        return "pairs acc"
+    target, score = name.split(".")
+    return f"{target} {'R²' if score == 'r2' else 'acc'}"
+
+
+def _metric_order(children: pd.DataFrame, column: str) -> tuple[int, int, str, str]:
+    has = children[children[column].notna()]
+    scene = _tag(has, "eskin.scene").iloc[0] if len(has) else ""
+    task = _tag(has, "eskin.task").iloc[0] if len(has) else ""
+    target = column.split(".")[-2]
+    contact = target[-1] if target[-1].isdigit() else ""  # x1, y1, then x2, y2
+    return SCENE_ORDER.get(scene, 9), TASK_ORDER.get(task, 9), contact, column
+
+
+def run_seconds(runs: pd.DataFrame) -> pd.Series:
+    """A task run's wall time: the training step's own clock (``wall_seconds``: data
+    loading, cross-validation, refit, logging), else the MLflow run's duration."""
+    duration = _seconds(runs)
+    if "metrics.wall_seconds" in runs:
+        return runs["metrics.wall_seconds"].fillna(duration)
+    return duration
+
+
+def differing_params(pipelines: pd.DataFrame) -> list[str]:
+    """``params.*`` columns holding more than one value across the pipeline runs.
+
+    A run that does not record a param (older runs, a param added since) is
+    not counted as differing: its value is unknown, shown as —.
+    """
+    columns = [c for c in pipelines.columns if c.startswith("params.")]
+    return sorted(c for c in columns if pipelines[c].dropna().nunique() > 1)
+
+
+def variant_table(runs: pd.DataFrame, scheme: str = "grouped", *,
+                  variants: list[str] | None = None, last: int | None = None) -> pd.DataFrame:
+    """One row per variant: its name, commit, datasets, the params that differ from
+    the other variants shown, each task's headline score under ``scheme``, and the
+    summed run time of its task runs. Variants of the same name keep their newest
+    run; ``variants`` picks some by name, ``last`` keeps the newest few."""
+    pipelines, children = split_runs(runs)
+    if children.empty:
+        raise NoRunsError("the tracking store holds pipeline runs but no task runs")
+    latest = latest_per_task(children)
+    pipelines = pipelines[pipelines["run_id"].isin(set(latest["_parent"]))]
+    pipelines = (pipelines.assign(_name=_tag(pipelines, "mlflow.runName"))
+                 .sort_values("start_time").drop_duplicates("_name", keep="last"))
+    if variants:
+        unknown = sorted(set(variants) - set(pipelines["_name"]))
+        if unknown:
+            raise NoRunsError(f"no variant named {', '.join(unknown)}; known: "
+                              f"{', '.join(pipelines['_name'])}")
+        pipelines = pipelines[pipelines["_name"].isin(variants)]
+    if last:
+        pipelines = pipelines.tail(last)
+    latest = latest[latest["_parent"].isin(set(pipelines["run_id"]))]
+    metric_columns = sorted(headline_columns(latest, scheme),
+                            key=lambda c: _metric_order(latest, c))
+    param_columns = differing_params(pipelines)
+    rows = []
+    for _, pipeline in pipelines.iterrows():
+        own = latest[latest["_parent"] == pipeline["run_id"]]
+        row: dict[str, Any] = {
+            "variant": pipeline["_name"],
+            "commit": str(pipeline.get("tags.eskin.git_commit") or "")[:8],
+            "datasets": " ".join(sorted({f"{s}:{d[:8]}" for s, d in zip(
+                own["_scene"], _tag(own, "eskin.dataset_digest"), strict=True) if d})),
+        }
+        for column in param_columns:
+            row[column.removeprefix("params.")] = pipeline[column]
+        for column in metric_columns:
+            values = own[column].dropna()
+            row[_metric_label(column, scheme)] = values.iloc[-1] if len(values) else np.nan
+        row["runs"] = len(own)
+        row["run time s"] = round(float(run_seconds(own).sum()), 1)
+        row["finished"] = own["end_time"].max()
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def dataset_versions(runs: pd.DataFrame, workspace: Mapping[str, str] | None = None,
+                     committed: Mapping[str, str] | None = None) -> pd.DataFrame:
+    """One row per dataset version (DVC md5) that trained a task run: scene, rows,
+    source, when it was first committed and first used, its runs and variants, and
+    whether the workspace holds it (``workspace``: scene → md5 of the workspace file)."""
+    pipelines, children = split_runs(runs)
+    workspace, committed = workspace or {}, committed or {}
+    children = children[_tag(children, "eskin.dataset_digest").fillna("") != ""]
+    if children.empty:
+        raise NoRunsError("no task run in the tracking store names its dataset")
+    names = dict(zip(pipelines["run_id"], _tag(pipelines, "mlflow.runName"), strict=True))
+    keyed = children.assign(_digest=_tag(children, "eskin.dataset_digest"),
+                            _scene=_tag(children, "eskin.scene"))
+    rows = []
+    for (scene, digest), group in keyed.groupby(["_scene", "_digest"], sort=False):
+        variants = sorted({names.get(p, "?") for p in _tag(group, "mlflow.parentRunId")})
+        rows.append({
+            "dataset md5": digest, "scene": scene,
+            "rows": _first(_tag(group, "eskin.dataset_rows")),
+            "source": _first(_tag(group, "eskin.dataset_source")),
+            "committed": committed.get(digest, ""),
+            "first used": group["start_time"].min(),
+            "runs": len(group), "variants": ", ".join(variants),
+            "workspace": "yes" if workspace.get(scene) == digest else "",
+        })
+    table = pd.DataFrame(rows)
+    return table.sort_values(["scene", "first used"]).reset_index(drop=True)
+
+
+def runs_of_dataset(runs: pd.DataFrame, digest: str) -> pd.DataFrame:
+    """The task runs a dataset version trained: id, scene/task, model, variant, commit."""
+    pipelines, children = split_runs(runs)
+    names = dict(zip(pipelines["run_id"], _tag(pipelines, "mlflow.runName"), strict=True))
+    used = children[_tag(children, "eskin.dataset_digest") == digest].sort_values("start_time")
+    return pd.DataFrame({
+        "run": used["run_id"],
+        "task": _tag(used, "eskin.scene") + "/" + _tag(used, "eskin.task"),
+        "model": _tag(used, "eskin.model").fillna(""),
+        "variant": [names.get(p, "?") for p in _tag(used, "mlflow.parentRunId")],
+        "commit": _tag(used, "eskin.git_commit").str[:8],
+        "started": used["start_time"],
+    }).reset_index(drop=True)
+
+
+def _first(values: pd.Series) -> str:
+    values = values.dropna()
+    values = values[values != ""]
+    return str(values.iloc[0]) if len(values) else ""
+
+
+def render(table: pd.DataFrame, fmt: str) -> str:
+    """A table as ``table`` (aligned text), ``markdown`` or ``csv``."""
+    table = table.copy()
+    for column in table.columns:
+        if pd.api.types.is_datetime64_any_dtype(table[column]):
+            table[column] = table[column].dt.strftime("%Y-%m-%d %H:%M:%S")
+    if fmt == "csv":
+        return table.to_csv(index=False)
+    if fmt == "markdown":
+        return table.to_markdown(index=False, floatfmt=".4g", missingval="—") + "\n"
+    if fmt == "table":
+        return table.to_string(index=False, float_format=lambda v: f"{v:.4g}",
+                               na_rep="—") + "\n"
+    raise ValueError(f"format must be table, markdown or csv, got {fmt!r}")
+
+
+# --- reading the store, git and the workspace --------------------------------------------
+
+def load_runs(experiment: str | None = None) -> pd.DataFrame:
+    """Every run of the project's MLflow experiment (``eskin.tracking.tracking_uri``)."""
+    import mlflow
+
+    from eskin import tracking
+
+    mlflow.set_tracking_uri(tracking.tracking_uri())
+    name = experiment or tracking.EXPERIMENT
+    if mlflow.get_experiment_by_name(name) is None:
+        raise NoRunsError(f"no MLflow experiment {name!r} at {tracking.tracking_uri()}: "
+                          "run `dvc repro` first (or set MLFLOW_TRACKING_URI)")
+    return mlflow.search_runs(experiment_names=[name], output_format="pandas")
+
+
+def workspace_digests(root: Path, scenes: list[str]) -> dict[str, str]:
+    """scene → md5 of ``data/processed/<scene>.parquet`` in the workspace, where present."""
+    out = {}
+    for scene in scenes:
+        path = Path(root) / "data" / "processed" / f"{scene}.parquet"
+        if path.exists():
+            out[scene] = md5_file(path)
+    return out
+
+
+def commit_dates(root: Path, digests: list[str]) -> dict[str, str]:
+    """md5 → date of the first commit (any branch or DVC experiment) whose dvc.lock names it."""
+    out = {}
+    for digest in digests:
+        try:
+            done = subprocess.run(["git", "log", "--all", "--reverse", "--format=%cs %h",
+                                   f"-S{digest}", "--", "dvc.lock"], cwd=root, text=True,
+                                  capture_output=True, timeout=30, check=True)
+        except (OSError, subprocess.SubprocessError):
+            continue
+        first = done.stdout.splitlines()[:1]
+        out[digest] = first[0] if first else "not committed"
+    return out
+
+
+def dvc_cache_path(root: Path, md5: str) -> Path | None:
+    """Where DVC's cache keeps the file of this md5, if it is there (hash-checked)."""
+    from dvc.repo import Repo
+
+    with Repo(str(root)) as repo:
+        path = Path(repo.cache.local.oid_to_path(md5))
+    if path.exists() and md5_file(path) == md5:
+        return path
+    return None
+
+
+def run_audit(run_id: str, root: Path) -> dict[str, Any]:
+    """A run's lineage (dataset version, params, commit, model) and whether the
+    workspace and DVC's cache still hold what it used."""
+    import mlflow
+    from mlflow.tracking import MlflowClient
+
+    from eskin import tracking
+
+    mlflow.set_tracking_uri(tracking.tracking_uri())
+    try:
+        run = MlflowClient().get_run(run_id)
+    except mlflow.exceptions.MlflowException as err:
+        raise NoRunsError(f"no run {run_id} at {tracking.tracking_uri()}") from err
+    tags = run.data.tags
+    scene, task = tags.get("eskin.scene", ""), tags.get("eskin.task", "")
+    digest = tags.get("eskin.dataset_digest", "")
+    root = Path(root)
+    data_file = root / "data" / "processed" / f"{scene}.parquet"
+    model_file = root / "models" / scene / f"{task}.joblib"
+    checks = {}
+    if digest:
+        now = md5_file(data_file) if data_file.exists() else None
+        checks["dataset in workspace"] = (
+            ("ok", f"{data_file.relative_to(root)} is this version") if now == digest else
+            ("differs", f"{data_file.relative_to(root)} is {now}" if now else
+             f"{data_file.relative_to(root)} is missing"))
+        cached = dvc_cache_path(root, digest)
+        checks["dataset in DVC cache"] = (("ok", str(cached.relative_to(root))
+                                           if cached.is_relative_to(root) else str(cached))
+                                          if cached else ("missing", "not in this DVC cache"))
+    if tags.get("eskin.model_md5"):
+        now = md5_file(model_file) if model_file.exists() else None
+        checks["model in workspace"] = (
+            ("ok", f"{model_file.relative_to(root)} is this run's model")
+            if now == tags["eskin.model_md5"] else
+            ("differs", f"{model_file.relative_to(root)} is {now}" if now else "missing"))
+    commit = tags.get("eskin.git_commit", "")
+    head = tracking.git_commit(root)
+    dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=root,
+                           capture_output=True, text=True, check=False).stdout.strip()
+    checks["commit"] = (("ok", "HEAD" + (", with uncommitted changes" if dirty else ""))
+                        if commit and commit == head else ("differs", f"HEAD is {head[:8] or '?'}"))
+    registered = [f"{v.name} v{v.version}" for v in
+                  MlflowClient().search_model_versions(f"run_id = '{run_id}'")]
+    return {
+        "run": run_id, "name": tags.get("mlflow.runName", ""), "scene": scene, "task": task,
+        "model": tags.get("eskin.model", ""), "status": run.info.status,
+        "commit": commit, "dvc experiment": tags.get("eskin.dvc_experiment", ""),
+        "dataset md5": digest, "dataset rows": tags.get("eskin.dataset_rows", ""),
+        "dataset source": tags.get("eskin.dataset_source", ""),
+        "features md5": tags.get("eskin.features_md5", ""),
+        "model md5": tags.get("eskin.model_md5", ""),
+        "registered": ", ".join(sorted(registered)),
+        "params": dict(sorted(run.data.params.items())),
+        "metrics": {k: v for k, v in sorted(run.data.metrics.items())
+                    if k.split(".")[-1] in HEADLINE_SCORES + ("pair_accuracy",)},
+        "checks": checks,
+    }
+
+
+def render_audit(report: Mapping[str, Any]) -> str:
+    lines = [f"run {report['run']} ({report['name']})"]
+    for key in ("scene", "task", "model", "status", "commit", "dvc experiment", "dataset md5",
+                "dataset rows", "dataset source", "features md5", "model md5", "registered"):
+        lines.append(f"  {key:<15} {report[key] or '—'}")
+    lines.append("  params")
+    lines += [f"    {k} = {v}" for k, v in report["params"].items()]
+    lines.append("  metrics")
+    lines += [f"    {k} = {v:.4g}" for k, v in report["metrics"].items()]
+    lines.append("  checks")
+    lines += [f"    {name:<21} {state:<8} {detail}"
+              for name, (state, detail) in report["checks"].items()]
+    return "\n".join(lines) + "\n"
+
+
+def parse_param(text: str) -> Any:
+    """A param as MLflow stores it (a string) back to its value: ``"['a', 'b']"`` → list."""
+    try:
+        return ast.literal_eval(text)
+    except (ValueError, SyntaxError):
+        return text

@@ -1,0 +1,127 @@
+"""`eskin compare` and `eskin audit` tables, from frames shaped like mlflow.search_runs."""
+
+import io
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from eskin import experiments
+
+T0 = pd.Timestamp("2026-11-23 10:00", tz="UTC")
+
+
+def run(run_id, minute, seconds, **fields):
+    start = T0 + pd.Timedelta(minutes=minute)
+    row = {"run_id": run_id, "start_time": start, "end_time": start + pd.Timedelta(seconds=seconds)}
+    row.update({k.replace("__", "."): v for k, v in fields.items()})
+    return row
+
+
+def pipeline(run_id, minute, name, force_model, seed=1, commit="c0ffee00aa"):
+    return run(run_id, minute, 0, **{"tags.eskin.kind": "pipeline", "tags.mlflow.runName": name,
+                                     "tags.eskin.git_commit": commit,
+                                     "params.train.single_force.force.model": force_model,
+                                     "params.sim.seed": str(seed), "params.cv.folds": "10"})
+
+
+def task(run_id, minute, seconds, parent, scene, name, digest, **metrics):
+    return run(run_id, minute, seconds, **{
+        "tags.eskin.kind": "task", "tags.mlflow.parentRunId": parent, "tags.eskin.scene": scene,
+        "tags.eskin.task": name, "tags.eskin.dataset_digest": digest,
+        "tags.eskin.git_commit": "c0ffee00aa", "tags.eskin.model": "m",
+        "tags.eskin.dataset_rows": "2020", "tags.eskin.dataset_source": "simulated (seed 1)",
+        **{f"metrics.{k.replace('__', '.')}": v for k, v in metrics.items()}})
+
+
+@pytest.fixture
+def runs():
+    rows = [
+        pipeline("P1", 0, "repro 1a2b", "hist_gradient_boosting"),
+        task("a", 1, 2.0, "P1", "single_force", "force", "d1", grouped__force__r2=0.60,
+             grouped__force__r2_std=0.1, stratified__force__r2=0.95, wall_seconds=12.0),
+        task("b", 2, 1.0, "P1", "single_force", "detect", "d1", grouped__contact__accuracy=0.99),
+        pipeline("P2", 5, "force-rf", "random_forest"),
+        task("c", 6, 30.0, "P2", "single_force", "force", "d1", grouped__force__r2=0.10),
+        task("d", 7, 20.0, "P2", "single_force", "force", "d1", grouped__force__r2=0.58),
+        pipeline("P3", 9, "seed7", "hist_gradient_boosting", seed=7),
+        task("e", 10, 3.0, "P3", "single_force", "force", "d2", grouped__force__r2=0.55),
+        task("f", 11, 0.5, "P3", "two_force", "pairs", "t1", grouped__pair_accuracy=0.76),
+    ]
+    return pd.DataFrame(rows)
+
+
+def test_compare_keeps_the_latest_run_per_task_and_shows_only_differing_params(runs):
+    table = experiments.variant_table(runs, scheme="grouped")
+    assert list(table["variant"]) == ["repro 1a2b", "force-rf", "seed7"]
+    assert "cv.folds" not in table  # the same everywhere
+    assert list(table["train.single_force.force.model"]) == [
+        "hist_gradient_boosting", "random_forest", "hist_gradient_boosting"]
+    assert list(table["sim.seed"]) == ["1", "1", "7"]
+    assert table["force R²"].tolist() == [0.60, 0.58, 0.55]  # force-rf: its newer run
+    assert np.isnan(table["contact acc"].iloc[1]) and table["contact acc"].iloc[0] == 0.99
+    assert table["pairs acc"].iloc[2] == 0.76
+    # The step's own clock where it logged one, else the run's duration.
+    assert table["run time s"].tolist() == [13.0, 20.0, 3.5]
+    assert "force R²_std" not in table and "force_std R²" not in table
+    assert table["datasets"].iloc[2] == "single_force:d2 two_force:t1"
+    # Score columns follow the pipeline's order: single force before two forces.
+    columns = list(table.columns)
+    assert columns.index("force R²") < columns.index("contact acc") < columns.index("pairs acc")
+
+
+def test_compare_picks_variants_by_name_or_recency(runs):
+    picked = experiments.variant_table(runs, variants=["force-rf", "seed7"])
+    assert list(picked["variant"]) == ["force-rf", "seed7"]
+    assert "train.single_force.force.model" in picked and "pairs acc" in picked
+    newest = experiments.variant_table(runs, last=1)
+    assert list(newest["variant"]) == ["seed7"]
+    assert "sim.seed" not in newest and "force R²" in newest  # nothing differs in one row
+    with pytest.raises(experiments.NoRunsError, match="no variant named nope"):
+        experiments.variant_table(runs, variants=["nope"])
+
+
+def test_compare_under_the_other_scheme(runs):
+    table = experiments.variant_table(runs, scheme="stratified")
+    assert table["force R²"].iloc[0] == 0.95
+    assert table["force R²"].iloc[1:].isna().all()
+
+
+def test_audit_groups_runs_by_dataset_version_and_marks_the_workspace(runs):
+    versions = experiments.dataset_versions(runs, workspace={"single_force": "d2"},
+                                            committed={"d1": "2026-11-22 abc1234"})
+    by_digest = versions.set_index("dataset md5")
+    assert by_digest.loc["d1", "runs"] == 4
+    assert by_digest.loc["d1", "variants"] == "force-rf, repro 1a2b"
+    assert by_digest.loc["d1", "committed"] == "2026-11-22 abc1234"
+    assert by_digest.loc["d1", "first used"] == T0 + pd.Timedelta(minutes=1)
+    assert by_digest.loc["d2", "workspace"] == "yes" and by_digest.loc["d1", "workspace"] == ""
+    assert by_digest.loc["t1", "scene"] == "two_force"
+    assert by_digest.loc["d2", "source"] == "simulated (seed 1)"
+    used = experiments.runs_of_dataset(runs, "d1")
+    assert list(used["run"]) == ["a", "b", "c", "d"]
+    assert list(used["variant"]) == ["repro 1a2b"] * 2 + ["force-rf"] * 2
+
+
+@pytest.mark.parametrize("fmt", ["table", "markdown", "csv"])
+def test_tables_render_in_every_format(runs, fmt):
+    text = experiments.render(experiments.variant_table(runs), fmt)
+    assert "force-rf" in text and "2026-11-23 10:07:20" in text
+    if fmt == "csv":
+        back = pd.read_csv(io.StringIO(text))
+        assert back["force R²"].tolist() == [0.60, 0.58, 0.55]
+    if fmt == "markdown":
+        assert text.splitlines()[1].startswith("|:")
+
+
+def test_an_empty_store_is_a_clear_error():
+    with pytest.raises(experiments.NoRunsError, match="dvc repro"):
+        experiments.variant_table(pd.DataFrame())
+    with pytest.raises(ValueError, match="format"):
+        experiments.render(pd.DataFrame({"a": [1]}), "html")
+
+
+def test_params_come_back_from_their_mlflow_strings():
+    assert experiments.parse_param("['stratified', 'grouped']") == ["stratified", "grouped"]
+    assert experiments.parse_param("10") == 10
+    assert experiments.parse_param("random_forest") == "random_forest"
