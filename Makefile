@@ -1,6 +1,7 @@
 # make repro: set up everything and run the whole pipeline on the simulated skin.
 # make test:  set up everything and run the tests.
 # make bench: the benchmark (bench/dvc.yaml): variants' run time against error, the Bayes bound.
+# make stress: the numerical stress suite (stress/dvc.yaml).
 SHELL := /bin/bash
 PYTHON ?= python3
 VENV := .venv
@@ -10,7 +11,7 @@ export DVC_NO_ANALYTICS := 1
 export MLFLOW_ENABLE_TELEMETRY := false
 export DO_NOT_TRACK := 1
 
-.PHONY: setup browser repro bench test lint clean
+.PHONY: setup browser repro bench stress test lint clean
 
 setup: $(VENV)/.installed
 
@@ -37,6 +38,11 @@ repro: setup
 bench: setup
 	dvc repro dvc.yaml bench/dvc.yaml
 	@cat reports/benchmark/summary.md
+
+# Every model under the data real users produce (stress/dvc.yaml): reports/stress.{json,md}.
+stress: setup
+	dvc repro dvc.yaml stress/dvc.yaml
+	@cat reports/stress.md
 
 test: setup browser
 	pytest -q

@@ -215,7 +215,9 @@ def render(table: pd.DataFrame, fmt: str) -> str:
     if fmt == "csv":
         return table.to_csv(index=False)
     if fmt == "markdown":
-        return table.to_markdown(index=False, floatfmt=".4g", missingval="—") + "\n"
+        # tabulate's missingval stands in for None only, not NaN.
+        cells = table.astype(object).where(table.notna(), None)
+        return cells.to_markdown(index=False, floatfmt=".4g", missingval="—") + "\n"
     if fmt == "table":
         return table.to_string(index=False, float_format=lambda v: f"{v:.4g}",
                                na_rep="—") + "\n"
@@ -300,16 +302,14 @@ def run_audit(run_id: str, root: Path) -> dict[str, Any]:
             ("ok", f"{data_file.relative_to(root)} is this version") if now == digest else
             ("differs", f"{data_file.relative_to(root)} is {now}" if now else
              f"{data_file.relative_to(root)} is missing"))
-        cached = dvc_cache_path(root, digest)
-        checks["dataset in DVC cache"] = (("ok", str(cached.relative_to(root))
-                                           if cached.is_relative_to(root) else str(cached))
-                                          if cached else ("missing", "not in this DVC cache"))
+        checks["dataset in DVC cache"] = _cache_check(root, digest)
     if tags.get("eskin.model_md5"):
         now = md5_file(model_file) if model_file.exists() else None
         checks["model in workspace"] = (
             ("ok", f"{model_file.relative_to(root)} is this run's model")
             if now == tags["eskin.model_md5"] else
             ("differs", f"{model_file.relative_to(root)} is {now}" if now else "missing"))
+        checks["model in DVC cache"] = _cache_check(root, tags["eskin.model_md5"])
     commit = tags.get("eskin.git_commit", "")
     head = tracking.git_commit(root)
     dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=root,
@@ -332,6 +332,13 @@ def run_audit(run_id: str, root: Path) -> dict[str, Any]:
                     if k.split(".")[-1] in HEADLINE_SCORES + ("pair_accuracy",)},
         "checks": checks,
     }
+
+
+def _cache_check(root: Path, md5: str) -> tuple[str, str]:
+    cached = dvc_cache_path(root, md5)
+    if cached is None:
+        return "missing", "not in this DVC cache"
+    return "ok", str(cached.relative_to(root) if cached.is_relative_to(root) else cached)
 
 
 def render_audit(report: Mapping[str, Any]) -> str:

@@ -35,7 +35,7 @@ from sklearn.gaussian_process import GaussianProcessRegressor
 from sklearn.linear_model import LinearRegression, LogisticRegression, Ridge
 from sklearn.neighbors import KNeighborsClassifier
 from sklearn.pipeline import Pipeline, make_pipeline
-from sklearn.preprocessing import StandardScaler
+from sklearn.preprocessing import FunctionTransformer, StandardScaler
 from sklearn.svm import SVC, LinearSVC
 from sklearn.utils.validation import check_is_fitted, validate_data
 
@@ -101,27 +101,40 @@ class SubsampledGaussianProcess(RegressorMixin, BaseEstimator):
 
 
 def _scaled(estimator: BaseEstimator) -> Pipeline:
-    return make_pipeline(StandardScaler(), estimator)
+    """Every model sees standardised channels, rounded to 1e-6, whatever their units.
+
+    Trees too: scikit-learn's trees treat a feature whose values differ by less
+    than 1e-7 as constant, so capacitance in farads (~1e-11) made every forest
+    a stump (`make stress`, case farads: localisation accuracy fell by 0.84).
+    The rounding to a millionth of a standard deviation (one ADC step is more
+    than 0.002 here) removes the last-bit differences that units and offsets
+    leave after standardising (up to 7e-13 for counts + 1e6): without it, a value
+    tied with a histogram bin edge of gradient boosting fell on either side,
+    moving some force predictions by up to 6 % of the force's spread, and
+    logistic regression changed a localisation label.
+    """
+    return make_pipeline(StandardScaler(), FunctionTransformer(np.round, kw_args={"decimals": 6}),
+                         estimator)
 
 
 Factory = Callable[..., BaseEstimator]
 
 REGISTRY: dict[str, dict[str, Factory]] = {
     "stretch": {
-        "paper": lambda: LinearRegression(),
+        "paper": lambda: _scaled(LinearRegression()),
         "ridge": lambda alpha=1.0: _scaled(Ridge(alpha=alpha)),
-        "random_forest": lambda n_estimators=100, seed=0: RandomForestRegressor(
-            n_estimators, random_state=seed, n_jobs=1),
+        "random_forest": lambda n_estimators=100, seed=0: _scaled(RandomForestRegressor(
+            n_estimators, random_state=seed, n_jobs=1)),
     },
     "force": {
         "paper": lambda subsample=2000, n_restarts_optimizer=0, seed=0:
             SubsampledGaussianProcess(subsample, n_restarts_optimizer, seed),
         "random_forest": lambda n_estimators=100, min_samples_leaf=1, seed=0:
-            RandomForestRegressor(n_estimators, min_samples_leaf=min_samples_leaf,
-                                  random_state=seed, n_jobs=1),
+            _scaled(RandomForestRegressor(n_estimators, min_samples_leaf=min_samples_leaf,
+                                          random_state=seed, n_jobs=1)),
         "hist_gradient_boosting": lambda max_iter=200, learning_rate=0.1, seed=0:
-            HistGradientBoostingRegressor(max_iter=max_iter, learning_rate=learning_rate,
-                                          random_state=seed),
+            _scaled(HistGradientBoostingRegressor(max_iter=max_iter, learning_rate=learning_rate,
+                                                  random_state=seed)),
         "sparse_gp": lambda n_inducing=500, hyper_subsample=500, ard=True, hyperparameters=None,
             seed=0: SparseGaussianProcess(n_inducing, hyper_subsample, ard, hyperparameters, seed),
         "exact_gp": lambda hyper_subsample=2000, ard=False, seed=0:
@@ -134,21 +147,21 @@ REGISTRY: dict[str, dict[str, Factory]] = {
             _scaled(LinearSVC(C=C, class_weight=class_weight)),
         "logistic": lambda C=1.0, class_weight="balanced":
             _scaled(LogisticRegression(C=C, class_weight=class_weight, max_iter=1000)),
-        "random_forest": lambda n_estimators=100, seed=0: RandomForestClassifier(
-            n_estimators, random_state=seed, n_jobs=1),
-        "extra_trees": lambda n_estimators=100, seed=0: ExtraTreesClassifier(
-            n_estimators, random_state=seed, n_jobs=1),
-        "hist_gradient_boosting": lambda max_iter=100, seed=0: HistGradientBoostingClassifier(
-            max_iter=max_iter, random_state=seed),
+        "random_forest": lambda n_estimators=100, seed=0: _scaled(RandomForestClassifier(
+            n_estimators, random_state=seed, n_jobs=1)),
+        "extra_trees": lambda n_estimators=100, seed=0: _scaled(ExtraTreesClassifier(
+            n_estimators, random_state=seed, n_jobs=1)),
+        "hist_gradient_boosting": lambda max_iter=100, seed=0: _scaled(
+            HistGradientBoostingClassifier(max_iter=max_iter, random_state=seed)),
         "knn": lambda n_neighbors=5: _scaled(KNeighborsClassifier(n_neighbors)),
     },
     "localise": {
-        "paper": lambda n_estimators=100, seed=0: RandomForestClassifier(
-            n_estimators, random_state=seed, n_jobs=1),
-        "extra_trees": lambda n_estimators=100, seed=0: ExtraTreesClassifier(
-            n_estimators, random_state=seed, n_jobs=1),
-        "hist_gradient_boosting": lambda max_iter=100, seed=0: HistGradientBoostingClassifier(
-            max_iter=max_iter, random_state=seed),
+        "paper": lambda n_estimators=100, seed=0: _scaled(RandomForestClassifier(
+            n_estimators, random_state=seed, n_jobs=1)),
+        "extra_trees": lambda n_estimators=100, seed=0: _scaled(ExtraTreesClassifier(
+            n_estimators, random_state=seed, n_jobs=1)),
+        "hist_gradient_boosting": lambda max_iter=100, seed=0: _scaled(
+            HistGradientBoostingClassifier(max_iter=max_iter, random_state=seed)),
         "knn": lambda n_neighbors=5: _scaled(KNeighborsClassifier(n_neighbors)),
         "logistic": lambda C=1.0: _scaled(LogisticRegression(C=C, max_iter=1000)),
         "linear_svm": lambda C=1.0: _scaled(LinearSVC(C=C)),

@@ -112,6 +112,8 @@ def test_tables_render_in_every_format(runs, fmt):
         assert back["force R²"].tolist() == [0.60, 0.58, 0.55]
     if fmt == "markdown":
         assert text.splitlines()[1].startswith("|:")
+    if fmt != "csv":
+        assert "nan" not in text and "—" in text
 
 
 def test_an_empty_store_is_a_clear_error():

@@ -61,6 +61,13 @@ def assign_folds(frame: pd.DataFrame, kind: str, scheme: str, n_splits: int,
         else:
             splitter = StratifiedGroupKFold(n_splits, shuffle=True, random_state=seed)
             splits = splitter.split(np.zeros(len(frame)), labels, groups)
-        for fold, (_, test) in enumerate(splits):
-            folds[test] = fold
+        try:
+            for fold, (_, test) in enumerate(splits):
+                folds[test] = fold
+        except ValueError as err:  # scikit-learn's words, without the dataset's numbers
+            smallest = int(pd.Series(labels).value_counts().min())
+            raise ValueError(
+                f"{scheme} CV with {n_splits} folds cannot split this dataset ({len(frame)} "
+                f"samples, {n_groups} trials, smallest stratum {smallest} sample(s)): {err} "
+                "Acquire more samples or lower cv.folds.") from None
     return folds

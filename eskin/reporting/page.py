@@ -182,6 +182,9 @@ Mean ± std over the folds of each cross-validation scheme: <em>stratified</em> 
 <code>eskin.model_md5</code>
 (<code>mlflow.search_runs(filter_string="tags.`eskin.model_md5` = '…'")</code>).</p>
 {_table(["scene/task", "model", "model md5"], models(metrics))}
+<p>Beside this page, from their own pipelines: <a href="benchmark/summary.md">the benchmark</a>
+(<code>make bench</code>) and <a href="stress.html">numerical stress</a>
+(<code>make stress</code>).</p>
 <h2>Figures</h2>
 {figure_html}
 </body></html>

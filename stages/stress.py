@@ -1,0 +1,14 @@
+"""DVC stage of `make stress`: the numerical stress suite (eskin/stress.py)."""
+
+import sys
+import tempfile
+
+from eskin import stress
+from eskin.cli import FEATURES_DIR, run_friendly
+from eskin.config import load_params
+
+if __name__ == "__main__":
+    with tempfile.TemporaryDirectory(prefix="eskin-stress-") as scratch:
+        sys.exit(run_friendly(lambda: print(stress.stress(
+            load_params(), FEATURES_DIR / "single_force.parquet", "reports/stress.json",
+            "reports/stress.md", "reports/stress.html", scratch=scratch))))

@@ -1,0 +1,129 @@
+"""Numerical stress, reduced: every case of `make stress` on a small scene, the tuned and
+paper models, and hypothesis rescalings of the default models' inputs."""
+
+import copy
+
+import numpy as np
+import pandas as pd
+import pytest
+from conftest import small_scenes
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from eskin import learn, steps, stress
+from eskin.data.schema import CHANNELS, read_dataset
+from eskin.models import build_model, model_settings
+from eskin.tasks import get_task
+
+
+def acquire_features(params, root):
+    steps.acquire(params, "single_force", root / "raw", progress=False)
+    steps.ingest(params, "single_force", root / "raw", root / "processed")
+    learn.featurize(params, "single_force", root / "processed", root / "features",
+                    root / "models")
+    return read_dataset(root / "features" / "single_force.parquet")
+
+
+@pytest.fixture(scope="module")
+def small(tmp_path_factory, repo_params):
+    params = small_scenes(repo_params)
+    params["train"]["single_force"]["force"]["paper"]["subsample"] = 300
+    params["train"]["single_force"]["localise"]["paper"]["n_estimators"] = 20
+    frames = {"default": acquire_features(params, tmp_path_factory.mktemp("stress"))}
+    for name, factor in (("noise_zero", 0.0), ("noise_x10", 10.0)):
+        noisy = copy.deepcopy(params)
+        for knob in ("noise_pf", "drift_offset_pf", "drift_step_pf"):
+            noisy["sim"][knob] *= factor
+        noisy["scenes"]["single_force"].update(samples=3)
+        frames[name] = acquire_features(noisy, tmp_path_factory.mktemp(name))
+    return params, frames
+
+
+@pytest.fixture(scope="module")
+def suite(small):
+    params, frames = small
+    return stress.run_suite(frames, params, folds=3, log=lambda _: None)
+
+
+def test_every_case_passes_or_ends_in_a_clear_error(suite):
+    failed = [(r["case"], r["task"], r["model"], r["outcome"], r.get("error"))
+              for r in suite if r["outcome"].startswith("FAIL")]
+    assert failed == []
+    models = {(r["task"], r["model"]) for r in suite}
+    assert len(models) == 7  # tuned and paper models of the four single-force tasks
+    assert {r["case"] for r in suite} == {c.name for c in stress.CASES}
+
+
+def test_units_and_float32_leave_every_prediction_unchanged(suite):
+    same = [r for r in suite if r["expect"] == "same" and r["case"] != "counts"]
+    assert len(same) == 6 * 7
+    for row in same:
+        assert row["outcome"] == "pass"
+        assert row.get("prediction_change", 0.0) <= stress.TOLERANCE["regression_prediction"]
+        assert row.get("labels_changed", 0.0) == 0.0
+        assert abs(row["score_delta"]) <= stress.TOLERANCE["score"]
+
+
+def test_tiny_data_is_refused_with_the_dataset_numbers(suite):
+    tiny = [r for r in suite if r["case"] == "tiny"]
+    assert {r["outcome"] for r in tiny} == {"clear error"}
+    assert all("cannot split this dataset (40 samples, 40 trials" in r["error"] for r in tiny)
+
+
+def test_the_verdict_fails_what_it_should():
+    case = stress.Case("x", "x", "same")
+    reference = {"predictions": np.zeros((4, 1)), "truth": {"force": np.arange(4.0)},
+                 "scores": {"force": {"r2": 0.5}}, "warnings": {}, "seconds": 1.0}
+    moved = {**reference, "predictions": np.full((4, 1), 0.1)}
+    assert stress.judge(case, moved, reference, "regression")["outcome"] == \
+        "FAIL: predictions changed"
+    nan = {**reference, "predictions": np.full((4, 1), np.nan)}
+    assert stress.judge(case, nan, reference, "regression")["outcome"] == \
+        "FAIL: non-finite predictions"
+    flood = {**reference, "warnings": {"UserWarning: again": 50}}
+    assert stress.judge(case, flood, reference, "regression")["outcome"] == \
+        "FAIL: warning flood"
+    crash = {"error": "LinAlgError: not positive definite", "warnings": {}, "seconds": 0.0}
+    for expect in ("same", "clear error"):
+        verdict = stress.judge(stress.Case("x", "x", expect), crash, None, "regression")
+        assert verdict["outcome"] == "FAIL: error"
+    assert stress.judge(case, reference, reference, "regression")["outcome"] == "pass"
+
+
+def test_the_exact_gp_factorises_a_large_matrix_of_repeated_samples(small):
+    _, frames = small
+    tripled = pd.concat([frames["default"]] * 3, ignore_index=True)  # singular without jitter
+    row = stress.large_factorisation(tripled, 4500, seed=0)  # ≥ 4096: the one-thread path
+    assert row["outcome"] == "pass" and row["score"] > 0.5
+
+
+@pytest.fixture(scope="module")
+def default_fits(small):
+    """The default (tuned) model of each single-force task and the rows it learns."""
+    params, frames = small
+    frame = frames["default"].iloc[::3].reset_index(drop=True)
+    out = []
+    for task_name, section in params["train"]["single_force"].items():
+        task = get_task("single_force", task_name)
+        name, hyper = model_settings(section, "tuned")
+        data = frame[task.rows(frame)]
+        X = data[CHANNELS].to_numpy(dtype=np.float64)
+        target = next(iter(task.target_values(data).values()))
+        model = build_model(task.role, name, hyper).fit(X, target)
+        out.append((task_name, name, hyper, X, target, model.predict(X)))
+    return out
+
+
+@settings(max_examples=12, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(exponents=st.lists(st.floats(-12, 12), min_size=20, max_size=20))
+def test_any_positive_rescaling_leaves_the_default_models_predictions(default_fits, exponents):
+    scale = 10.0 ** np.asarray(exponents)
+    for task_name, name, hyper, X, target, before in default_fits:
+        role = get_task("single_force", task_name).role
+        after = build_model(role, name, hyper).fit(X * scale, target).predict(X * scale)
+        if np.issubdtype(np.asarray(before).dtype, np.floating):
+            spread = np.std(target) or 1.0
+            assert np.max(np.abs(after - before)) / spread <= 1e-6, (task_name, name)
+        else:
+            assert np.array_equal(after, before), (task_name, name)
