@@ -239,8 +239,9 @@ def _ensure_registered_model(client: MlflowClient, name: str) -> None:
     try:
         client.create_registered_model(name)
     except mlflow.exceptions.MlflowException as err:
+        # Already there: registered by an earlier run, or by a parallel one just now.
         if err.error_code not in ("RESOURCE_ALREADY_EXISTS", "ALREADY_EXISTS"):
-            raise  # (another stage may have created it since)
+            raise
 
 
 def registered_name(scene: str, task: str, target: str) -> str:

@@ -145,7 +145,8 @@ def test_model_hyperparameters_are_the_ones_beside_the_chosen_model():
     name, hyper = model_settings({"model": "random_forest", "paper": {"subsample": 5},
                                   "random_forest": {"n_estimators": 7}})
     assert (name, hyper) == ("random_forest", {"n_estimators": 7})
-    assert build_model("force", name, hyper).n_estimators == 7
+    model = build_model("force", name, hyper)
+    assert model.steps[-1][1].n_estimators == 7  # behind the standardising steps
 
 
 @pytest.mark.parametrize("estimator", [SubsampledGaussianProcess(subsample=30), BaselineDelta()],
