@@ -174,8 +174,9 @@ def _audit(args: argparse.Namespace) -> int:
         _emit(experiments.render_audit(experiments.run_audit(args.run_id, root)), args.output)
         return 0
     runs = experiments.load_runs()
-    versions = experiments.dataset_versions(
-        runs, experiments.workspace_digests(root, ["single_force", "two_force"]))
+    scenes = sorted(runs["tags.eskin.scene"].dropna().unique()) if "tags.eskin.scene" in runs \
+        else []
+    versions = experiments.dataset_versions(runs, experiments.workspace_digests(root, scenes))
     versions["committed"] = versions["dataset md5"].map(
         experiments.commit_dates(root, list(versions["dataset md5"])))
     if args.format != "table":

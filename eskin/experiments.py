@@ -232,7 +232,7 @@ def load_runs(experiment: str | None = None) -> pd.DataFrame:
 
     from eskin import tracking
 
-    mlflow.set_tracking_uri(tracking.tracking_uri())
+    tracking.connect()
     name = experiment or tracking.EXPERIMENT
     if mlflow.get_experiment_by_name(name) is None:
         raise NoRunsError(f"no MLflow experiment {name!r} at {tracking.tracking_uri()}: "
@@ -280,35 +280,27 @@ def run_audit(run_id: str, root: Path) -> dict[str, Any]:
     """A run's lineage (dataset version, params, commit, model) and whether the
     workspace and DVC's cache still hold what it used."""
     import mlflow
-    from mlflow.tracking import MlflowClient
 
     from eskin import tracking
 
-    mlflow.set_tracking_uri(tracking.tracking_uri())
+    client = tracking.connect()
     try:
-        run = MlflowClient().get_run(run_id)
+        run = client.get_run(run_id)
     except mlflow.exceptions.MlflowException as err:
         raise NoRunsError(f"no run {run_id} at {tracking.tracking_uri()}") from err
     tags = run.data.tags
     scene, task = tags.get("eskin.scene", ""), tags.get("eskin.task", "")
     digest = tags.get("eskin.dataset_digest", "")
     root = Path(root)
-    data_file = root / "data" / "processed" / f"{scene}.parquet"
-    model_file = root / "models" / scene / f"{task}.joblib"
     checks = {}
     if digest:
-        now = md5_file(data_file) if data_file.exists() else None
-        checks["dataset in workspace"] = (
-            ("ok", f"{data_file.relative_to(root)} is this version") if now == digest else
-            ("differs", f"{data_file.relative_to(root)} is {now}" if now else
-             f"{data_file.relative_to(root)} is missing"))
+        checks["dataset in workspace"] = _workspace_check(
+            root, Path("data") / "processed" / f"{scene}.parquet", digest, "this version")
         checks["dataset in DVC cache"] = _cache_check(root, digest)
     if tags.get("eskin.model_md5"):
-        now = md5_file(model_file) if model_file.exists() else None
-        checks["model in workspace"] = (
-            ("ok", f"{model_file.relative_to(root)} is this run's model")
-            if now == tags["eskin.model_md5"] else
-            ("differs", f"{model_file.relative_to(root)} is {now}" if now else "missing"))
+        checks["model in workspace"] = _workspace_check(
+            root, Path("models") / scene / f"{task}.joblib", tags["eskin.model_md5"],
+            "this run's model")
         checks["model in DVC cache"] = _cache_check(root, tags["eskin.model_md5"])
     commit = tags.get("eskin.git_commit", "")
     head = tracking.git_commit(root)
@@ -317,7 +309,7 @@ def run_audit(run_id: str, root: Path) -> dict[str, Any]:
     checks["commit"] = (("ok", "HEAD" + (", with uncommitted changes" if dirty else ""))
                         if commit and commit == head else ("differs", f"HEAD is {head[:8] or '?'}"))
     registered = [f"{v.name} v{v.version}" for v in
-                  MlflowClient().search_model_versions(f"run_id = '{run_id}'")]
+                  client.search_model_versions(f"run_id = '{run_id}'")]
     return {
         "run": run_id, "name": tags.get("mlflow.runName", ""), "scene": scene, "task": task,
         "model": tags.get("eskin.model", ""), "status": run.info.status,
@@ -332,6 +324,14 @@ def run_audit(run_id: str, root: Path) -> dict[str, Any]:
                     if k.split(".")[-1] in HEADLINE_SCORES + ("pair_accuracy",)},
         "checks": checks,
     }
+
+
+def _workspace_check(root: Path, path: Path, md5: str, what: str) -> tuple[str, str]:
+    """Whether the workspace file ``path`` (relative to ``root``) has this md5."""
+    if not (root / path).exists():
+        return "differs", f"{path} is missing"
+    now = md5_file(root / path)
+    return ("ok", f"{path} is {what}") if now == md5 else ("differs", f"{path} is {now}")
 
 
 def _cache_check(root: Path, md5: str) -> tuple[str, str]:

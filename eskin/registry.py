@@ -59,12 +59,10 @@ def reproduce(name: str, version: str | None = None, *, root: Path = Path("."),
     Folds run as the run ran them (its ``cv.n_jobs``) on this machine's joblib backend.
     """
     import mlflow
-    from mlflow.tracking import MlflowClient
 
     from eskin import tracking
 
-    mlflow.set_tracking_uri(tracking.tracking_uri())
-    client = MlflowClient()
+    client = tracking.connect()
     entry = model_version(client, name, version)
     tags = entry.tags
     scene, task_name, target = tags["eskin.scene"], tags["eskin.task"], tags["eskin.target"]

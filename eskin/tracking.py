@@ -53,6 +53,12 @@ def tracking_uri() -> str:
     return os.environ.get("MLFLOW_TRACKING_URI") or f"sqlite:///{project_root() / 'mlflow.db'}"
 
 
+def connect() -> MlflowClient:
+    """Point MLflow (its fluent API too) at the project's store; a client on it."""
+    mlflow.set_tracking_uri(tracking_uri())
+    return MlflowClient()
+
+
 def git_commit(root: Path | None = None) -> str:
     """HEAD of the working copy (empty when not in git)."""
     try:
@@ -124,8 +130,7 @@ def flatten(mapping: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
 
 def _pipeline(scene: str, params_text: str) -> tuple[str, str, str, dict[str, str]]:
     """(experiment id, parent run id, pipeline key, common tags) for a stage's run."""
-    mlflow.set_tracking_uri(tracking_uri())
-    client = MlflowClient()
+    client = connect()
     experiment_id = _experiment_id(client, EXPERIMENT)
     commit = git_commit(project_root())
     key = pipeline_key(params_text, commit)
