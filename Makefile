@@ -1,6 +1,7 @@
 # make repro: set up everything and run the whole pipeline on the simulated skin.
 # make test:  set up everything and run the tests.
-# make bench: the benchmark (bench/dvc.yaml): variants' run time against error, the Bayes bound.
+# make bench: bench/dvc.yaml: variants' run time against error, the Bayes bound; the soak
+#             (a whole scene over a faulty link, two SIGKILLs); the fuzzers (100,000 inputs each).
 # make stress: the numerical stress suite (stress/dvc.yaml).
 SHELL := /bin/bash
 PYTHON ?= python3
@@ -37,7 +38,8 @@ repro: setup
 # Outside `make repro`: `dvc repro` reads only the top-level dvc.yaml.
 bench: setup
 	dvc repro dvc.yaml bench/dvc.yaml
-	@cat reports/benchmark/summary.md
+	@cat reports/benchmark/summary.md reports/soak/soak.md
+	@cat reports/fuzz/parser.json reports/fuzz/import.json
 
 # Every model under the data real users produce (stress/dvc.yaml): reports/stress.{json,md}.
 stress: setup

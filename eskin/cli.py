@@ -41,6 +41,7 @@ def _ports(args: argparse.Namespace) -> int:
 def _simulate(args: argparse.Namespace) -> int:
     from eskin.config import load_params, section, skin_params
     from eskin.device.board import SimulatedBoard
+    from eskin.device.faults import FaultyLine, LinkFaults
     from eskin.device.physics import SkinParams
     from eskin.device.simulate import announce_stdout, serve_pty, serve_socket
 
@@ -48,21 +49,26 @@ def _simulate(args: argparse.Namespace) -> int:
         config = json.loads(args.config_json)
         sim = SkinParams.from_mapping(config["sim"])
         rest, period = config["rest_length_mm"], config["frame_period_ms"]
-        corrupt = config["corrupt_fraction"]
+        corrupt, faults = config["corrupt_fraction"], config.get("faults")
     else:
         params = load_params(args.params)
         sim, rest = skin_params(params), section(params, "acquire.rest_length_mm")
         corrupt = section(params, "sim_board.corrupt_fraction")
         period = section(params, "sim_board.frame_period_ms")
+        faults = params["sim_board"].get("faults")
     if args.corrupt is not None:
         corrupt = args.corrupt
-    board = SimulatedBoard(sim, rest_length_mm=rest, corrupt_fraction=corrupt,
-                           frame_period_ms=period)
+
+    def power_on() -> SimulatedBoard:  # again after every injected reset
+        return SimulatedBoard(sim, rest_length_mm=rest, corrupt_fraction=corrupt,
+                              frame_period_ms=period)
+
+    line = FaultyLine(power_on, LinkFaults.from_mapping(faults))
     try:
         if args.socket is not None:
-            serve_socket(board, args.socket, announce_stdout)
+            serve_socket(line, args.socket, announce_stdout)
         else:
-            serve_pty(board, announce_stdout)
+            serve_pty(line, announce_stdout, link=args.link)
     except KeyboardInterrupt:
         pass
     return 0
@@ -87,6 +93,9 @@ def build_parser() -> argparse.ArgumentParser:
                           help="serve on socket://127.0.0.1:PORT instead (0: any free port)")
     simulate.add_argument("--corrupt", type=float, metavar="FRACTION",
                           help="damage this share of frames on the wire")
+    simulate.add_argument("--link", type=Path, metavar="PATH",
+                          help="also a symlink at PATH that follows the pty (needed for "
+                          "vanish faults: the pty is replaced when the link comes back)")
     simulate.add_argument("--config-json", help=argparse.SUPPRESS)
     simulate.set_defaults(run=_simulate)
 

@@ -147,6 +147,21 @@ def save_models(models: dict, path: Path) -> None:
     joblib.dump(models, path)
 
 
+class ModelIntegrityError(ValueError):
+    """A saved model whose bytes are not the ones recorded for it."""
+
+
+def load_models(path: Path, md5: str) -> dict:
+    """A task's saved models (target → estimator), unpickled only if the file's md5 is
+    ``md5``, the one DVC (dvc.lock) and MLflow (``eskin.model_md5``) recorded for it:
+    unpickling runs whatever code the file names."""
+    actual = md5_file(path)
+    if actual != md5:
+        raise ModelIntegrityError(f"{path}: md5 is {actual}, but {md5} was recorded for this "
+                                  "model; not loading it")
+    return joblib.load(path)
+
+
 def score_pairs(scene: str, predictions_dir: Path, metrics_path: Path, *,
                 params_text: str = "", track: bool = True) -> str:
     """Score a two-force scene's contacts as sets (order-free), from its tasks' predictions."""

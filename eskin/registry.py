@@ -3,10 +3,11 @@
 Every training run registers its final models (``eskin.tracking.registered_name``)
 with the run's lineage as version tags: the DVC md5 of the dataset and of the
 features file it was trained on, the git commit, the DVC experiment. From those
-alone, ``reproduce`` finds the features file in DVC's cache (or the workspace,
-if it still is that version; either way its md5 is checked), reruns the run's
-cross-validation with the registered model's estimator and compares the
-out-of-fold predictions with the ones the run logged.
+alone, ``reproduce`` finds the features file and the model file in DVC's cache
+(or the workspace, if it still is that version; either way its md5 is
+checked, the model's before it is unpickled), reruns the run's
+cross-validation with the model's estimator and compares the out-of-fold
+predictions with the ones the run logged.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from eskin.data.schema import md5_file, read_dataset, read_metadata
 from eskin.evaluation.crossval import cross_validate
 from eskin.evaluation.cv import assign_folds
 from eskin.experiments import NoRunsError, dvc_cache_path, parse_param
+from eskin.learn import load_models
 from eskin.tasks import get_task
 
 
@@ -40,15 +42,16 @@ def model_version(client, name: str, version: str | None = None):
     return max(versions, key=lambda v: int(v.version))
 
 
-def features_file(root: Path, scene: str, md5: str) -> Path:
-    """The features file of this md5: the workspace's if it matches, else DVC's cache."""
-    workspace = Path(root) / "data" / "features" / f"{scene}.parquet"
-    if workspace.exists() and md5_file(workspace) == md5:
-        return workspace
+def versioned_file(root: Path, workspace: Path, md5: str, what: str) -> Path:
+    """The file of this md5: ``workspace`` (relative to ``root``) if it matches, else
+    DVC's cache."""
+    path = Path(root) / workspace
+    if path.exists() and md5_file(path) == md5:
+        return path
     cached = dvc_cache_path(root, md5)
     if cached is None:
-        raise NoRunsError(f"features version {md5} of {scene} is neither in the workspace nor "
-                          "in DVC's cache: check out the run's commit and `dvc pull`")
+        raise NoRunsError(f"{what} version {md5} is neither in the workspace ({workspace}) "
+                          "nor in DVC's cache: check out the run's commit and `dvc pull`")
     return cached
 
 
@@ -67,10 +70,16 @@ def reproduce(name: str, version: str | None = None, *, root: Path = Path("."),
     tags = entry.tags
     scene, task_name, target = tags["eskin.scene"], tags["eskin.task"], tags["eskin.target"]
     run = client.get_run(entry.run_id)
-    path = features_file(root, scene, tags["eskin.features_md5"])
+    path = versioned_file(root, Path("data") / "features" / f"{scene}.parquet",
+                          tags["eskin.features_md5"], f"features of {scene}")
     frame, kind = read_dataset(path), read_metadata(path)["kind"]
     task = get_task(kind, task_name)
-    model = mlflow.sklearn.load_model(f"models:/{name}/{entry.version}")
+    # The model is the DVC-tracked file whose md5 the run recorded (eskin.model_md5, as in
+    # dvc.lock), unpickled only after that md5 is checked: a pickle runs code when loaded.
+    model_md5 = tags["eskin.model_md5"]
+    model_path = versioned_file(root, Path("models") / scene / f"{task_name}.joblib", model_md5,
+                                f"model {name}")
+    model = load_models(model_path, model_md5)[target]
     params = run.data.params
     schemes = parse_param(params["cv.schemes"])
     out: dict[str, Any] = {"model": name, "version": entry.version, "run": entry.run_id,

@@ -14,6 +14,7 @@ from eskin.config import scene_plan, section, skin_params
 from eskin.data.importer import copy_import, find_import, import_paper_layout
 from eskin.data.ingest import ingest_log
 from eskin.data.schema import write_dataset, write_quarantine
+from eskin.device.faults import LinkFaults
 
 
 def acquire(params: dict[str, Any], scene: str, raw_dir: Path, *, progress: bool = True) -> str:
@@ -31,8 +32,11 @@ def acquire(params: dict[str, Any], scene: str, raw_dir: Path, *, progress: bool
         plan, raw_dir, source=settings["source"], sim=skin_params(params),
         rest_length_mm=float(settings["rest_length_mm"]), port=settings.get("port"),
         corrupt_fraction=float(board["corrupt_fraction"]),
+        faults=LinkFaults.from_mapping(board.get("faults")),
         frame_period_ms=int(board["frame_period_ms"]), timeout_s=float(settings["timeout_s"]),
-        max_attempts=int(settings["max_attempts"]), progress=progress)
+        max_attempts=int(settings["max_attempts"]),
+        reconnect_s=float(settings["reconnect_s"]),
+        max_jump_counts=float(settings["max_jump_counts"]), progress=progress)
     return report.summary()
 
 

@@ -170,8 +170,8 @@ def log_task_run(*, scene: str, task: str, params: Mapping[str, Any], params_tex
 class _quiet:
     """Raise a logger's level for a block: MLflow's pickle advice, given on every save.
 
-    Models are pickled by design; they are loaded only from this project's own
-    DVC-tracked outputs or MLflow store.
+    Models are pickled by design; eskin loads one only after its file's md5
+    matches the one recorded in dvc.lock and in the run (``eskin.learn.load_models``).
     """
 
     def __init__(self, name: str) -> None:

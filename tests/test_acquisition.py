@@ -2,6 +2,7 @@
 
 import copy
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -16,6 +17,7 @@ from eskin.acquisition.rawlog import read_log
 from eskin.acquisition.session import acquire_scene, simulated_board
 from eskin.config import scene_plan, skin_params
 from eskin.data.schema import CHANNELS, LABELS, read_metadata
+from eskin.soak import run_soak
 
 # What a sample is, independent of how the link delivered it (seq and t_ms count wire
 # traffic, and a retried condition uses more of it).
@@ -26,6 +28,22 @@ def acquire_and_ingest(params, root, scene="single_force"):
     summary = steps.acquire(params, scene, root / "raw" / scene, progress=False)
     steps.ingest(params, scene, root / "raw" / scene, root / "processed")
     return summary, pd.read_parquet(root / "processed" / f"{scene}.parquet")
+
+
+def acquire_until(params, root, *, complete):
+    """`eskin acquire single_force` in its own process, once ``complete`` conditions are in
+    the log: (the still running process, the log)."""
+    write_params(root, params)
+    log = root / "data" / "raw" / "single_force" / "acquisition.log"
+    process = subprocess.Popen([sys.executable, "-m", "eskin", "acquire", "single_force",
+                                "--no-progress"], cwd=root, stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        if log.exists() and log.read_bytes().count(b"\nE\t") >= complete:
+            break
+        time.sleep(0.005)
+    return process, log
 
 
 @pytest.fixture(scope="module")
@@ -70,16 +88,7 @@ def test_corrupted_link_gives_the_clean_dataset_and_counts_rejections(clean_run,
 
 def test_sigkill_midway_then_resume_gives_every_planned_row_once(clean_run, tmp_path):
     params, _, clean = clean_run
-    write_params(tmp_path, params)
-    log = tmp_path / "data" / "raw" / "single_force" / "acquisition.log"
-    process = subprocess.Popen([sys.executable, "-m", "eskin", "acquire", "single_force",
-                                "--no-progress"], cwd=tmp_path, stdout=subprocess.DEVNULL,
-                               stderr=subprocess.DEVNULL)
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline:
-        if log.exists() and log.read_bytes().count(b"\nE\t") >= 150:
-            break
-        time.sleep(0.005)
+    process, log = acquire_until(params, tmp_path, complete=150)
     os.kill(process.pid, signal.SIGKILL)
     process.wait()
     done_before = len(read_log(log).completed)
@@ -93,8 +102,8 @@ def test_sigkill_midway_then_resume_gives_every_planned_row_once(clean_run, tmp_
     frame = pd.read_parquet(tmp_path / "data" / "processed" / "single_force.parquet")
     assert len(frame) == 404 * 5
     assert not frame[["session", "trial", "sample"]].duplicated().any()
-    assert set(frame["session"]) == {"s001", "s002"}
-    pd.testing.assert_frame_equal(frame[CONTENT], clean[CONTENT])
+    assert set(frame["session"]) == {"s001"}, "a resume continues the interrupted session"
+    pd.testing.assert_frame_equal(frame[CONTENT + ["session"]], clean[CONTENT + ["session"]])
 
 
 def test_a_grown_plan_acquires_only_the_new_conditions(clean_run, tmp_path):
@@ -160,3 +169,36 @@ def test_serial_source_prompts_the_operator_only_when_the_weights_change(small_p
     assert "Remove all weights" in prompts[0]
     contents = read_log(tmp_path / "acquisition.log")
     assert contents.sessions[0]["source"] == "serial" and "started_utc" in contents.sessions[0]
+
+
+def test_soak_every_fault_kind_and_two_sigkills_lose_and_duplicate_nothing(clean_run, tmp_path,
+                                                                          repo_params):
+    """make test's soak: the small scene; `make bench` runs the whole one (bench/dvc.yaml)."""
+    params, _, clean = clean_run
+    settings = {**repo_params["soak"], "corrupt_fraction": 0.01, "timeout_s": 0.25}
+    settings["faults"] = {**settings["faults"], "stall_s": 0.3, **dict.fromkeys(
+        ["drop", "garbage", "reset", "stall", "vanish"], 0.01)}
+    result = run_soak(params, settings, tmp_path, clean, say=lambda message: None)
+    assert result.kills == 2 and all(n > 0 for n in result.faults.values()), result.markdown()
+    assert (result.lost, result.duplicated, result.extra, result.differing) == (0, 0, 0, 0)
+    assert result.rows == 404 * 5 and result.passed
+    assert re.search(r", [1-9][0-9]* board restart\(s\), [1-9][0-9]* reconnect", result.runs[-1])
+
+
+def test_ctrl_c_stops_cleanly_with_everything_received_on_disk(clean_run, tmp_path):
+    params, _, clean = clean_run
+    process, log = acquire_until(params, tmp_path, complete=100)
+    process.send_signal(signal.SIGINT)
+    _, stderr = process.communicate(timeout=60)
+    assert process.returncode == 130 and "interrupted" in stderr and "Traceback" not in stderr
+    contents = read_log(log)
+    assert not contents.torn_tail and not contents.bad_lines, "stopped between whole records"
+    last = log.read_text().splitlines()[-1]
+    assert last.startswith("E\t") or (last.startswith("X\t") and last.endswith("interrupted"))
+    done = len(contents.completed)
+    assert 100 <= done < 404
+    resumed = eskin(["acquire", "single_force", "--no-progress"], tmp_path)
+    assert f"{404 - done} condition(s) acquired, {done} reused" in resumed.stdout
+    assert eskin(["ingest", "single_force"], tmp_path).returncode == 0
+    frame = pd.read_parquet(tmp_path / "data" / "processed" / "single_force.parquet")
+    pd.testing.assert_frame_equal(frame[CONTENT + ["session"]], clean[CONTENT + ["session"]])

@@ -10,26 +10,34 @@ import pytest
 import serial
 
 from eskin.acquisition.session import simulated_board
-from eskin.device.link import LinkError, SerialLink, list_serial_ports
+from eskin.device.faults import LinkFaults
+from eskin.device.link import (
+    BoardReset,
+    DeviceChanged,
+    LinkError,
+    SampleBatch,
+    SerialLink,
+    list_serial_ports,
+)
 from eskin.device.physics import SkinParams
 
 
 def test_frames_cross_a_real_pty_from_another_process():
     with simulated_board(SkinParams(), rest_length_mm=101.0) as board:
-        assert board.port.startswith("/dev/pts/")
+        assert os.path.realpath(board.port).startswith("/dev/pts/"), "a link to the pty"
         assert stat.S_ISCHR(os.stat(board.port).st_mode), "the port is a character device"
         assert board.process.pid != os.getpid()
         with SerialLink(board.port, timeout_s=1.0) as link:
             assert type(link._serial) is serial.Serial, "pyserial's own POSIX port, no shortcut"
             assert os.isatty(link._serial.fileno())
             hello = link.connect()
-            batch = link.sample(500)
+            batch = link.sample(SampleBatch(500))
             assert batch.problem is None and len(batch.frames) == 500
             # The frames came from that process: once it is gone, nothing answers.
             board.process.kill()
             board.process.wait()
             with pytest.raises(LinkError, match=board.port):
-                link.sample(10)
+                link.sample(SampleBatch(10))
     assert hello.device_id.startswith("sim-")
 
 
@@ -39,7 +47,7 @@ def test_socket_transport_binds_loopback_and_speaks_the_same_protocol():
         with SerialLink(board.port) as link:
             link.connect()
             link.command("STRETCH 8.000")
-            batch = link.sample(50)
+            batch = link.sample(SampleBatch(50))
     assert batch.problem is None and len(batch.frames) == 50
 
 
@@ -73,3 +81,75 @@ def test_ports_command_lists_through_pyserial():
     out = subprocess.run([sys.executable, "-m", "eskin", "ports"], capture_output=True,
                          text=True, timeout=60)
     assert out.returncode == 0 and out.stdout
+
+
+def test_a_board_that_stays_silent_ends_reconnecting_with_an_error_naming_the_port():
+    master, slave = os.openpty()
+    port = os.ttyname(slave)
+    said = []
+    try:
+        with SerialLink(port, timeout_s=0.2) as link:
+            with pytest.raises(LinkError, match=f"lost the board on {port}: no answer after"):
+                link.reopen(budget_s=1.0, notify=said.append)
+    finally:
+        os.close(master)
+        os.close(slave)
+    assert said and port in said[0] and "reconnecting" in said[0]
+
+
+@pytest.mark.parametrize("socket_port", [None, 0], ids=["pty", "socket"])
+def test_a_vanishing_link_is_reopened_and_a_reset_board_is_noticed(socket_port):
+    faults = LinkFaults(vanish=0.03, reset=0.03, vanish_s=0.1, seed=3)
+    said, resets, reopened, whole = [], 0, 0, 0
+    with simulated_board(SkinParams(), rest_length_mm=101.0, faults=faults,
+                         socket_port=socket_port) as board:
+        with SerialLink(board.port, timeout_s=1.0) as link:
+            first = link.connect()
+            for _ in range(40):
+                try:
+                    link.command("STRETCH 4.000")
+                    whole += link.sample(SampleBatch(10)).problem is None
+                except BoardReset:
+                    resets += 1
+                except LinkError:
+                    reopened += 1
+                    assert link.reopen(budget_s=10, notify=said.append) == first
+    assert resets and reopened and whole, (resets, reopened, whole)
+    assert any("reconnected" in message for message in said) or reopened
+
+
+def test_a_damaged_frame_that_passes_its_crc_is_still_caught():
+    from eskin.device.link import jump_problem
+    from eskin.device.protocol import encode_frame, parse_line
+
+    def batch(rows, times=None):
+        times = times or [12 * i for i in range(len(rows))]
+        out = SampleBatch(len(rows))
+        out.frames = [parse_line(encode_frame(i, t, row)[:-1])
+                      for i, (t, row) in enumerate(zip(times, rows, strict=True))]
+        return out
+
+    steady = [[512 + (i % 3)] * 20 for i in range(20)]
+    assert batch(steady).problem is None and jump_problem(batch(steady), 40) is None
+    dropped_digit = [list(r) for r in steady]
+    dropped_digit[7][4] = 52          # "512" lost its "1": valid shape, CRC recomputed
+    assert "sample 7 (seq 7) reads 52 on terminal 5, whose median is 513: fewer digits and " \
+        "461 counts away" in jump_problem(batch(dropped_digit), 40)
+    noisy = [[500 + 60 * (i % 2)] * 20 for i in range(20)]   # a noisy skin, σ ≈ 44
+    noisy[3][0] = 99                                          # 2 digits but within 10 σ
+    assert jump_problem(batch(noisy), 40) is None
+    steady[5][2] = 1100 - 1000                                 # a real 3-digit reading
+    assert jump_problem(batch(steady), 40) is None, "far, but no digit lost"
+    times = [12 * i for i in range(20)]
+    times[9] = 10                     # "108" lost its "8"
+    assert "board time went backwards at seq 9" in batch(steady, times).problem
+
+
+def test_another_board_answering_after_a_reconnect_is_refused():
+    with simulated_board(SkinParams(seed=1), rest_length_mm=101.0, socket_port=0) as first, \
+            simulated_board(SkinParams(seed=2), rest_length_mm=101.0, socket_port=0) as second:
+        with SerialLink(first.port, timeout_s=1.0) as link:
+            link.connect()
+            link.port = second.port  # the cable now leads to another skin
+            with pytest.raises(DeviceChanged, match="another board answered"):
+                link.reopen(budget_s=5, notify=lambda message: None)

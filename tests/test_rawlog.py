@@ -80,3 +80,14 @@ def test_cli_turns_errors_into_one_line_and_exit_one(tmp_path, small_params):
     assert len(result.stderr.strip().splitlines()) == 1
     unknown = eskin(["acquire", "no_such_scene"], tmp_path)
     assert unknown.returncode == 1 and "scenes.no_such_scene" in unknown.stderr
+
+
+def test_a_reason_that_is_not_ascii_is_written_escaped_not_lost(tmp_path):
+    path = tmp_path / "acquisition.log"
+    writer = RawLogWriter(path, {"session": "s001", "device": {"id": "d", "firmware": "f"}})
+    attempt = writer.begin({"key": "k1", "stretch": 1.0, "contacts": [[0, 0, 0.0]]})
+    writer.abandon(attempt, "limit 40 or 10 σ\ton /dev/ttyÄCM0")
+    writer.close()
+    assert path.read_text(encoding="ascii").splitlines()[-1] == \
+        "X\t1\tlimit 40 or 10 \\u03c3 on /dev/tty\\xc4CM0"
+    assert not read_log(path).bad_lines

@@ -98,6 +98,9 @@ def read_log(path: Path) -> LogContents:
                 number_text, _, payload = rest.partition("\t")
                 attempt_no = int(number_text)
                 if tag == "B":
+                    if attempt_no in attempts:
+                        raise ValueError(f"attempt {attempt_no} began twice (log edited "
+                                         "or joined from two files?)")
                     condition = json.loads(payload)
                     if "key" not in condition:
                         raise ValueError("condition without key")
@@ -123,7 +126,7 @@ def read_log(path: Path) -> LogContents:
                     raise ValueError(f"unknown record type {tag!r}")
             except (ValueError, KeyError, TypeError) as err:
                 bad.append(BadLine(path, number, str(err), line))
-                if tag in ("F", "R", "E", "X") and rest.partition("\t")[0].isdigit():
+                if tag in ("B", "F", "R", "E", "X") and rest.partition("\t")[0].isdigit():
                     tainted.add(int(rest.partition("\t")[0]))
     return LogContents(sessions, completed, max(attempts, default=0), rejected, bad, torn)
 
@@ -166,7 +169,7 @@ class RawLogWriter:
 
     def rejected(self, attempt: int, errors: list[ParseError]) -> None:
         for error in errors:
-            self._write("R", attempt, error.reason.replace("\t", " "),
+            self._write("R", attempt, _ascii_field(error.reason),
                         json.dumps(error.line.decode("latin-1")))
 
     def end(self, attempt: int, n_frames: int) -> None:
@@ -174,7 +177,7 @@ class RawLogWriter:
         self.flush()
 
     def abandon(self, attempt: int, reason: str) -> None:
-        self._write("X", attempt, reason.replace("\t", " "))
+        self._write("X", attempt, _ascii_field(reason))
         self.flush()
 
     def flush(self) -> None:
@@ -184,6 +187,11 @@ class RawLogWriter:
         self._file.flush()
         os.fsync(self._file.fileno())
         self._file.close()
+
+
+def _ascii_field(text: str) -> str:
+    """Free text as one field of an ASCII line (a port name or a message may not be)."""
+    return text.replace("\t", " ").replace("\n", " ").encode("ascii", "backslashreplace").decode()
 
 
 def _cut_torn_tail(path: Path) -> None:

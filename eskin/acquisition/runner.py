@@ -4,14 +4,19 @@ For each condition not yet recorded on this device it sets the stretch,
 has the indenters placed — by ``SIM`` commands on the simulated board, by a
 person prompted at the terminal on a real one — and asks for the samples. A
 condition is stored only whole: if any frame fails its CRC, is malformed or
-is missing from the sequence, the attempt is logged as abandoned and the
-condition is asked again (the simulated board replays the same trial, so a
-faulty link still gives the clean run's data).
+is missing from the sequence, or a reading jumps far from the rest of its
+condition (a damaged frame whose CRC-8 matched by chance), the attempt is
+logged as abandoned and the condition is asked again (the simulated board
+replays the same trial, so a faulty link still gives the clean run's data).
+A board that restarts mid-condition (``#HELLO``) gets its stretch and
+indenters again; a port that fails is reopened with backoff, and only the
+same board is accepted back.
 """
 
 from __future__ import annotations
 
 import logging
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -21,7 +26,14 @@ from tqdm import tqdm
 
 from eskin.acquisition.plan import Condition, ScenePlan
 from eskin.acquisition.rawlog import RawLogWriter
-from eskin.device.link import SerialLink
+from eskin.device.link import (
+    BoardRefused,
+    BoardReset,
+    LinkError,
+    SampleBatch,
+    SerialLink,
+    jump_problem,
+)
 
 log = logging.getLogger(__name__)
 
@@ -41,6 +53,8 @@ class AcquisitionReport:
     frames_stored: int
     frames_rejected: int
     seconds: float
+    resets: int = 0        # the board restarted mid-condition
+    reconnects: int = 0    # the link failed and was reopened
 
     @property
     def frames_per_s(self) -> float:
@@ -49,7 +63,8 @@ class AcquisitionReport:
     def summary(self) -> str:
         return (f"{self.scene}: {self.acquired} condition(s) acquired, {self.reused} reused "
                 f"of {self.conditions}; {self.frames_stored} frames stored, "
-                f"{self.frames_rejected} rejected, {self.retries} retried condition(s); "
+                f"{self.frames_rejected} rejected, {self.retries} retried condition(s), "
+                f"{self.resets} board restart(s), {self.reconnects} reconnect(s); "
                 f"{self.seconds:.1f} s ({self.frames_per_s:.0f} frames/s over {self.port})")
 
 
@@ -92,8 +107,17 @@ class OperatorPlacer:
 
 def acquire(plan: ScenePlan, link: SerialLink, writer: RawLogWriter, placer: Placer, *,
             completed: set[str], rest_length_mm: float, max_attempts: int = 5,
-            progress: bool = True) -> AcquisitionReport:
-    """Acquire every condition of ``plan`` whose key is not in ``completed``."""
+            reconnect_s: float = 30.0, max_jump_counts: float = 40.0,
+            progress: bool = True,
+            notify: Callable[[str], object] | None = None) -> AcquisitionReport:
+    """Acquire every condition of ``plan`` whose key is not in ``completed``.
+
+    A damaged batch is asked again; a board that restarts gets its stretch and
+    indenters again; a link that fails (the port vanishes, the board falls
+    silent past the timeout) is reopened with backoff for up to
+    ``reconnect_s``. Every frame that arrived, in whole attempts or not, is in
+    the log before any error or Ctrl-C leaves this function.
+    """
     hello = link.hello
     if hello is None:
         raise AcquisitionError(f"no #HELLO from the board on {link.port}: call connect() first")
@@ -102,6 +126,8 @@ def acquire(plan: ScenePlan, link: SerialLink, writer: RawLogWriter, placer: Pla
     stretch_mm: str | None = None
     bar = tqdm(total=len(plan.conditions), desc=f"acquire {plan.name}", unit="cond",
                disable=not progress, leave=False)
+    say = notify or (lambda message: tqdm.write(f"acquire {plan.name}: {message}",
+                                                file=sys.stderr))
     with bar:
         for condition in plan.conditions:
             key = condition.key(hello.device_id, hello.firmware)
@@ -110,23 +136,51 @@ def acquire(plan: ScenePlan, link: SerialLink, writer: RawLogWriter, placer: Pla
                 bar.update()
                 continue
             wanted_mm = f"{(condition.stretch - 1.0) * rest_length_mm:.3f}"
-            if wanted_mm != stretch_mm:
-                link.command(f"STRETCH {wanted_mm}")
-                stretch_mm = wanted_mm
             record = {"key": key, "scene": plan.name, **condition.as_dict()}
+            problem = None
             for attempt_no in range(max_attempts):
-                placer.place(link, condition, key, repeat=attempt_no > 0)
-                attempt = writer.begin(record)
-                batch = link.sample(plan.samples)
-                writer.frames(attempt, batch.frames)
-                writer.rejected(attempt, batch.rejected)
-                report.frames_rejected += len(batch.rejected)
-                problem = batch.problem
+                attempt = None
+                try:
+                    if wanted_mm != stretch_mm:
+                        link.command(f"STRETCH {wanted_mm}")
+                        stretch_mm = wanted_mm
+                    placer.place(link, condition, key, repeat=attempt_no > 0)
+                    attempt = writer.begin(record)
+                    batch = SampleBatch(plan.samples)
+                    try:
+                        link.sample(batch)
+                    finally:  # an error or Ctrl-C mid-batch: what arrived is kept
+                        writer.frames(attempt, batch.frames)
+                        writer.rejected(attempt, batch.rejected)
+                        report.frames_rejected += len(batch.rejected)
+                    problem = batch.problem or jump_problem(batch, max_jump_counts)
+                except BoardRefused:
+                    _close(writer, attempt, "the board refused a command")
+                    raise
+                except BoardReset as err:
+                    problem = str(err)
+                    report.resets += 1
+                    stretch_mm = None  # a restarted board forgot where the clamp is
+                except LinkError as err:
+                    problem = str(err)
+                    _close(writer, attempt, problem)
+                    attempt = None
+                    report.reconnects += 1
+                    stretch_mm = None
+                    try:
+                        link.reopen(budget_s=reconnect_s, notify=say)
+                    except LinkError as lost:
+                        raise AcquisitionError(
+                            f"{plan.name}: {lost}. Everything received is in {writer.path}; "
+                            "rerun to resume.") from lost
+                except BaseException:  # Ctrl-C, or a bug: the attempt is closed, then stop
+                    _close(writer, attempt, "interrupted")
+                    raise
                 if problem is None:
                     writer.end(attempt, len(batch.frames))
                     report.frames_stored += len(batch.frames)
                     break
-                writer.abandon(attempt, problem)
+                _close(writer, attempt, problem)
                 report.retries += 1
                 log.info("%s: %s; asking again", condition.describe(), problem)
             else:
@@ -139,3 +193,9 @@ def acquire(plan: ScenePlan, link: SerialLink, writer: RawLogWriter, placer: Pla
             bar.update()
     report.seconds = time.monotonic() - started
     return report
+
+
+def _close(writer: RawLogWriter, attempt: int | None, reason: str) -> None:
+    """Mark an open attempt abandoned (and flush), if one is open."""
+    if attempt is not None:
+        writer.abandon(attempt, reason)

@@ -12,6 +12,7 @@ import json
 import selectors
 import subprocess
 import sys
+import tempfile
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -19,16 +20,19 @@ from pathlib import Path
 
 from eskin import __version__
 from eskin.acquisition.plan import ScenePlan
-from eskin.acquisition.rawlog import RawLogWriter, read_log
+from eskin.acquisition.rawlog import LogContents, RawLogWriter, read_log
 from eskin.acquisition.runner import (
+    AcquisitionError,
     AcquisitionReport,
     OperatorPlacer,
     Placer,
     SimulatedPlacer,
     acquire,
 )
+from eskin.device.faults import LinkFaults
 from eskin.device.link import LinkError, SerialLink
 from eskin.device.physics import SkinParams
+from eskin.device.protocol import Hello
 
 LOG_NAME = "acquisition.log"
 
@@ -41,17 +45,28 @@ class RunningBoard:
 
 @contextlib.contextmanager
 def simulated_board(sim: SkinParams, *, rest_length_mm: float, corrupt_fraction: float = 0.0,
-                    frame_period_ms: int = 12, socket_port: int | None = None,
+                    frame_period_ms: int = 12, faults: LinkFaults | None = None,
+                    socket_port: int | None = None,
                     start_timeout_s: float = 30.0) -> Iterator[RunningBoard]:
-    """Run the simulated board in a child process; yield its port and process."""
+    """Run the simulated board in a child process; yield its port and process.
+
+    On a pty the port is a symlink that follows the board's pty, so a link that
+    vanishes and comes back (a ``vanish`` fault) is found again at the same path.
+    """
     config = {"sim": sim.as_dict(), "rest_length_mm": rest_length_mm,
-              "corrupt_fraction": corrupt_fraction, "frame_period_ms": frame_period_ms}
+              "corrupt_fraction": corrupt_fraction, "frame_period_ms": frame_period_ms,
+              "faults": (faults or LinkFaults()).as_dict()}
+    scratch = tempfile.TemporaryDirectory(prefix="eskin-board-")
     command = [sys.executable, "-m", "eskin", "device", "simulate",
                "--config-json", json.dumps(config)]
-    if socket_port is not None:
-        command += ["--socket", str(socket_port)]
-    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                               stdin=subprocess.DEVNULL, text=True)
+    command += (["--socket", str(socket_port)] if socket_port is not None
+                else ["--link", str(Path(scratch.name) / "tty")])
+    # The board's stderr goes to a file, not a pipe nobody drains: a traceback is kept
+    # whole for the error message, and a chatty board can never block on a full pipe.
+    errors = Path(scratch.name) / "board.err"
+    with errors.open("w") as stderr:
+        process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=stderr,
+                                   stdin=subprocess.DEVNULL, text=True)
     try:
         with selectors.DefaultSelector() as selector:
             selector.register(process.stdout, selectors.EVENT_READ)
@@ -59,8 +74,15 @@ def simulated_board(sim: SkinParams, *, rest_length_mm: float, corrupt_fraction:
                 raise LinkError(f"simulated board did not start within {start_timeout_s} s")
         port = process.stdout.readline().strip()
         if not port:
-            raise LinkError(f"simulated board exited: {process.stderr.read().strip()}")
-        yield RunningBoard(port, process)
+            process.wait(timeout=5)
+            raise LinkError(f"simulated board exited: {errors.read_text().strip()}")
+        try:
+            yield RunningBoard(port, process)
+        except (LinkError, AcquisitionError) as err:
+            if process.poll() is not None:  # the board died: that is the news
+                raise LinkError(f"{err}\nThe simulated board had exited ({process.returncode}):"
+                                f" {errors.read_text().strip()[-2000:]}") from err
+            raise
     finally:
         process.terminate()
         try:
@@ -68,18 +90,40 @@ def simulated_board(sim: SkinParams, *, rest_length_mm: float, corrupt_fraction:
         except subprocess.TimeoutExpired:
             process.kill()
             process.wait()
+        scratch.cleanup()
+
+
+def session_id(contents: LogContents | None, plan: ScenePlan, hello: Hello) -> str:
+    """The id of the session about to start: ``s<n>``, counted per device.
+
+    A run that resumes an interrupted session (the log's last session is on the
+    same device, for the same plan, and left conditions undone) continues it
+    under its id, so a crash and a resume label the data as a clean run does;
+    and a device's sessions are numbered the same whatever else the log holds
+    (another simulator seed, say), so a fresh clone gets the same labels.
+    """
+    if contents is None or not contents.sessions:
+        return "s001"
+    last, device_id = contents.sessions[-1], hello.device_id
+    keys = {c.key(device_id, hello.firmware) for c in plan.conditions}
+    if (last["device"]["id"] == device_id and last.get("plan") == plan.as_dict()
+            and not keys <= set(contents.completed)):
+        return last["session"]
+    ids = {s["session"] for s in contents.sessions if s["device"]["id"] == device_id}
+    return f"s{len(ids) + 1:03d}"
 
 
 def run_session(plan: ScenePlan, raw_dir: Path, *, port: str, placer: Placer,
                 rest_length_mm: float, simulator: dict | None, timeout_s: float = 5.0,
-                max_attempts: int = 5, progress: bool = True) -> AcquisitionReport:
+                max_attempts: int = 5, reconnect_s: float = 30.0,
+                max_jump_counts: float = 40.0, progress: bool = True) -> AcquisitionReport:
     """Connect to the board on ``port`` and acquire what the raw log still lacks."""
     log_path = Path(raw_dir) / LOG_NAME
     contents = read_log(log_path) if log_path.exists() else None
     with SerialLink(port, timeout_s=timeout_s) as link:
         hello = link.connect()
         session = {
-            "session": f"s{len(contents.sessions) + 1 if contents else 1:03d}",
+            "session": session_id(contents, plan, hello),
             "scene": plan.name, "plan": plan.as_dict(), "eskin": __version__,
             "source": "simulated" if simulator else "serial",
             # The simulator's pty name changes from run to run; a real port is provenance.
@@ -97,6 +141,7 @@ def run_session(plan: ScenePlan, raw_dir: Path, *, port: str, placer: Placer,
         try:
             return acquire(plan, link, writer, placer, completed=completed,
                            rest_length_mm=rest_length_mm, max_attempts=max_attempts,
+                           reconnect_s=reconnect_s, max_jump_counts=max_jump_counts,
                            progress=progress)
         finally:
             writer.close()
@@ -104,23 +149,25 @@ def run_session(plan: ScenePlan, raw_dir: Path, *, port: str, placer: Placer,
 
 def acquire_scene(plan: ScenePlan, raw_dir: Path, *, source: str, sim: SkinParams,
                   rest_length_mm: float, port: str | None = None, corrupt_fraction: float = 0.0,
-                  frame_period_ms: int = 12, timeout_s: float = 5.0, max_attempts: int = 5,
-                  ask: Callable[[str], object] = input, progress: bool = True
+                  faults: LinkFaults | None = None, frame_period_ms: int = 12,
+                  timeout_s: float = 5.0, max_attempts: int = 5, reconnect_s: float = 30.0,
+                  max_jump_counts: float = 40.0, ask: Callable[[str], object] = input,
+                  progress: bool = True
                   ) -> AcquisitionReport:
     """Acquire a scene from the simulated board or from a real one on ``port``."""
+    options = {"rest_length_mm": rest_length_mm, "timeout_s": timeout_s,
+               "max_attempts": max_attempts, "reconnect_s": reconnect_s,
+               "max_jump_counts": max_jump_counts, "progress": progress}
     if source == "simulated":
         with simulated_board(sim, rest_length_mm=rest_length_mm,
-                             corrupt_fraction=corrupt_fraction,
+                             corrupt_fraction=corrupt_fraction, faults=faults,
                              frame_period_ms=frame_period_ms) as board:
             return run_session(plan, raw_dir, port=board.port, placer=SimulatedPlacer(),
-                               rest_length_mm=rest_length_mm,
                                simulator={"params": sim.as_dict(), "seed": sim.seed},
-                               timeout_s=timeout_s, max_attempts=max_attempts,
-                               progress=progress)
+                               **options)
     if source == "serial":
         if not port:
             raise ValueError("acquire.source is 'serial' but acquire.port is not set")
         return run_session(plan, raw_dir, port=port, placer=OperatorPlacer(ask),
-                           rest_length_mm=rest_length_mm, simulator=None, timeout_s=timeout_s,
-                           max_attempts=max_attempts, progress=progress)
+                           simulator=None, **options)
     raise ValueError(f"acquire.source must be 'simulated', 'serial' or 'import', got {source!r}")

@@ -11,10 +11,11 @@ run of consecutive rows with identical labels is one trial and ``sample``
 counts within it. ``seq`` is the data row's index, ``t_ms`` is null.
 
 Whole-file problems (unreadable, empty, wrong encoding, wrong column count,
-a truncated Parquet) are errors. Row problems (text in a numeric column,
-NaN or inf, a node outside 0..10, a negative force, a short row) are errors
-naming file, line and column, or, under ``bad_rows: quarantine``, rows set
-aside with their reason and counted.
+a header that names our columns in other places, a truncated Parquet) are
+errors. Row problems (text in a numeric column, NaN or inf, a node outside
+0..10, a negative force, a short row or one of another scene's width, a copy
+of an earlier row) are errors naming file, line and column, or, under
+``bad_rows: quarantine``, rows set aside with their reason and counted.
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from eskin.data.schema import (
     CHANNELS,
     LABELS,
     DatasetError,
+    first_reason,
     node_columns,
     row_problems,
     sha256_file,
@@ -53,8 +55,9 @@ def import_paper_layout(path: Path, kind: str, *, bad_rows: str = "error",
         raise DatasetError(f"{path}: file is empty")
     if path.suffix.lower() == ".parquet":
         cells, lines, reasons = _read_parquet(path)
+        header = None
     else:
-        cells, lines, reasons = _read_csv(path)
+        cells, lines, reasons, header = _read_csv(path)
     width = cells.shape[1]
     if width not in WIDTHS[kind]:
         other = next((k for k, w in WIDTHS.items() if width in w), None)
@@ -62,16 +65,28 @@ def import_paper_layout(path: Path, kind: str, *, bad_rows: str = "error",
         raise DatasetError(f"{path}: {width} columns, but the {kind} layout has "
                            f"{' or '.join(map(str, WIDTHS[kind]))}{hint}")
     labels = LABELS[kind] if width > 26 or kind == "single_force" else LABELS[kind][:-1]
+    if header is not None:
+        _check_header(path, header, CHANNELS + labels)
     frame = cells.set_axis(CHANNELS + labels, axis=1)
     numeric = frame.apply(pd.to_numeric, errors="coerce")
-    for column in frame.columns:  # text where a number belongs (empty and "nan" are NaN)
-        text = frame[column].astype("string").str.strip()
-        not_number = numeric[column].isna() & ~text.str.lower().isin(["", "nan"]).fillna(True)
-        reasons[(reasons == "") & not_number.to_numpy()] = f"{column} is not a number"
+    # Text where a number belongs (empty and "nan" are NaN, judged later).
+    blank = _blank(frame.to_numpy(dtype=object)).astype(bool)
+    text = first_reason([(numeric[c].isna().to_numpy() & ~blank[:, j], f"{c} is not a number")
+                         for j, c in enumerate(frame.columns)], frame.index)
+    reasons[reasons == ""] = text[reasons == ""]
     if "stretch" not in numeric:
         numeric["stretch"] = 1.0
     more = row_problems(numeric, kind)
     reasons[reasons == ""] = more[reasons == ""]
+    # A row equal to an earlier one in every column is a pasted copy, not a new sample
+    # (readings carry noise); the first copy is kept.
+    values = numeric[CHANNELS + labels]
+    copies = values.duplicated(keep="first").to_numpy() & (reasons == "").to_numpy()
+    if copies.any():
+        first = pd.Series(np.arange(len(values))).groupby(
+            pd.util.hash_pandas_object(values, index=False).to_numpy()).transform("min")
+        reasons[copies] = [f"duplicate of line {lines[i]} (every column equal)"
+                           for i in first.to_numpy()[copies]]
     bad = reasons != ""
     if bad.any() and bad_rows == "error":
         first = bad.idxmax()
@@ -102,6 +117,11 @@ def import_paper_layout(path: Path, kind: str, *, bad_rows: str = "error",
 
 Read = tuple[pd.DataFrame, np.ndarray, pd.Series]  # cells, line numbers, preset reasons
 
+# A cell that holds no value: missing, empty or "nan" (NaN, not text).
+_blank = np.frompyfunc(
+    lambda v: v is None or (isinstance(v, float) and v != v)
+    or (isinstance(v, str) and v.strip().lower() in ("", "nan")), 1, 1)
+
 
 def _read_parquet(path: Path) -> Read:
     try:
@@ -114,7 +134,7 @@ def _read_parquet(path: Path) -> Read:
     return frame, np.arange(len(frame)), pd.Series("", index=frame.index, dtype=object)
 
 
-def _read_csv(path: Path) -> Read:
+def _read_csv(path: Path) -> tuple[pd.DataFrame, np.ndarray, pd.Series, tuple | None]:
     raw = path.read_bytes()
     try:
         text = raw.decode("utf-8-sig")
@@ -129,18 +149,42 @@ def _read_csv(path: Path) -> Read:
         dialect = csv.Sniffer().sniff(text[:4096], delimiters=",;\t")
     except csv.Error:
         dialect = csv.excel
-    rows = [(n, r) for n, r in enumerate(csv.reader(io.StringIO(text), dialect), start=1)
-            if any(cell.strip() for cell in r)]
+    # Universal newlines: a lone CR ends a line too (old Mac files, stray bytes).
+    reader = csv.reader(io.StringIO(text, newline=None), dialect)
+    try:
+        rows = [(n, r) for n, r in enumerate(reader, start=1) if any(c.strip() for c in r)]
+    except csv.Error as err:
+        raise DatasetError(f"{path}:{reader.line_num}: not readable as CSV ({err})") from None
+    header = None
     if rows and pd.to_numeric(pd.Series(rows[0][1]), errors="coerce").isna().any():
-        rows = rows[1:]  # a header row
+        header, rows = rows[0], rows[1:]  # a header row
     if not rows:
         raise DatasetError(f"{path}: no data rows")
     lengths = [len(r) for _, r in rows]
     width = max(set(lengths), key=lengths.count)  # the file's width: most rows agree
     cells = pd.DataFrame([(r + [""] * width)[:width] for _, r in rows]).replace("", np.nan)
-    reasons = pd.Series(["" if len(r) == width else f"row has {len(r)} columns, expected {width}"
+    reasons = pd.Series(["" if len(r) == width else
+                         f"row has {len(r)} columns, expected {width}{_layout_hint(len(r))}"
                          for _, r in rows], dtype=object)
-    return cells, np.array([n for n, _ in rows]), reasons
+    return cells, np.array([n for n, _ in rows]), reasons, header
+
+
+def _layout_hint(width: int) -> str:
+    other = next((kind for kind, widths in WIDTHS.items() if width in widths), None)
+    return f" (a {other} row: scenes mixed in one file?)" if other else ""
+
+
+def _check_header(path: Path, header: tuple[int, list[str]], expected: list[str]) -> None:
+    """A header that names our columns must name them where the layout has them."""
+    line, names = header
+    known = set(CHANNELS) | {label for labels in LABELS.values() for label in labels}
+    for position, name in enumerate(names):
+        name = name.strip().lower()
+        if name in known and (position >= len(expected) or expected[position] != name):
+            where = expected[position] if position < len(expected) else "no column"
+            raise DatasetError(f"{path}:{line}: the header has {name!r} in column "
+                               f"{position + 1}, where the layout has {where!r}; put the "
+                               f"columns in the paper's order ({', '.join(expected[18:])})")
 
 
 def copy_import(source: Path, raw_dir: Path, kind: str) -> Path:

@@ -43,8 +43,8 @@ def ingest_log(path: Path, plan: ScenePlan, *, bad_rows: str = "error") -> Inges
     contents = read_log(path)
     if contents.bad_lines and bad_rows == "error":
         first = contents.bad_lines[0]
-        raise DatasetError(f"{len(contents.bad_lines)} malformed line(s) in the raw log; first: "
-                           f"{first}. Set ingest.bad_rows: quarantine to set them aside.")
+        raise DatasetError(f"{first} ({len(contents.bad_lines)} malformed line(s) in the raw "
+                           "log). Set ingest.bad_rows: quarantine to set them aside.")
     quarantine = [{"source": str(b.path), "line": b.line_number, "reason": b.reason,
                    "text": b.text} for b in contents.bad_lines]
     frame = _rows(contents, plan, path)
@@ -62,6 +62,10 @@ def ingest_log(path: Path, plan: ScenePlan, *, bad_rows: str = "error") -> Inges
 def _rows(contents: LogContents, plan: ScenePlan, path: Path) -> pd.DataFrame:
     if not contents.sessions:
         raise DatasetError(f"{path}: the raw log has no session")
+    others = sorted({str(s.get("scene")) for s in contents.sessions} - {plan.name})
+    if others:
+        raise DatasetError(f"{path}: the raw log holds sessions of scene(s) {others} besides "
+                           f"{plan.name}; each scene has its own log (data/raw/<scene>/)")
     device = contents.sessions[-1]["device"]
     attempts, missing = [], []
     for condition in plan.conditions:

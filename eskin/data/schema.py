@@ -67,23 +67,28 @@ def force_columns(kind: str) -> list[str]:
 
 def row_problems(frame: pd.DataFrame, kind: str) -> pd.Series:
     """Per row, the first reason it cannot be trusted ('' when it can)."""
-    reasons = pd.Series("", index=frame.index, dtype=object)
-
-    def flag(mask: np.ndarray, reason: str) -> None:
-        reasons[(reasons == "") & mask] = reason
-
+    checks: list[tuple[np.ndarray, str]] = []
     for column in CHANNELS + LABELS[kind]:
         values = frame[column].to_numpy(dtype=float)
-        flag(np.isnan(values), f"{column} is NaN or empty")
-        flag(np.isinf(values), f"{column} is infinite")
+        checks += [(np.isnan(values), f"{column} is NaN or empty"),
+                   (np.isinf(values), f"{column} is infinite")]
     for column in node_columns(kind):
         values = frame[column].to_numpy(dtype=float)
-        flag((values < 0) | (values > 10) | (values != np.round(values)),
-             f"{column} is not a node number 0..10")
+        checks.append(((values < 0) | (values > 10) | (values != np.round(values)),
+                       f"{column} is not a node number 0..10"))
     for column in force_columns(kind):
-        flag(frame[column].to_numpy(dtype=float) < 0, f"{column} is negative")
-    flag(frame["stretch"].to_numpy(dtype=float) <= 0, "stretch is not positive")
-    return reasons
+        checks.append((frame[column].to_numpy(dtype=float) < 0, f"{column} is negative"))
+    checks.append((frame["stretch"].to_numpy(dtype=float) <= 0, "stretch is not positive"))
+    return first_reason(checks, frame.index)
+
+
+def first_reason(checks: list[tuple[np.ndarray, str]], index: pd.Index) -> pd.Series:
+    """Per row, the reason of the first check that flags it ('' if none does)."""
+    masks = np.vstack([mask for mask, _ in checks])
+    reasons = np.array(["", *(reason for _, reason in checks)], dtype=object)
+    # NaN compares false everywhere above, so a NaN node or force keeps the NaN reason.
+    return pd.Series(reasons[np.where(masks.any(axis=0), masks.argmax(axis=0) + 1, 0)],
+                     index=index, dtype=object)
 
 
 def validate(frame: pd.DataFrame, kind: str, where: str = "dataset") -> None:

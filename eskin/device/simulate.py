@@ -1,7 +1,8 @@
 """Transports for the simulated board: a pseudo-terminal or a loopback TCP socket.
 
-Thin shells around :class:`~eskin.device.board.SimulatedBoard`: they move
-bytes, split command lines and write answers. ``eskin device simulate``
+Thin shells around :class:`~eskin.device.board.SimulatedBoard` behind a
+:class:`~eskin.device.faults.FaultyLine`: they move bytes, split command
+lines, write answers and act out the line's stalls and disappearances. ``eskin device simulate``
 runs one in its own process and prints the port to open with pyserial —
 a pty path such as ``/dev/pts/7`` or ``socket://127.0.0.1:PORT``.
 """
@@ -16,42 +17,48 @@ import sys
 import time
 import tty
 from collections.abc import Callable
+from pathlib import Path
 
 from eskin.device.board import SimulatedBoard
+from eskin.device.faults import Chunk, FaultyLine, Pause
 from eskin.device.protocol import MAX_LINE_BYTES
 
 LOOPBACK = "127.0.0.1"
 
 
 class _LineServer:
-    """Feeds command lines to the board and collects what it answers."""
+    """Feeds command lines to the board and collects what it answers, through the faults."""
 
-    def __init__(self, board: SimulatedBoard) -> None:
-        self.board = board
+    def __init__(self, line: FaultyLine) -> None:
+        self.line = line
         self._pending = bytearray()
         self._next_stream = 0.0
 
-    def received(self, data: bytes) -> bytes:
+    @property
+    def board(self) -> SimulatedBoard:
+        return self.line.board  # a reset fault replaces it
+
+    def received(self, data: bytes) -> list[Chunk]:
         self._pending += data
-        out = []
+        out: list[Chunk] = []
         while (end := self._pending.find(b"\n")) >= 0:
             line = bytes(self._pending[:end])
             del self._pending[: end + 1]
-            out.append(self.board.handle(line))
+            out += self.line.answer(self.board.handle(line))
         if len(self._pending) > MAX_LINE_BYTES:
             self._pending.clear()
             out.append(b"#ERR ? line too long\n")
-        return b"".join(out)
+        return out
 
-    def idle(self) -> bytes:
+    def idle(self) -> list[Chunk]:
         """While streaming, one frame per frame period of real time."""
         if not self.board.streaming:
-            return b""
+            return []
         now = time.monotonic()
         if now < self._next_stream:
-            return b""
+            return []
         self._next_stream = now + self.board.frame_period_ms / 1000
-        return self.board.frames(1)
+        return self.line.answer(self.board.frames(1))
 
     def timeout(self) -> float:
         return self.board.frame_period_ms / 1000 if self.board.streaming else 0.5
@@ -62,24 +69,70 @@ def _orphaned(parent: int) -> bool:
     return os.getppid() != parent
 
 
-def _write_all(write: Callable[[bytes], int], data: bytes) -> None:
-    view = memoryview(data)
-    while view:
-        view = view[write(view):]
+def _play(chunks: list[Chunk], write: Callable[[bytes], int]) -> float | None:
+    """Write the bytes, sit out the stalls; the seconds to stay away if the port vanishes."""
+    for chunk in chunks:
+        if isinstance(chunk, Pause):
+            if chunk.vanish:
+                return chunk.seconds
+            time.sleep(chunk.seconds)
+            continue
+        view = memoryview(chunk)
+        while view:
+            view = view[write(view):]
+    return None
 
 
-def serve_pty(board: SimulatedBoard, announce: Callable[[str], None]) -> None:
-    """Serve on a new pseudo-terminal until killed or orphaned; announce its path first.
+def _new_pty(link: Path | None) -> tuple[int, int, str]:
+    """A raw pty (master, slave, slave path); ``link``, if given, now points to it."""
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    path = os.ttyname(slave)
+    if link is not None:
+        # Like a udev /dev/serial/by-id name: one path that follows the device.
+        staged = link.with_name(link.name + ".new")
+        staged.unlink(missing_ok=True)
+        staged.symlink_to(path)
+        os.replace(staged, link)
+    return master, slave, path
+
+
+def serve_pty(line: FaultyLine, announce: Callable[[str], None], *,
+              link: Path | None = None) -> None:
+    """Serve on a pseudo-terminal until killed or orphaned; announce its path first.
 
     The board keeps the slave end open too, so the port survives the host
     closing and reopening it, as a USB adapter that stays plugged in does.
+    With ``link``, the announced port is that path, a symlink to the current
+    pty: when a ``vanish`` fault closes the pty, the link disappears, and it
+    comes back pointing at a new pty, as a re-plugged adapter's by-id name does.
     """
+    if line.faults.vanish and link is None:
+        raise ValueError("vanish faults need a link path that follows the pty (--link)")
     parent = os.getppid()
-    master, slave = os.openpty()
-    tty.setraw(slave)
-    announce(os.ttyname(slave))
-    server = _LineServer(board)
-    _write_all(lambda b: os.write(master, b), board.hello())
+    server = _LineServer(line)
+    master, slave, path = _new_pty(link)
+    announce(str(link) if link is not None else path)
+    try:
+        while True:
+            away = _serve_pty_until_vanish(master, server, parent)
+            if away is not None and link is not None:
+                link.unlink(missing_ok=True)  # gone before the pty closes: no dangling path
+            os.close(master)
+            os.close(slave)
+            if away is None:
+                return
+            time.sleep(away)
+            master, slave, path = _new_pty(link)
+    finally:
+        line.close()
+
+
+def _serve_pty_until_vanish(master: int, server: _LineServer, parent: int) -> float | None:
+    def write(data: memoryview) -> int:
+        return os.write(master, data)
+
+    _play([server.board.hello()], write)
     while not _orphaned(parent):
         ready, _, _ = select.select([master], [], [], server.timeout())
         if ready:
@@ -90,36 +143,56 @@ def serve_pty(board: SimulatedBoard, announce: Callable[[str], None]) -> None:
                     raise
                 time.sleep(0.05)
                 continue
-            _write_all(lambda b: os.write(master, b), server.received(data))
-        _write_all(lambda b: os.write(master, b), server.idle())
+            away = _play(server.received(data), write)
+            if away is not None:
+                return away
+        away = _play(server.idle(), write)
+        if away is not None:
+            return away
+    return None
 
 
-def serve_socket(board: SimulatedBoard, port: int, announce: Callable[[str], None]) -> None:
-    """Serve one client at a time on 127.0.0.1 only; announce the pyserial URL."""
+def serve_socket(line: FaultyLine, port: int, announce: Callable[[str], None]) -> None:
+    """Serve one client at a time on 127.0.0.1 only; announce the pyserial URL.
+    A ``vanish`` fault drops the connection and accepts none for ``vanish_s``."""
     parent = os.getppid()
-    with socket.create_server((LOOPBACK, port)) as listener:
-        announce(f"socket://{LOOPBACK}:{listener.getsockname()[1]}")
-        listener.settimeout(0.5)
-        while not _orphaned(parent):
+    server = _LineServer(line)
+    try:
+        with socket.create_server((LOOPBACK, port)) as listener:
+            announce(f"socket://{LOOPBACK}:{listener.getsockname()[1]}")
+            listener.settimeout(0.5)
+            while not _orphaned(parent):
+                try:
+                    conn, _ = listener.accept()
+                    conn.settimeout(None)
+                except TimeoutError:
+                    continue
+                with conn:
+                    away = _serve_connection(conn, server, parent)
+                if away:
+                    time.sleep(away)
+    finally:
+        line.close()
+
+
+def _serve_connection(conn: socket.socket, server: _LineServer, parent: int) -> float | None:
+    conn.sendall(server.board.hello())
+    while not _orphaned(parent):
+        ready, _, _ = select.select([conn], [], [], server.timeout())
+        if ready:
             try:
-                conn, _ = listener.accept()
-                conn.settimeout(None)
-            except TimeoutError:
-                continue
-            with conn:
-                conn.sendall(board.hello())
-                server = _LineServer(board)
-                while not _orphaned(parent):
-                    ready, _, _ = select.select([conn], [], [], server.timeout())
-                    if ready:
-                        try:
-                            data = conn.recv(4096)
-                        except ConnectionResetError:
-                            break
-                        if not data:
-                            break
-                        conn.sendall(server.received(data))
-                    conn.sendall(server.idle())
+                data = conn.recv(4096)
+            except ConnectionResetError:
+                return None
+            if not data:
+                return None
+            away = _play(server.received(data), conn.send)
+            if away is not None:
+                return away
+        away = _play(server.idle(), conn.send)
+        if away is not None:
+            return away
+    return None
 
 
 def announce_stdout(port: str) -> None:

@@ -1,0 +1,203 @@
+"""Soak: a whole scene acquired over a faulty link, killed with SIGKILL on the way,
+compared sample by sample with a clean acquisition of the same seed.
+
+Each run is ``eskin acquire`` in its own process, as a user runs it; the
+simulated board behind it injects every fault kind of
+:mod:`eskin.device.faults` and logs each one. The first runs are killed
+(SIGKILL: nothing gets to clean up) once a given share of the scene's
+conditions is complete; the last run resumes and finishes. The dataset then
+built from the raw log must equal the clean one in every channel, label and
+provenance column except the board's own counters (``seq``, ``t_ms``: a
+retried condition uses more wire traffic, and a reset restarts them).
+"""
+
+from __future__ import annotations
+
+import copy
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections import Counter
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import yaml
+
+from eskin import steps
+from eskin.config import scene_plan
+from eskin.data.schema import CHANNELS, LABELS
+from eskin.device.faults import KINDS
+
+KEY = ["trial", "sample"]
+
+
+class SoakError(RuntimeError):
+    """A soak run ended in a way the soak did not plan (the message has its stderr)."""
+
+
+@dataclass
+class SoakResult:
+    scene: str
+    conditions: int
+    rows_expected: int
+    rows: int
+    faults: dict[str, int]
+    kills: int
+    killed_after: list[int]        # complete conditions in the log at each SIGKILL
+    lost: int                      # clean samples missing from the soaked dataset
+    duplicated: int                # (trial, sample) stored more than once
+    extra: int                     # samples the clean run does not have
+    differing: int                 # samples present in both whose values differ
+    crc_passed: int                # attempts asked again for a frame that passed its
+                                   # CRC-8 with digits lost (a reading or t_ms)
+    seconds: float
+    runs: list[str] = field(default_factory=list)   # each run's summary or how it ended
+
+    @property
+    def passed(self) -> bool:
+        return (self.lost == self.duplicated == self.extra == self.differing == 0
+                and self.rows == self.rows_expected and all(self.faults.values()))
+
+    def as_dict(self) -> dict[str, Any]:
+        return {**asdict(self), "faults_total": sum(self.faults.values()), "passed": self.passed}
+
+    def markdown(self) -> str:
+        faults = " · ".join(f"{k} {v}" for k, v in self.faults.items())
+        lines = [
+            f"# Soak: {self.scene} over a faulty link, {self.kills} SIGKILL(s)",
+            "",
+            "| | |", "|---|---|",
+            f"| conditions | {self.conditions} |",
+            f"| samples expected / stored | {self.rows_expected} / {self.rows} |",
+            f"| faults injected | {sum(self.faults.values())} ({faults}) |",
+            f"| SIGKILLs (complete conditions at each) | {self.kills} "
+            f"({', '.join(map(str, self.killed_after))}) |",
+            f"| lost / duplicated / extra / differing | {self.lost} / {self.duplicated} / "
+            f"{self.extra} / {self.differing} |",
+            f"| damaged frames that passed CRC-8, caught by the digit checks | "
+            f"{self.crc_passed} |",
+            f"| wall time | {self.seconds:.0f} s |",
+            f"| verdict | {'PASS' if self.passed else 'FAIL'} |",
+            "", "Runs:", "",
+            *[f"{i}. {text}" for i, text in enumerate(self.runs, start=1)],
+        ]
+        return "\n".join(lines) + "\n"
+
+
+def soak_params(params: dict[str, Any], settings: dict[str, Any], fault_log: Path) -> dict:
+    """The project's params with the soak's faults, timeouts and attempts."""
+    out = copy.deepcopy(params)
+    out["sim_board"]["corrupt_fraction"] = float(settings["corrupt_fraction"])
+    out["sim_board"]["faults"] = {**settings["faults"], "log": str(fault_log)}
+    out["acquire"].update(source="simulated", timeout_s=float(settings["timeout_s"]),
+                          max_attempts=int(settings["max_attempts"]),
+                          reconnect_s=float(settings["reconnect_s"]))
+    return out
+
+
+def compare(reference: pd.DataFrame, frame: pd.DataFrame, kind: str) -> dict[str, int]:
+    """Lost, duplicated, extra and differing samples of ``frame`` against ``reference``."""
+    values = CHANNELS + LABELS[kind] + ["session"]
+    merged = reference[KEY + values].merge(
+        frame[KEY + values].drop_duplicates(KEY), on=KEY, how="outer",
+        suffixes=("_clean", "_soak"), indicator=True)
+    both = merged[merged["_merge"] == "both"]
+    differs = np.zeros(len(both), dtype=bool)
+    for column in values:
+        differs |= (both[f"{column}_clean"] != both[f"{column}_soak"]).to_numpy()
+    return {"lost": int((merged["_merge"] == "left_only").sum()),
+            "duplicated": int(frame.duplicated(KEY).sum()),
+            "extra": int((merged["_merge"] == "right_only").sum()),
+            "differing": int(differs.sum())}
+
+
+def run_soak(params: dict[str, Any], settings: dict[str, Any], workdir: Path,
+             reference: pd.DataFrame, *, scene: str = "single_force",
+             kill_at: Sequence[float] = (1 / 3, 2 / 3), run_timeout_s: float = 3600.0,
+             say=print) -> SoakResult:
+    """Acquire ``scene`` under ``settings``' faults in ``workdir``, SIGKILL it at each
+    share of ``kill_at`` complete conditions, resume, ingest, compare with ``reference``."""
+    workdir = Path(workdir)
+    workdir.mkdir(parents=True, exist_ok=True)
+    fault_log = workdir / "faults.log"
+    params = soak_params(params, settings, fault_log)
+    (workdir / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    plan = scene_plan(params, scene)
+    raw_dir = workdir / "data" / "raw" / scene
+    log = raw_dir / "acquisition.log"
+    started = time.monotonic()
+    runs, killed_after = [], []
+    for share in [*kill_at, None]:
+        target = None if share is None else int(share * len(plan.conditions))
+        number = len(runs) + 1
+        stderr_path = workdir / f"run{number}.stderr"
+        with stderr_path.open("w") as stderr:
+            process = subprocess.Popen(
+                [sys.executable, "-m", "eskin", "acquire", scene, "--no-progress"],
+                cwd=workdir, stdout=subprocess.PIPE, stderr=stderr, text=True)
+        deadline = time.monotonic() + run_timeout_s
+        if target is not None:
+            done = _wait_for_conditions(log, target, process, deadline)
+            if done is None:
+                raise SoakError(f"run {number} ended before {target} conditions were complete:"
+                                f" {_tail(stderr_path)}")
+            os.kill(process.pid, signal.SIGKILL)
+            process.wait()
+            killed_after.append(done)
+            runs.append(f"SIGKILL with {done} of {len(plan.conditions)} conditions complete")
+            say(f"soak: {runs[-1]}")
+            continue
+        try:
+            out, _ = process.communicate(timeout=max(1.0, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            process.kill()
+            raise SoakError(f"run {number} did not finish within {run_timeout_s:g} s") from None
+        if process.returncode != 0:
+            raise SoakError(f"run {number} failed ({process.returncode}): {_tail(stderr_path)}")
+        runs.append(out.strip())
+        say(f"soak: {runs[-1]}")
+    steps.ingest(params, scene, raw_dir, workdir / "data" / "processed")
+    frame = pd.read_parquet(workdir / "data" / "processed" / f"{scene}.parquet")
+    counted = Counter(line.split("\t", 1)[0] for line in fault_log.read_text().splitlines())
+    # Asked again because a frame passed its CRC with digits lost (eskin.device.link).
+    crc_passed = sum(1 for line in log.read_text(encoding="ascii").splitlines()
+                     if line.startswith("X\t") and ("digits lost" in line
+                                                    or "board time went backwards" in line))
+    return SoakResult(
+        scene=scene, conditions=len(plan.conditions), rows_expected=plan.n_samples,
+        rows=len(frame), faults={kind: counted.get(kind, 0) for kind in KINDS},
+        kills=len(killed_after), killed_after=killed_after,
+        **compare(reference, frame, plan.kind), crc_passed=crc_passed,
+        seconds=time.monotonic() - started, runs=runs)
+
+
+def _wait_for_conditions(log: Path, target: int, process: subprocess.Popen,
+                         deadline: float) -> int | None:
+    """Block until the log holds ``target`` complete conditions (E records); their count,
+    or None if the process ended first."""
+    seen, offset, tail = 0, 0, b""
+    while time.monotonic() < deadline:
+        if log.exists():
+            with log.open("rb") as handle:
+                handle.seek(offset)
+                data = tail + handle.read()
+            offset += len(data) - len(tail)
+            complete, _, tail = data.rpartition(b"\n")
+            seen += (b"\n" + complete).count(b"\nE\t") if complete else 0
+            if seen >= target:
+                return seen
+        if process.poll() is not None:
+            return None
+        time.sleep(0.01)
+    process.kill()
+    raise SoakError(f"no {target} complete conditions within the time limit")
+
+
+def _tail(path: Path, lines: int = 5) -> str:
+    return " | ".join(path.read_text().strip().splitlines()[-lines:])

@@ -1,0 +1,25 @@
+"""DVC stage of `make bench`: fuzz the frame parser or the import reader (eskin/fuzz.py)."""
+
+import json
+import sys
+from pathlib import Path
+
+from eskin import fuzz
+from eskin.cli import run_friendly
+from eskin.config import load_params, section
+
+TARGETS = {"parser": fuzz.fuzz_parser, "import": fuzz.fuzz_import}
+
+
+def main(target: str) -> int:
+    examples = int(section(load_params(), "fuzz.examples"))
+    result = TARGETS[target](examples)
+    out = Path("reports/fuzz") / f"{target}.json"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(result, indent=2) + "\n")
+    print(json.dumps(result))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(run_friendly(lambda: main(sys.argv[1])))

@@ -1,0 +1,33 @@
+"""DVC stage of `make bench`: the soak (eskin/soak.py) on the whole single-force scene."""
+
+import json
+import sys
+import tempfile
+from pathlib import Path
+
+import pandas as pd
+
+from eskin.cli import PROCESSED_DIR, run_friendly
+from eskin.config import load_params, section
+from eskin.soak import run_soak
+
+REPORT = Path("reports/soak")
+
+
+def main() -> str:
+    params = load_params()
+    settings = section(params, "soak")
+    # The clean run of the same seed: the pipeline's own acquisition.
+    reference = pd.read_parquet(PROCESSED_DIR / "single_force.parquet")
+    with tempfile.TemporaryDirectory(prefix="eskin-soak-") as scratch:
+        result = run_soak(params, settings, Path(scratch), reference,
+                          kill_at=settings["kill_at"])
+    REPORT.mkdir(parents=True, exist_ok=True)
+    (REPORT / "soak.json").write_text(json.dumps(result.as_dict(), indent=2) + "\n")
+    (REPORT / "soak.md").write_text(result.markdown())
+    print(result.markdown())
+    return 0 if result.passed else 1
+
+
+if __name__ == "__main__":
+    sys.exit(run_friendly(main))
