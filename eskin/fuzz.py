@@ -29,6 +29,7 @@ from typing import Any
 
 from hypothesis import HealthCheck, given, seed, settings
 from hypothesis import strategies as st
+from tqdm import tqdm
 
 from eskin.data.importer import import_paper_layout
 from eskin.data.schema import DatasetError, validate
@@ -203,28 +204,36 @@ def _batches(examples: int):
         yield number, min(BATCH, examples - start)
 
 
-def fuzz_parser(examples: int) -> dict[str, Any]:
+def _bar(target: str, examples: int, progress: bool) -> tqdm:
+    return tqdm(total=examples, desc=f"fuzz {target}", unit="input", disable=not progress,
+                mininterval=2.0)
+
+
+def fuzz_parser(examples: int, progress: bool = False) -> dict[str, Any]:
     tried = Counter()
     started = time.perf_counter()
-    for number, size in _batches(examples):
-        @seed(number)
-        @_settings(size)
-        @given(damaged_streams())
-        def run(case):
-            stream, intact, chunks = case
-            check_parser(stream, intact, chunks)
-            tried["inputs"] += 1
-            tried["bytes"] += len(stream)
-            tried["intact frames"] += len(intact)
+    with _bar("parser", examples, progress) as bar:
+        for number, size in _batches(examples):
+            @seed(number)
+            @_settings(size)
+            @given(damaged_streams())
+            def run(case):
+                stream, intact, chunks = case
+                check_parser(stream, intact, chunks)
+                tried["inputs"] += 1
+                tried["bytes"] += len(stream)
+                tried["intact frames"] += len(intact)
+                bar.update()
 
-        run()
+            run()
     return {"target": "frame parser", **tried, "seconds": time.perf_counter() - started}
 
 
-def fuzz_import(examples: int) -> dict[str, Any]:
+def fuzz_import(examples: int, progress: bool = False) -> dict[str, Any]:
     tried = Counter()
     started = time.perf_counter()
-    with tempfile.TemporaryDirectory(prefix="eskin-fuzz-") as scratch:
+    with (tempfile.TemporaryDirectory(prefix="eskin-fuzz-") as scratch,
+          _bar("import", examples, progress) as bar):
         path = Path(scratch) / "import.csv"
         for number, size in _batches(examples):
             @seed(number)
@@ -234,6 +243,7 @@ def fuzz_import(examples: int) -> dict[str, Any]:
                 data, kind = case
                 tried[check_import(data, kind, bad_rows, path)] += 1
                 tried["inputs"] += 1
+                bar.update()
 
             run()
     return {"target": "import reader", **tried, "seconds": time.perf_counter() - started}

@@ -13,7 +13,7 @@ TARGETS = {"parser": fuzz.fuzz_parser, "import": fuzz.fuzz_import}
 
 def main(target: str) -> int:
     examples = int(section(load_params(), "fuzz.examples"))
-    result = TARGETS[target](examples)
+    result = TARGETS[target](examples, progress=True)
     out = Path("reports/fuzz") / f"{target}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=2) + "\n")

@@ -238,4 +238,4 @@ if __name__ == "__main__":  # the catalogue as a table: what each bad file produ
                 said = "ingested"
             except (DatasetError, RawLogError) as err:
                 said = str(err).replace(str(case) + "/", "")
-            print(f"| {name} | {json.dumps(said)[1:-1][:160]} |")
+            print(f"| {name} | {json.dumps(said, ensure_ascii=False)[1:-1][:160]} |")
