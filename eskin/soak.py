@@ -143,7 +143,7 @@ def run_soak(params: dict[str, Any], settings: dict[str, Any], workdir: Path,
                 cwd=workdir, stdout=subprocess.PIPE, stderr=stderr, text=True)
         deadline = time.monotonic() + run_timeout_s
         if target is not None:
-            done = _wait_for_conditions(log, target, process, deadline)
+            done = wait_for_conditions(log, target, process, deadline)
             if done is None:
                 raise SoakError(f"run {number} ended before {target} conditions were complete:"
                                 f" {_tail(stderr_path)}")
@@ -177,7 +177,7 @@ def run_soak(params: dict[str, Any], settings: dict[str, Any], workdir: Path,
         seconds=time.monotonic() - started, runs=runs)
 
 
-def _wait_for_conditions(log: Path, target: int, process: subprocess.Popen,
+def wait_for_conditions(log: Path, target: int, process: subprocess.Popen,
                          deadline: float) -> int | None:
     """Block until the log holds ``target`` complete conditions (E records); their count,
     or None if the process ended first."""

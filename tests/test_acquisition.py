@@ -17,7 +17,7 @@ from eskin.acquisition.rawlog import read_log
 from eskin.acquisition.session import acquire_scene, simulated_board
 from eskin.config import scene_plan, skin_params
 from eskin.data.schema import CHANNELS, LABELS, read_metadata
-from eskin.soak import run_soak
+from eskin.soak import run_soak, wait_for_conditions
 
 # What a sample is, independent of how the link delivered it (seq and t_ms count wire
 # traffic, and a retried condition uses more of it).
@@ -41,11 +41,8 @@ def acquire_until(params, root, *, complete):
                                 "--no-progress"], cwd=root, stdout=subprocess.PIPE,
                                stderr=subprocess.PIPE, text=True,
                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline:
-        if log.exists() and log.read_bytes().count(b"\nE\t") >= complete:
-            break
-        time.sleep(0.005)
+    done = wait_for_conditions(log, complete, process, time.monotonic() + 60)
+    assert done is not None, f"the acquisition ended before {complete} conditions were complete"
     return process, log
 
 
