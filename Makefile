@@ -39,7 +39,7 @@ repro: setup
 bench: setup
 	dvc repro dvc.yaml bench/dvc.yaml
 	@cat reports/benchmark/summary.md reports/soak/soak.md
-	@cat reports/fuzz/parser.json reports/fuzz/import.json
+	@cat reports/fuzz/parser.json reports/fuzz/import.json reports/import_memory.md
 
 # Every model under the data real users produce (stress/dvc.yaml): reports/stress.{json,md}.
 stress: setup

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import signal
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -18,13 +19,15 @@ FEATURES_DIR = Path("data/features")
 MODELS_DIR = Path("models")
 METRICS_DIR = Path("reports/metrics")
 PREDICTIONS_DIR = Path("reports/predictions")
+LINEAGE_DIR = Path("reports/lineage")
 
 
 def task_outputs(scene: str, task: str) -> dict[str, Path]:
     """Where one task's outputs go (the paths dvc.yaml declares)."""
     return {"metrics_path": METRICS_DIR / scene / f"{task}.json",
             "predictions_path": PREDICTIONS_DIR / scene / f"{task}.parquet",
-            "model_path": MODELS_DIR / scene / f"{task}.joblib"}
+            "model_path": MODELS_DIR / scene / f"{task}.joblib",
+            "lineage_path": LINEAGE_DIR / scene / f"{task}.json"}
 
 
 def _ports(args: argparse.Namespace) -> int:
@@ -246,6 +249,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     return run_friendly(lambda: args.run(args), debug=args.debug)
 
 
+def _terminated(signum, frame) -> None:
+    raise SystemExit(128 + signum)
+
+
 def run_friendly(call, *, debug: bool = False) -> int:
     """Run ``call``; turn the errors a user can act on into one line and exit code 1."""
     from eskin.acquisition.rawlog import RawLogError
@@ -254,6 +261,12 @@ def run_friendly(call, *, debug: bool = False) -> int:
     from eskin.device.link import LinkError
     from eskin.experiments import NoRunsError
 
+    # SIGTERM (`dvc queue kill`, a supervisor) unwinds like an exception: an open MLflow
+    # run is closed as FAILED, worker processes are shut down, the raw log is flushed.
+    signal.signal(signal.SIGTERM, _terminated)
+    for stream in (sys.stdout, sys.stderr):  # an ASCII-only terminal: escape, never crash
+        if hasattr(stream, "reconfigure"):
+            stream.reconfigure(errors="backslashreplace")
     try:
         return call() or 0
     except KeyboardInterrupt:

@@ -1,12 +1,22 @@
-"""params.yaml: the one place every knob lives, read by section."""
+"""params.yaml: the one place every knob lives, checked once at load, read by section.
+
+:func:`load_params` validates the whole file against a declared schema
+(pydantic, strict: types, ranges, required keys, no unknown keys) before any
+step runs, so a typo or a wrong type is one line naming the key, the value
+and what is allowed — never a traceback after an hour of acquisition, and
+never a value silently truncated or replaced by a default.
+"""
 
 from __future__ import annotations
 
+import dataclasses
+import typing
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Literal
 
 import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, create_model, model_validator
 
 from eskin.acquisition.plan import ScenePlan, plan_from_params
 from eskin.device.physics import SkinParams
@@ -14,15 +24,264 @@ from eskin.device.physics import SkinParams
 DEFAULT_PARAMS = Path("params.yaml")
 
 
+class ParamsError(ValueError):
+    """params.yaml cannot be used as written; the message names the key."""
+
+
+# ------------------------------------------------------------------ schema
+
+class _Section(BaseModel):
+    # strict: "ten" is not 10, 2.5 is not 2, 1.0 is not [1.0]; finite numbers only.
+    model_config = ConfigDict(extra="forbid", strict=True, allow_inf_nan=False)
+
+
+Probability = Annotated[float, Field(ge=0, lt=1)]
+Positive = Annotated[float, Field(gt=0)]
+NonNegative = Annotated[float, Field(ge=0)]
+Count = Annotated[int, Field(ge=1)]
+Seed = Annotated[int, Field(ge=0)]
+Scheme = Literal["stratified", "grouped"]
+Backend = Literal["loky", "threading", "sequential", "dask", "ray"]
+Jobs = Annotated[int, Field(ge=-1)]
+
+# sim: every field of SkinParams, all required (no built-in default stands in for a
+# missing line); ranges are SkinParams.validate's, run after the types.
+_SimSection = create_model(
+    "SimSection", __base__=_Section,
+    **{name: (kind, ...) for name, kind in typing.get_type_hints(SkinParams).items()
+       if name in {f.name for f in dataclasses.fields(SkinParams)}})
+
+
+class Faults(_Section):
+    drop: Probability
+    garbage: Probability
+    reset: Probability
+    stall: Probability
+    vanish: Probability
+    stall_s: NonNegative
+    vanish_s: NonNegative
+    seed: Seed
+    log: str | None = None
+
+
+class SimBoard(_Section):
+    corrupt_fraction: Probability
+    frame_period_ms: Count
+    faults: Faults
+
+
+class Acquire(_Section):
+    source: Literal["simulated", "serial", "import"]
+    port: str | None
+    indenters: Literal["person", "board"] = "person"
+    rest_length_mm: Positive
+    timeout_s: Positive
+    reconnect_s: NonNegative
+    max_jump_counts: Positive
+    max_attempts: Count
+
+
+class Soak(_Section):
+    corrupt_fraction: Probability
+    faults: Faults
+    timeout_s: Positive
+    max_attempts: Count
+    reconnect_s: NonNegative
+    kill_at: list[Annotated[float, Field(gt=0, lt=1)]]
+
+
+class Fuzz(_Section):
+    examples: Count
+
+
+class Scene(_Section):
+    kind: Literal["single_force", "two_force"]
+    stretches: Annotated[list[Annotated[float, Field(ge=1)]], Field(min_length=1)]
+    forces: Annotated[list[NonNegative], Field(min_length=1)]
+    samples: Count
+    nodes_x: list[Annotated[int, Field(ge=1, le=10)]] | None = None
+    nodes_y: list[Annotated[int, Field(ge=1, le=10)]] | None = None
+    import_path: str | None = None
+
+    @model_validator(mode="after")
+    def _kind_fields(self) -> Scene:
+        two = self.kind == "two_force"
+        for name in ("nodes_x", "nodes_y"):
+            if two and not getattr(self, name):
+                raise ValueError(f"a two_force scene needs {name} (a list of nodes 1..10)")
+            if not two and getattr(self, name) is not None:
+                raise ValueError(f"{name} belongs to two_force scenes only")
+        return self
+
+
+class Ingest(_Section):
+    bad_rows: Literal["error", "quarantine"]
+
+
+class Featurize(_Section):
+    method: Literal["raw", "standardise", "baseline"]
+
+
+class CV(_Section):
+    schemes: Annotated[list[Scheme], Field(min_length=1)]
+    folds: Annotated[int, Field(ge=2)]
+    seed: Seed
+    n_jobs: Jobs
+    backend: Backend
+
+
+class TaskModels(BaseModel):
+    """``model: <name>`` and, beside it, each candidate's hyperparameters by name."""
+
+    model_config = ConfigDict(extra="allow", strict=True)
+    model: str
+
+    @model_validator(mode="after")
+    def _named_entry(self) -> TaskModels:
+        extra = self.model_extra or {}
+        for name, hyper in extra.items():
+            if not isinstance(hyper, dict):
+                raise ValueError(f"{name}: hyperparameters must be a mapping, got {hyper!r}")
+        if self.model not in extra:
+            raise ValueError(f"model {self.model!r} has no hyperparameter entry beside it; "
+                             f"entries: {sorted(extra)}")
+        return self
+
+
+class Train(BaseModel):
+    model_config = ConfigDict(extra="allow", strict=True)
+    configuration: Literal["tuned", "paper"]
+
+    @model_validator(mode="after")
+    def _tasks(self) -> Train:
+        for scene, tasks in (self.model_extra or {}).items():
+            if not isinstance(tasks, dict):
+                raise ValueError(f"{scene}: expected a mapping of tasks, got {tasks!r}")
+            for task, models in tasks.items():
+                try:
+                    TaskModels.model_validate(models)
+                except ValidationError as err:
+                    raise ValueError(f"{scene}.{task}: {_first_message(err)}") from None
+        return self
+
+
+class Report(_Section):
+    schemes: Annotated[list[Scheme], Field(min_length=1)]
+    plots_scheme: Scheme
+    dpi: Count
+    page_dpi: Count
+
+
+class Variant(BaseModel):
+    model_config = ConfigDict(extra="allow", strict=True)
+    model: str
+
+
+class Bench(_Section):
+    schemes: Annotated[list[Scheme], Field(min_length=1)]
+    evaluate_folds: Count
+    scaling_fractions: list[Positive]
+    seed: Seed
+    n_jobs: Jobs
+    backend: Backend
+    import_rows: list[Count] = []
+    tasks: dict[str, dict[str, Variant]]
+
+
+class NoiseScene(_Section):
+    stretches: Annotated[list[Annotated[float, Field(ge=1)]], Field(min_length=1)]
+    forces: Annotated[list[NonNegative], Field(min_length=1)]
+    samples: Count
+
+
+class Stress(_Section):
+    trials: Count
+    folds: Annotated[int, Field(ge=2)]
+    seed: Seed
+    noise_scene: NoiseScene
+    large_gp_rows: Annotated[int, Field(ge=0)]
+
+
+class Params(_Section):
+    sim: _SimSection  # type: ignore[valid-type]
+    sim_board: SimBoard
+    acquire: Acquire
+    scenes: Annotated[dict[str, Scene], Field(min_length=1)]
+    ingest: Ingest
+    featurize: Featurize
+    cv: CV
+    train: Train
+    report: Report
+    # make bench / make stress only: a lab's params file may leave them out.
+    soak: Soak | None = None
+    fuzz: Fuzz | None = None
+    bench: Bench | None = None
+    stress: Stress | None = None
+
+
+def _first_message(err: ValidationError) -> str:
+    first = err.errors()[0]
+    where = ".".join(str(part) for part in first["loc"])
+    message = first["msg"].removeprefix("Value error, ")
+    return f"{where}: {message}" if where else message
+
+
+def _describe(error: dict) -> str:
+    """One pydantic error as ``key = value: what is allowed``."""
+    loc = [str(part) for part in error["loc"]]
+    key = ".".join(loc)
+    message = error["msg"].removeprefix("Value error, ")
+    if error["type"] == "missing":
+        return f"{key} is missing (required)"
+    if error["type"] == "extra_forbidden":
+        return f"{key}: unknown key (a typo?)"
+    value = error.get("input")
+    if isinstance(value, Mapping):  # a whole section's rule: the message says which key
+        return f"{key}.{message}" if error["type"] == "value_error" and ": " in message \
+            and message.split(":")[0].count(".") else f"{key}: {message}"
+    return f"{key} = {value!r}: {message}" if key else message
+
+
+def validate_params(params: Any, path: Path = DEFAULT_PARAMS) -> dict[str, Any]:
+    """``params`` checked against the schema; ParamsError naming the first mistake."""
+    if not isinstance(params, dict):
+        raise ParamsError(f"{path}: expected a mapping of sections, got "
+                          f"{type(params).__name__}")
+    try:
+        Params.model_validate(params)
+    except ValidationError as err:
+        errors = err.errors()
+        more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
+        raise ParamsError(f"{path}: {_describe(errors[0])}{more}") from None
+    try:
+        SkinParams.from_mapping(params["sim"])
+    except (ValueError, TypeError) as err:
+        raise ParamsError(f"{path}: {err}") from None
+    for name, scene in params["scenes"].items():
+        try:
+            plan_from_params(name, scene)
+        except ValueError as err:
+            raise ParamsError(f"{path}: {err}") from None
+    return params
+
+
 def load_params(path: Path = DEFAULT_PARAMS) -> dict[str, Any]:
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: no params file (run from the project root)")
-    with path.open() as handle:
-        params = yaml.safe_load(handle)
-    if not isinstance(params, dict):
-        raise ValueError(f"{path}: expected a mapping of sections")
-    return params
+    if path.is_dir():
+        raise ParamsError(f"{path}: is a directory, not a params file")
+    try:
+        with path.open(encoding="utf-8") as handle:
+            params = yaml.safe_load(handle)
+    except yaml.YAMLError as err:
+        mark = getattr(err, "problem_mark", None)
+        where = f"{path}:{mark.line + 1}:{mark.column + 1}" if mark else str(path)
+        problem = getattr(err, "problem", None) or str(err).splitlines()[0]
+        raise ParamsError(f"{where}: not valid YAML: {problem}") from None
+    except UnicodeDecodeError as err:
+        raise ParamsError(f"{path}: not UTF-8 text ({err.reason})") from None
+    return validate_params(params, path)
 
 
 def section(params: Mapping[str, Any], dotted: str) -> Any:

@@ -234,9 +234,12 @@ def load_runs(experiment: str | None = None) -> pd.DataFrame:
 
     tracking.connect()
     name = experiment or tracking.EXPERIMENT
-    if mlflow.get_experiment_by_name(name) is None:
+    experiment_ = mlflow.get_experiment_by_name(name)
+    if experiment_ is None:
         raise NoRunsError(f"no MLflow experiment {name!r} at {tracking.tracking_uri()}: "
                           "run `dvc repro` first (or set MLFLOW_TRACKING_URI)")
+    # A run a killed stage left RUNNING is shown as what it is: FAILED.
+    tracking.settle_stale_runs(tracking.connect(), [experiment_.experiment_id])
     return mlflow.search_runs(experiment_names=[name], output_format="pandas")
 
 
@@ -288,11 +291,17 @@ def run_audit(run_id: str, root: Path) -> dict[str, Any]:
         run = client.get_run(run_id)
     except mlflow.exceptions.MlflowException as err:
         raise NoRunsError(f"no run {run_id} at {tracking.tracking_uri()}") from err
+    if tracking.settle_stale_runs(client, [run.info.experiment_id]):
+        run = client.get_run(run_id)
     tags = run.data.tags
     scene, task = tags.get("eskin.scene", ""), tags.get("eskin.task", "")
     digest = tags.get("eskin.dataset_digest", "")
     root = Path(root)
     checks = {}
+    if run.info.status != "FINISHED":
+        checks["run finished"] = ("FAILED" if run.info.status != "RUNNING" else "RUNNING",
+                                  tags.get("eskin.failure", f"status {run.info.status}: its "
+                                           "metrics and models may be incomplete"))
     if digest:
         checks["dataset in workspace"] = _workspace_check(
             root, Path("data") / "processed" / f"{scene}.parquet", digest, "this version")

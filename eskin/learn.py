@@ -48,8 +48,13 @@ def featurize(params: dict[str, Any], scene: str, processed_dir: Path, features_
 
 def train(params: dict[str, Any], scene: str, task_name: str, features_dir: Path, *,
           metrics_path: Path, predictions_path: Path, model_path: Path,
-          params_text: str = "", track: bool = True) -> str:
-    """Cross-validate one task under each CV scheme, refit, save, and log to MLflow."""
+          lineage_path: Path | None = None, params_text: str = "", track: bool = True) -> str:
+    """Cross-validate one task under each CV scheme, refit, save, and log to MLflow.
+
+    ``lineage_path`` (uncached in dvc.yaml, which turns DVC's run cache off for the
+    stage): what trained the model. With the run cache on, a queued experiment whose
+    task had run before was restored without running, so it left no MLflow run.
+    """
     started = time.perf_counter()
     source = Path(features_dir) / f"{scene}.parquet"
     if not source.exists():
@@ -68,6 +73,8 @@ def train(params: dict[str, Any], scene: str, task_name: str, features_dir: Path
 
     reason = task.unsupported(frame)
     if reason is not None:
+        if lineage_path is not None:
+            write_json({**header, "status": "skipped"}, lineage_path)
         write_json({**header, "status": "skipped", "reason": reason}, metrics_path)
         save_predictions(pd.DataFrame(), predictions_path)
         save_models({"skipped": reason}, model_path)
@@ -89,6 +96,9 @@ def train(params: dict[str, Any], scene: str, task_name: str, features_dir: Path
     if confusion:
         metrics_doc["confusion"] = confusion  # lists: `dvc metrics show` passes over them
     write_json(metrics_doc, metrics_path)
+    if lineage_path is not None:
+        write_json({**header, "status": "trained", "features_md5": md5_file(source)},
+                   lineage_path)
     save_predictions(pd.concat([r.predictions.assign(scheme=r.scheme) for r in results],
                                ignore_index=True), predictions_path)
     run_note = ""
@@ -117,7 +127,7 @@ def train(params: dict[str, Any], scene: str, task_name: str, features_dir: Path
 def _describe_source(meta: dict[str, Any]) -> str:
     """Where a dataset came from, in a few words: ``simulated (seed 7)``, ``serial``."""
     kind = meta.get("source", {}).get("kind", "unknown")
-    seed = meta.get("simulator", {}).get("seed")
+    seed = (meta.get("simulator") or {}).get("seed")  # None for imports and real boards
     return f"{kind} (seed {seed})" if kind == "simulated" and seed is not None else kind
 
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 import hashlib
 import logging
 import os
+import socket
 import subprocess
 import tempfile
 import time
@@ -128,10 +129,45 @@ def flatten(mapping: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
     return out
 
 
+PID_TAG, HOST_TAG = "eskin.pid", "eskin.host"
+
+
+def process_tags() -> dict[str, str]:
+    """Who writes a run: a run left RUNNING by a process that is gone can be told."""
+    return {PID_TAG: str(os.getpid()), HOST_TAG: socket.gethostname()}
+
+
+def settle_stale_runs(client: MlflowClient, experiment_ids: list[str]) -> list[str]:
+    """Mark FAILED every RUNNING run whose writing process, on this host, has ended
+    (killed mid-logging: nothing could close it). Returns their ids."""
+    host = socket.gethostname()
+    settled = []
+    for run in client.search_runs(experiment_ids, filter_string="attributes.status = 'RUNNING'",
+                                  max_results=1000):
+        tags = run.data.tags
+        if tags.get(HOST_TAG) != host or not tags.get(PID_TAG, "").isdigit():
+            continue  # another machine's run: it may well be alive
+        pid = int(tags[PID_TAG])
+        try:
+            os.kill(pid, 0)
+            continue  # still running (or the pid was reused: left alone, it is rare)
+        except ProcessLookupError:
+            pass
+        except PermissionError:
+            continue
+        client.set_tag(run.info.run_id, "eskin.failure",
+                       f"process {pid} on {host} ended without closing the run "
+                       "(killed); marked FAILED when next seen")
+        client.set_terminated(run.info.run_id, status="FAILED")
+        settled.append(run.info.run_id)
+    return settled
+
+
 def _pipeline(scene: str, params_text: str) -> tuple[str, str, str, dict[str, str]]:
     """(experiment id, parent run id, pipeline key, common tags) for a stage's run."""
     client = connect()
     experiment_id = _experiment_id(client, EXPERIMENT)
+    settle_stale_runs(client, [experiment_id])
     commit = git_commit(project_root())
     key = pipeline_key(params_text, commit)
     tags = {"eskin.git_commit": commit, "mlflow.source.git.commit": commit,
@@ -154,7 +190,8 @@ def log_task_run(*, scene: str, task: str, params: Mapping[str, Any], params_tex
     step's ``time.perf_counter()`` at its start, gives the metric ``wall_seconds``.
     """
     experiment_id, parent, key, tags = _pipeline(scene, params_text)
-    run_tags = {**tags, **(extra_tags or {}), "eskin.task": task, "eskin.kind": "task",
+    run_tags = {**tags, **(extra_tags or {}), **process_tags(), "eskin.task": task,
+                "eskin.kind": "task",
                 "eskin.cv_schemes": ",".join(r.scheme for r in results),
                 "eskin.cv_scheme": results[0].scheme if results else "",
                 PIPELINE_TAG: key, "eskin.dataset_digest": dataset_digest}

@@ -124,3 +124,23 @@ def test_import_source_runs_through_the_pipeline_steps(tmp_path, small_params):
     frame = pq.read_table(tmp_path / "out" / "single_force.parquet").to_pandas()
     assert len(frame) == 24
     assert read_metadata(tmp_path / "out" / "single_force.parquet")["source"]["kind"] == "import"
+
+
+def test_streaming_in_small_chunks_gives_the_same_dataset_and_quarantine(tmp_path,
+                                                                         monkeypatch):
+    """Chunk boundaries change nothing: trials run across them, copies are found across
+    them, and a bad row is named by its line wherever it falls."""
+    from eskin.data import importer
+
+    rows = paper_rows()
+    rows = rows + [rows[3]] + rows[:2]  # copies of earlier rows, in a later chunk
+    rows[5] = rows[5][:4] + ["oops"] + rows[5][5:]
+    path = write_csv(tmp_path / "skin.csv", rows)
+    whole = import_paper_layout(path, "single_force", bad_rows="quarantine")
+    monkeypatch.setattr(importer, "CHUNK_ROWS", 3)
+    chunked = import_paper_layout(path, "single_force", bad_rows="quarantine")
+    pd.testing.assert_frame_equal(whole.frame, chunked.frame)
+    assert whole.quarantine == chunked.quarantine
+    reasons = [q["reason"] for q in chunked.quarantine]
+    assert sum(r.startswith("duplicate of line") for r in reasons) == 3
+    assert any("is not a number" in r for r in reasons)

@@ -10,11 +10,18 @@ One text file per scene, one record per line, fields separated by tabs::
     E <attempt> <frames>           condition complete
     X <attempt> <reason>           attempt abandoned (it will be asked again)
 
-Every frame line is kept as it arrived, the rejected ones too, so the log is
-the evidence. Only attempts closed by ``E`` count. After a crash the last
+Every frame line is kept as it arrived, the rejected ones too (the first
+few of each attempt; the rest are counted in its ``X`` reason), so the log
+is the evidence. Only attempts closed by ``E`` count. After a crash the last
 line may be torn; reading ignores it and reopening for append cuts it off, so
 a restart resumes at the first incomplete condition and loses nothing that
 was flushed.
+
+The file comes into being with its header, atomically (written aside, then
+renamed), when the first attempt begins: an interruption before that leaves
+no file, never an empty or headerless one. A 0-byte log (left by eskin
+before this rule) counts as no log, and a log whose header was lost that way
+(it starts with its session record) is read, and repaired on the next append.
 """
 
 from __future__ import annotations
@@ -60,6 +67,7 @@ class LogContents:
     frames_rejected: int
     bad_lines: list[BadLine]
     torn_tail: bool
+    headerless: bool = False
 
 
 def read_log(path: Path) -> LogContents:
@@ -72,7 +80,7 @@ def read_log(path: Path) -> LogContents:
     bad: list[BadLine] = []
     tainted: set[int] = set()
     rejected = 0
-    torn = False
+    torn = headerless = False
     with path.open("rb") as handle:
         for number, raw in enumerate(handle, start=1):
             if not raw.endswith(b"\n"):
@@ -83,7 +91,9 @@ def read_log(path: Path) -> LogContents:
             except UnicodeDecodeError:
                 bad.append(BadLine(path, number, "not ASCII", raw.decode("latin-1")))
                 continue
-            if number == 1:
+            if number == 1 and line.startswith("S\t{"):
+                headerless = True  # the header an interrupted first run lost; read on
+            elif number == 1:
                 if line != MAGIC:
                     raise RawLogError(f"{path}:1: not an eskin raw log (first line {line[:40]!r},"
                                       f" expected {MAGIC!r})")
@@ -128,7 +138,16 @@ def read_log(path: Path) -> LogContents:
                 bad.append(BadLine(path, number, str(err), line))
                 if tag in ("B", "F", "R", "E", "X") and rest.partition("\t")[0].isdigit():
                     tainted.add(int(rest.partition("\t")[0]))
-    return LogContents(sessions, completed, max(attempts, default=0), rejected, bad, torn)
+    return LogContents(sessions, completed, max(attempts, default=0), rejected, bad, torn,
+                       headerless)
+
+
+def read_log_if_any(path: Path) -> LogContents | None:
+    """The log at ``path``, or None if there is none yet (absent, or 0 bytes)."""
+    path = Path(path)
+    if not path.exists() or path.stat().st_size == 0:
+        return None
+    return read_log(path)
 
 
 class RawLogWriter:
@@ -138,24 +157,33 @@ class RawLogWriter:
     def __init__(self, path: Path, session: dict, contents: LogContents | None = None) -> None:
         """``contents``: the log as already read (``read_log``), if the caller has it."""
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        if contents is None and self.path.exists():
-            contents = read_log(self.path)
+        if contents is None:
+            contents = read_log_if_any(self.path)
         if contents is not None and contents.torn_tail:
-            _cut_torn_tail(self.path)
+            _cut_torn_tail(self.path)  # a repair, done on opening as before any append
+        self._contents = contents
         self.attempt = contents.attempts if contents else 0
-        self._new_file = contents is None
         self._session: dict | None = session  # written with the first attempt
-        self._file = self.path.open("a", encoding="ascii", newline="\n")
+        self._file = None  # opened at the first attempt: a session that records nothing
+
+    def _open(self):
+        """The file, for append, valid from its first byte."""
+        contents = self._contents
+        if contents is None:
+            # A new log (or a 0-byte one): header written aside and renamed into place.
+            _replace_atomically(self.path, MAGIC + "\n")
+        else:
+            if contents.headerless:
+                _replace_atomically(self.path, MAGIC + "\n" + self.path.read_text("ascii"))
+        return self.path.open("a", encoding="ascii", newline="\n")
 
     def _write(self, *fields: object) -> None:
         self._file.write("\t".join(str(f) for f in fields) + "\n")
 
     def begin(self, condition: dict) -> int:
         # A session that acquires nothing leaves the log untouched, byte for byte.
-        if self._new_file:
-            self._file.write(MAGIC + "\n")
-            self._new_file = False
+        if self._file is None:
+            self._file = self._open()
         if self._session is not None:
             self._write("S", json.dumps(self._session, sort_keys=True))
             self._session = None
@@ -181,17 +209,31 @@ class RawLogWriter:
         self.flush()
 
     def flush(self) -> None:
-        self._file.flush()
+        if self._file is not None:
+            self._file.flush()
 
     def close(self) -> None:
-        self._file.flush()
-        os.fsync(self._file.fileno())
-        self._file.close()
+        if self._file is not None:
+            self._file.flush()
+            os.fsync(self._file.fileno())
+            self._file.close()
+            self._file = None
 
 
 def _ascii_field(text: str) -> str:
     """Free text as one field of an ASCII line (a port name or a message may not be)."""
     return text.replace("\t", " ").replace("\n", " ").encode("ascii", "backslashreplace").decode()
+
+
+def _replace_atomically(path: Path, text: str) -> None:
+    """``path`` holds ``text`` or what it held before, never part of it."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    aside = path.with_name(path.name + ".partial")
+    with aside.open("w", encoding="ascii", newline="\n") as handle:
+        handle.write(text)
+        handle.flush()
+        os.fsync(handle.fileno())
+    os.replace(aside, path)
 
 
 def _cut_torn_tail(path: Path) -> None:

@@ -29,7 +29,9 @@ from eskin.acquisition.rawlog import RawLogWriter
 from eskin.device.link import (
     BoardRefused,
     BoardReset,
+    DeviceChanged,
     LinkError,
+    ProtocolViolation,
     SampleBatch,
     SerialLink,
     jump_problem,
@@ -100,17 +102,39 @@ class OperatorPlacer:
         if repeat or touching == self._on_skin:
             return
         what = "; ".join(f"{c.force:g} N on node x={c.x}, y={c.y}" for c in touching)
-        self.ask(f"[{condition.describe()}] {'Place ' + what if touching else 'Remove all weights'}"
-                 ", then press Enter: ")
+        prompt = (f"[{condition.describe()}] "
+                  f"{'Place ' + what if touching else 'Remove all weights'}, then press Enter: ")
+        try:
+            self.ask(for_terminal(prompt, sys.stdout))
+        except EOFError:
+            raise AcquisitionError(
+                f"operator input closed at the prompt for {condition.describe()}: acquiring "
+                "from a real board needs a person at a terminal to place the weights (set "
+                "acquire.indenters: board only for a board that places them itself); "
+                "everything recorded so far is kept, rerun to resume") from None
         self._on_skin = touching
 
 
+def for_terminal(text: str, stream) -> str:
+    """``text`` as ``stream`` can show it: an ASCII-only terminal gets ``stretch=`` for
+    ``λ=`` and escapes for anything else it cannot encode."""
+    encoding = getattr(stream, "encoding", None) or "ascii"
+    try:
+        text.encode(encoding)
+        return text
+    except (UnicodeEncodeError, LookupError):
+        text = text.replace("λ", "stretch")
+        return text.encode("ascii", "backslashreplace").decode("ascii")
+
+
 def acquire(plan: ScenePlan, link: SerialLink, writer: RawLogWriter, placer: Placer, *,
-            completed: set[str], rest_length_mm: float, max_attempts: int = 5,
+            completed: dict[str, int], rest_length_mm: float, max_attempts: int = 5,
             reconnect_s: float = 30.0, max_jump_counts: float = 40.0,
             progress: bool = True,
             notify: Callable[[str], object] | None = None) -> AcquisitionReport:
-    """Acquire every condition of ``plan`` whose key is not in ``completed``.
+    """Acquire every condition of ``plan`` not yet recorded whole: its key is not in
+    ``completed`` (key -> frames of its latest complete attempt), or with fewer frames
+    than the plan's samples (a plan whose ``samples`` grew).
 
     A damaged batch is asked again; a board that restarts gets its stretch and
     indenters again; a link that fails (the port vanishes, the board falls
@@ -131,7 +155,7 @@ def acquire(plan: ScenePlan, link: SerialLink, writer: RawLogWriter, placer: Pla
     with bar:
         for condition in plan.conditions:
             key = condition.key(hello.device_id, hello.firmware)
-            if key in completed:
+            if completed.get(key, 0) >= plan.samples:
                 report.reused += 1
                 bar.update()
                 continue
@@ -152,11 +176,18 @@ def acquire(plan: ScenePlan, link: SerialLink, writer: RawLogWriter, placer: Pla
                     finally:  # an error or Ctrl-C mid-batch: what arrived is kept
                         writer.frames(attempt, batch.frames)
                         writer.rejected(attempt, batch.rejected)
-                        report.frames_rejected += len(batch.rejected)
+                        report.frames_rejected += batch.rejected_count
                     problem = batch.problem or jump_problem(batch, max_jump_counts)
                 except BoardRefused:
                     _close(writer, attempt, "the board refused a command")
                     raise
+                except DeviceChanged as err:
+                    _close(writer, attempt, "another board answered")
+                    raise AcquisitionError(
+                        f"{plan.name}: {err}. Nothing from it was stored; everything the "
+                        f"session's board sent is in {writer.path}.") from err
+                except ProtocolViolation as err:
+                    problem = str(err)  # the next request is fenced; ask again
                 except BoardReset as err:
                     problem = str(err)
                     report.resets += 1
@@ -188,7 +219,7 @@ def acquire(plan: ScenePlan, link: SerialLink, writer: RawLogWriter, placer: Pla
                     f"{plan.name}: {condition.describe()} failed {max_attempts} times on "
                     f"{link.port}, last: {problem}. Received data is in {writer.path}; "
                     "rerun to resume.")
-            completed.add(key)
+            completed[key] = len(batch.frames)
             report.acquired += 1
             bar.update()
     report.seconds = time.monotonic() - started

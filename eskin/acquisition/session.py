@@ -20,7 +20,7 @@ from pathlib import Path
 
 from eskin import __version__
 from eskin.acquisition.plan import ScenePlan
-from eskin.acquisition.rawlog import LogContents, RawLogWriter, read_log
+from eskin.acquisition.rawlog import LogContents, RawLogWriter, read_log_if_any
 from eskin.acquisition.runner import (
     AcquisitionError,
     AcquisitionReport,
@@ -106,8 +106,10 @@ def session_id(contents: LogContents | None, plan: ScenePlan, hello: Hello) -> s
         return "s001"
     last, device_id = contents.sessions[-1], hello.device_id
     keys = {c.key(device_id, hello.firmware) for c in plan.conditions}
+    whole = {key for key, attempt in contents.completed.items()
+             if len(attempt.frames) >= plan.samples}
     if (last["device"]["id"] == device_id and last.get("plan") == plan.as_dict()
-            and not keys <= set(contents.completed)):
+            and not keys <= whole):
         return last["session"]
     ids = {s["session"] for s in contents.sessions if s["device"]["id"] == device_id}
     return f"s{len(ids) + 1:03d}"
@@ -119,7 +121,7 @@ def run_session(plan: ScenePlan, raw_dir: Path, *, port: str, placer: Placer,
                 max_jump_counts: float = 40.0, progress: bool = True) -> AcquisitionReport:
     """Connect to the board on ``port`` and acquire what the raw log still lacks."""
     log_path = Path(raw_dir) / LOG_NAME
-    contents = read_log(log_path) if log_path.exists() else None
+    contents = read_log_if_any(log_path)
     with SerialLink(port, timeout_s=timeout_s) as link:
         hello = link.connect()
         session = {
@@ -136,7 +138,8 @@ def run_session(plan: ScenePlan, raw_dir: Path, *, port: str, placer: Placer,
             # A real session's date is part of its record; a simulated one leaves it out so
             # that the same params give a byte-identical log, and the same DVC hashes.
             session["started_utc"] = datetime.now(UTC).isoformat(timespec="seconds")
-        completed = set(contents.completed) if contents else set()
+        completed = ({key: len(attempt.frames) for key, attempt in contents.completed.items()}
+                     if contents else {})
         writer = RawLogWriter(log_path, session, contents)
         try:
             return acquire(plan, link, writer, placer, completed=completed,
@@ -152,9 +155,14 @@ def acquire_scene(plan: ScenePlan, raw_dir: Path, *, source: str, sim: SkinParam
                   faults: LinkFaults | None = None, frame_period_ms: int = 12,
                   timeout_s: float = 5.0, max_attempts: int = 5, reconnect_s: float = 30.0,
                   max_jump_counts: float = 40.0, ask: Callable[[str], object] = input,
-                  progress: bool = True
+                  indenters: str = "person", progress: bool = True
                   ) -> AcquisitionReport:
-    """Acquire a scene from the simulated board or from a real one on ``port``."""
+    """Acquire a scene from the simulated board or from a board on ``port``.
+
+    ``indenters``: on a board on a port, who places the weights — a ``person``
+    prompted at the terminal (a real rig), or the ``board`` itself through ``SIM``
+    commands (a simulated or emulated board served on a port).
+    """
     options = {"rest_length_mm": rest_length_mm, "timeout_s": timeout_s,
                "max_attempts": max_attempts, "reconnect_s": reconnect_s,
                "max_jump_counts": max_jump_counts, "progress": progress}
@@ -168,6 +176,6 @@ def acquire_scene(plan: ScenePlan, raw_dir: Path, *, source: str, sim: SkinParam
     if source == "serial":
         if not port:
             raise ValueError("acquire.source is 'serial' but acquire.port is not set")
-        return run_session(plan, raw_dir, port=port, placer=OperatorPlacer(ask),
-                           simulator=None, **options)
+        placer = SimulatedPlacer() if indenters == "board" else OperatorPlacer(ask)
+        return run_session(plan, raw_dir, port=port, placer=placer, simulator=None, **options)
     raise ValueError(f"acquire.source must be 'simulated', 'serial' or 'import', got {source!r}")

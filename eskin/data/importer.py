@@ -20,9 +20,13 @@ of an earlier row) are errors naming file, line and column, or, under
 
 from __future__ import annotations
 
+import codecs
 import csv
 import io
+import os
 import shutil
+import tempfile
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -35,138 +39,322 @@ from eskin.data.schema import (
     CHANNELS,
     LABELS,
     DatasetError,
+    arrow_schema,
+    columns,
     first_reason,
     node_columns,
     row_problems,
     sha256_file,
+    with_metadata,
 )
 
 WIDTHS = {"single_force": (24,), "two_force": (26, 27)}
+CHUNK_ROWS = 20_000  # rows held at once: memory is a few chunks, whatever the file's size
 
 
 def import_paper_layout(path: Path, kind: str, *, bad_rows: str = "error",
                         scene: str | None = None) -> Ingested:
-    """Read a CSV or Parquet file in the paper's layout into the dataset schema."""
+    """Read a CSV or Parquet file in the paper's layout into the dataset schema, in memory
+    (tests, fuzzing, small files); :func:`import_to_dataset` streams to Parquet."""
+    with tempfile.TemporaryDirectory(prefix="eskin-import-") as scratch:
+        out = Path(scratch) / "dataset.parquet"
+        quarantine, metadata = import_to_dataset(path, kind, out, bad_rows=bad_rows,
+                                                 scene=scene)
+        frame = pd.read_parquet(out)
+    for column in ("seq", "t_ms"):
+        frame[column] = frame[column].astype("Int64")
+    return Ingested(frame, metadata, quarantine)
+
+
+def import_to_dataset(path: Path, kind: str, out: Path, *, bad_rows: str = "error",
+                      scene: str | None = None) -> tuple[list[dict], dict]:
+    """Stream ``path`` into the dataset file ``out``: (quarantined rows, metadata).
+
+    Two passes of ``CHUNK_ROWS`` rows each, so memory stays a few chunks: the first
+    judges every row and finds copies of earlier rows (by a 64-bit hash per row),
+    the second writes the good rows as Parquet row groups.
+    """
     check_policy(bad_rows)
     path = Path(path)
+    layout = _layout(path, kind)
+    digest = sha256_file(path)
+    # Pass 1: reasons and row hashes; copies found by sorting the hashes.
+    hashes, hash_lines, bad_count, first_bad = [], [], 0, None
+    hash_lines_count: list[np.ndarray] = []
+    for chunk in _judged_chunks(path, layout, {}):
+        hash_lines_count.append(chunk.lines)
+        bad = chunk.reasons != ""
+        bad_count += int(bad.sum())
+        if first_bad is None and bad.any():
+            i = int(np.argmax(bad))
+            first_bad = (int(chunk.lines[i]), chunk.reasons[i])
+        hashes.append(chunk.hashes[~bad])
+        hash_lines.append(chunk.lines[~bad])
+    copies = _copies(np.concatenate(hashes) if hashes else np.empty(0, np.uint64),
+                     np.concatenate(hash_lines) if hash_lines else np.empty(0, np.int64))
+    del hashes, hash_lines
+    if copies:
+        bad_count += len(copies)
+        line, first = min(copies.items())
+        if first_bad is None or line < first_bad[0]:
+            first_bad = (line, f"duplicate of line {first} (every column equal)")
+    if bad_count and bad_rows == "error":
+        raise DatasetError(f"{path}:{first_bad[0]}: {first_bad[1]} ({bad_count} bad "
+                           "row(s) in all). Set ingest.bad_rows: quarantine to set them aside.")
+    # Pass 2: write, the provenance in the footer from the start.
+    rows_in_file = sum(len(lines) for lines in hash_lines_count)
+    metadata = {"scene": scene or kind, "kind": kind, "plan": None,
+                "device": None, "simulator": None,
+                "source": {"kind": "import", "path": str(path), "sha256": digest,
+                           "rows_in_file": rows_in_file, "rows_quarantined": bad_count,
+                           "stretch_assumed": "stretch" not in layout.labels}}
+    session = f"import-{digest[:10]}"
+    schema = with_metadata(arrow_schema(kind), metadata)
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    partial = out.with_suffix(out.suffix + ".partial")
+    quarantine: list[dict] = []
+    trials = _TrialCounter(session, LABELS[kind])
+    rows_seen = rows_kept = 0
+    with pq.ParquetWriter(partial, schema) as writer:
+        for chunk in _judged_chunks(path, layout, copies):
+            bad = chunk.reasons != ""
+            for i in np.flatnonzero(bad):
+                quarantine.append({"source": str(path), "line": int(chunk.lines[i]),
+                                   "reason": chunk.reasons[i], "text": chunk.text(i)})
+            good = chunk.numeric[~bad].reset_index(drop=True)
+            for column in node_columns(kind):
+                good[column] = good[column].astype(np.int64)
+            good["session"] = session
+            good["trial"], good["sample"] = trials.label(good)
+            good["seq"] = (rows_seen + np.flatnonzero(~bad)).astype(np.int64)
+            good["t_ms"] = pd.array([None] * len(good), dtype="Int64")
+            rows_seen += len(bad)
+            rows_kept += len(good)
+            if len(good):
+                writer.write_table(pa.Table.from_pandas(good[columns(kind)], schema=schema,
+                                                        preserve_index=False))
+    if rows_kept == 0:
+        partial.unlink()
+        raise DatasetError(f"{path}: no usable rows ({rows_in_file} data row(s), all set "
+                           "aside; see the quarantine file)")
+    os.replace(partial, out)
+    return quarantine, metadata
+
+
+@dataclass
+class _Layout:
+    kind: str
+    parquet: bool
+    width: int
+    labels: list[str]
+    dialect: object = None
+    has_header: bool = False
+
+
+@dataclass
+class _Chunk:
+    cells: pd.DataFrame      # as read (text for CSV)
+    numeric: pd.DataFrame    # named columns, floats (stretch added if the file has none)
+    lines: np.ndarray        # file line (CSV) or row index (Parquet) of each row
+    reasons: np.ndarray      # '' or why the row cannot be trusted
+    hashes: np.ndarray       # 64-bit hash of each row's values
+
+    def text(self, i: int) -> str:
+        return ",".join("" if pd.isna(v) else str(v) for v in self.cells.iloc[i].tolist())
+
+
+class _TrialCounter:
+    """A run of consecutive rows with identical labels is one trial, across chunks."""
+
+    def __init__(self, session: str, labels: list[str]) -> None:
+        self.session, self.labels = session, labels
+        self.trial, self.sample, self.last = -1, 0, None
+
+    def label(self, good: pd.DataFrame) -> tuple[list[str], np.ndarray]:
+        values = good[self.labels].to_numpy(dtype=float)
+        trial_of, sample_of = np.empty(len(values), np.int64), np.empty(len(values), np.int64)
+        for i, row in enumerate(values):  # a Python loop per row: cheap next to csv parsing
+            if self.last is None or not np.array_equal(row, self.last):
+                self.trial, self.sample, self.last = self.trial + 1, 0, row
+            trial_of[i], sample_of[i] = self.trial, self.sample
+            self.sample += 1
+        names = [f"{self.session}-t{t:05d}" for t in trial_of]
+        return names, sample_of
+
+
+def _copies(hashes: np.ndarray, lines: np.ndarray) -> dict[int, int]:
+    """{line of a copy: line of the row it repeats}: equal 64-bit hashes of every value."""
+    if len(hashes) < 2:
+        return {}
+    order = np.lexsort((lines, hashes))
+    ordered = hashes[order]
+    repeat = np.flatnonzero(ordered[1:] == ordered[:-1]) + 1
+    if not len(repeat):
+        return {}
+    starts = np.flatnonzero(np.r_[True, ordered[1:] != ordered[:-1]])
+    first_of_group = starts[np.searchsorted(starts, repeat, side="right") - 1]
+    return {int(lines[order[i]]): int(lines[order[f]])
+            for i, f in zip(repeat, first_of_group, strict=True)}
+
+
+def _layout(path: Path, kind: str) -> _Layout:
+    """Check what can be checked before reading rows: the file is there, readable, of
+    the scene's width, and its header (if any) names the columns where they belong."""
     if not path.exists():
         raise DatasetError(f"{path}: import file not found")
+    if path.is_dir():
+        raise DatasetError(f"{path}: is a directory, not an import file")
     if path.stat().st_size == 0:
         raise DatasetError(f"{path}: file is empty")
     if path.suffix.lower() == ".parquet":
-        cells, lines, reasons = _read_parquet(path)
-        header = None
+        try:
+            width = len(pq.read_schema(path))
+        except (pa.ArrowException, OSError) as err:
+            raise DatasetError(f"{path}: not a readable Parquet file ({err})") from err
+        layout = _Layout(kind, True, width, [])
     else:
-        cells, lines, reasons, header = _read_csv(path)
-    width = cells.shape[1]
+        _check_text(path)
+        with _open_text(path) as handle:
+            sample = handle.read(65536)
+        try:
+            dialect = csv.Sniffer().sniff(sample[:4096], delimiters=",;\t")
+        except csv.Error:
+            dialect = csv.excel
+        rows = [r for r in csv.reader(io.StringIO(sample, newline=None), dialect)
+                if any(c.strip() for c in r)]
+        complete = rows[:-1] if len(sample) == 65536 and len(rows) > 1 else rows
+        header = bool(complete) and bool(
+            pd.to_numeric(pd.Series(complete[0]), errors="coerce").isna().any())
+        data = complete[1:] if header else complete
+        if not data:
+            raise DatasetError(f"{path}: no data rows")
+        lengths = [len(r) for r in data]
+        width = max(set(lengths), key=lengths.count)  # the file's width: most rows agree
+        layout = _Layout(kind, False, width, [], dialect, header)
+        if header:
+            layout.labels = _labels(kind, width, path)
+            _check_header(path, (1, complete[0]), CHANNELS + layout.labels)
+    layout.labels = _labels(kind, layout.width, path)
+    return layout
+
+
+def _labels(kind: str, width: int, path: Path) -> list[str]:
     if width not in WIDTHS[kind]:
         other = next((k for k, w in WIDTHS.items() if width in w), None)
         hint = f" — that is the {other} layout" if other and other != kind else ""
         raise DatasetError(f"{path}: {width} columns, but the {kind} layout has "
                            f"{' or '.join(map(str, WIDTHS[kind]))}{hint}")
-    labels = LABELS[kind] if width > 26 or kind == "single_force" else LABELS[kind][:-1]
-    if header is not None:
-        _check_header(path, header, CHANNELS + labels)
-    frame = cells.set_axis(CHANNELS + labels, axis=1)
-    numeric = frame.apply(pd.to_numeric, errors="coerce")
-    # Text where a number belongs (empty and "nan" are NaN, judged later).
-    blank = _blank(frame.to_numpy(dtype=object)).astype(bool)
-    text = first_reason([(numeric[c].isna().to_numpy() & ~blank[:, j], f"{c} is not a number")
-                         for j, c in enumerate(frame.columns)], frame.index)
-    reasons[reasons == ""] = text[reasons == ""]
-    if "stretch" not in numeric:
-        numeric["stretch"] = 1.0
-    more = row_problems(numeric, kind)
-    reasons[reasons == ""] = more[reasons == ""]
-    # A row equal to an earlier one in every column is a pasted copy, not a new sample
-    # (readings carry noise); the first copy is kept.
-    values = numeric[CHANNELS + labels]
-    copies = values.duplicated(keep="first").to_numpy() & (reasons == "").to_numpy()
-    if copies.any():
-        first = pd.Series(np.arange(len(values))).groupby(
-            pd.util.hash_pandas_object(values, index=False).to_numpy()).transform("min")
-        reasons[copies] = [f"duplicate of line {lines[i]} (every column equal)"
-                           for i in first.to_numpy()[copies]]
-    bad = reasons != ""
-    if bad.any() and bad_rows == "error":
-        first = bad.idxmax()
-        raise DatasetError(f"{path}:{lines[first]}: {reasons[first]} ({int(bad.sum())} bad "
-                           "row(s) in all). Set ingest.bad_rows: quarantine to set them aside.")
-    quarantine = [{"source": str(path), "line": int(lines[i]), "reason": reasons[i],
-                   "text": ",".join(map(str, cells.loc[i].tolist()))} for i in np.flatnonzero(bad)]
-    good = numeric[~bad.to_numpy()].reset_index(drop=True)
-    digest = sha256_file(path)
-    for column in node_columns(kind):
-        good[column] = good[column].astype(np.int64)
-    label_cols = LABELS[kind]
-    changed = good[label_cols].ne(good[label_cols].shift()).any(axis=1)
-    trial_index = changed.cumsum() - 1
-    session = f"import-{digest[:10]}"
-    good["session"] = session
-    good["trial"] = [f"{session}-t{t:05d}" for t in trial_index]
-    good["sample"] = good.groupby(trial_index).cumcount().astype(np.int64)
-    good["seq"] = pd.array(np.flatnonzero(~bad.to_numpy()), dtype="Int64")
-    good["t_ms"] = pd.array([None] * len(good), dtype="Int64")
-    metadata = {"scene": scene or kind, "kind": kind, "plan": None,
-                "device": None, "simulator": None,
-                "source": {"kind": "import", "path": str(path), "sha256": digest,
-                           "rows_in_file": len(frame), "rows_quarantined": int(bad.sum()),
-                           "stretch_assumed": "stretch" not in labels}}
-    return Ingested(good, metadata, quarantine)
+    return LABELS[kind] if width > 26 or kind == "single_force" else LABELS[kind][:-1]
 
 
-Read = tuple[pd.DataFrame, np.ndarray, pd.Series]  # cells, line numbers, preset reasons
+def _check_text(path: Path) -> None:
+    """UTF-8 without NUL bytes, checked streaming; an error names the line and byte."""
+    decoder = codecs.getincrementaldecoder("utf-8")()
+    offset = lines = 0
+    with path.open("rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            try:
+                decoder.decode(block)
+            except UnicodeDecodeError as err:
+                at = max(0, err.start - len(decoder.getstate()[0]))
+                bad = offset + at
+                line = lines + block[:at].count(b"\n") + 1
+                raise DatasetError(f"{path}:{line}: not UTF-8 text (byte {bad}: "
+                                   f"{block[at:at + 1]!r}); save the file as UTF-8 CSV"
+                                   ) from None
+            if b"\x00" in block:
+                raise DatasetError(f"{path}: contains NUL bytes; is it a CSV file?")
+            offset += len(block)
+            lines += block.count(b"\n")
+        try:
+            decoder.decode(b"", final=True)
+        except UnicodeDecodeError:
+            raise DatasetError(f"{path}:{lines + 1}: not UTF-8 text (the file ends inside a "
+                               "character); save the file as UTF-8 CSV") from None
+
+
+def _open_text(path: Path):
+    # Universal newlines: a lone CR ends a line too (old Mac files, stray bytes).
+    return path.open(encoding="utf-8-sig", newline=None)
+
+
+def _raw_chunks(path: Path, layout: _Layout):
+    """(cells, line numbers, preset reasons) per ``CHUNK_ROWS`` rows."""
+    if layout.parquet:
+        try:
+            batches = pq.ParquetFile(path).iter_batches(batch_size=CHUNK_ROWS)
+            start = 0
+            for batch in batches:
+                cells = batch.to_pandas()
+                cells.columns = range(cells.shape[1])
+                # A Parquet row's "line" is its 0-based row index.
+                yield (cells, np.arange(start, start + len(cells)),
+                       np.full(len(cells), "", dtype=object))
+                start += len(cells)
+        except (pa.ArrowException, OSError) as err:
+            raise DatasetError(f"{path}: not a readable Parquet file ({err})") from err
+        return
+    width = layout.width
+    with _open_text(path) as handle:
+        reader = csv.reader(handle, layout.dialect)
+        skip_header = layout.has_header
+        rows, numbers = [], []
+        try:
+            for row in reader:
+                if not any(c.strip() for c in row):
+                    continue
+                if skip_header:
+                    skip_header = False
+                    continue
+                rows.append(row)
+                numbers.append(reader.line_num)
+                if len(rows) == CHUNK_ROWS:
+                    yield _cells(rows, numbers, width)
+                    rows, numbers = [], []
+        except csv.Error as err:
+            raise DatasetError(f"{path}:{reader.line_num}: not readable as CSV ({err})"
+                               ) from None
+        if rows:
+            yield _cells(rows, numbers, width)
+
+
+def _cells(rows: list[list[str]], numbers: list[int], width: int):
+    cells = pd.DataFrame([(r + [""] * width)[:width] for r in rows]).replace("", np.nan)
+    reasons = np.array(["" if len(r) == width else
+                        f"row has {len(r)} columns, expected {width}{_layout_hint(len(r))}"
+                        for r in rows], dtype=object)
+    return cells, np.array(numbers, dtype=np.int64), reasons
+
+
+def _judged_chunks(path: Path, layout: _Layout, copies: dict[int, int]):
+    kind, names = layout.kind, CHANNELS + layout.labels
+    for cells, lines, reasons in _raw_chunks(path, layout):
+        if cells.shape[1] != layout.width:  # a Parquet file's width is its schema's
+            raise DatasetError(f"{path}: {cells.shape[1]} columns, expected {layout.width}")
+        frame = cells.set_axis(names, axis=1)
+        numeric = frame.apply(pd.to_numeric, errors="coerce").astype(float)
+        # Text where a number belongs (empty and "nan" are NaN, judged below).
+        blank = _blank(frame.to_numpy(dtype=object)).astype(bool)
+        text = first_reason([(numeric[c].isna().to_numpy() & ~blank[:, j],
+                              f"{c} is not a number") for j, c in enumerate(names)],
+                            frame.index).to_numpy()
+        reasons = np.where(reasons == "", text, reasons)
+        if "stretch" not in numeric:
+            numeric["stretch"] = 1.0
+        more = row_problems(numeric, kind).to_numpy()
+        reasons = np.where(reasons == "", more, reasons)
+        for i in np.flatnonzero(reasons == ""):
+            if int(lines[i]) in copies:
+                reasons[i] = f"duplicate of line {copies[int(lines[i])]} (every column equal)"
+        hashes = pd.util.hash_pandas_object(numeric[names], index=False).to_numpy()
+        yield _Chunk(cells, numeric, lines, reasons.astype(object), hashes)
+
 
 # A cell that holds no value: missing, empty or "nan" (NaN, not text).
 _blank = np.frompyfunc(
     lambda v: v is None or (isinstance(v, float) and v != v)
     or (isinstance(v, str) and v.strip().lower() in ("", "nan")), 1, 1)
-
-
-def _read_parquet(path: Path) -> Read:
-    try:
-        table = pq.read_table(path)
-    except (pa.ArrowException, OSError) as err:
-        raise DatasetError(f"{path}: not a readable Parquet file ({err})") from err
-    frame = table.to_pandas()
-    frame.columns = range(frame.shape[1])
-    # A Parquet row's "line" is its 0-based row index.
-    return frame, np.arange(len(frame)), pd.Series("", index=frame.index, dtype=object)
-
-
-def _read_csv(path: Path) -> tuple[pd.DataFrame, np.ndarray, pd.Series, tuple | None]:
-    raw = path.read_bytes()
-    try:
-        text = raw.decode("utf-8-sig")
-    except UnicodeDecodeError as err:
-        line = raw[: err.start].count(b"\n") + 1
-        raise DatasetError(f"{path}:{line}: not UTF-8 text (byte {err.start}: "
-                           f"{raw[err.start:err.start + 1]!r}); save the file as UTF-8 CSV"
-                           ) from None
-    if "\x00" in text:
-        raise DatasetError(f"{path}: contains NUL bytes; is it a CSV file?")
-    try:
-        dialect = csv.Sniffer().sniff(text[:4096], delimiters=",;\t")
-    except csv.Error:
-        dialect = csv.excel
-    # Universal newlines: a lone CR ends a line too (old Mac files, stray bytes).
-    reader = csv.reader(io.StringIO(text, newline=None), dialect)
-    try:
-        rows = [(n, r) for n, r in enumerate(reader, start=1) if any(c.strip() for c in r)]
-    except csv.Error as err:
-        raise DatasetError(f"{path}:{reader.line_num}: not readable as CSV ({err})") from None
-    header = None
-    if rows and pd.to_numeric(pd.Series(rows[0][1]), errors="coerce").isna().any():
-        header, rows = rows[0], rows[1:]  # a header row
-    if not rows:
-        raise DatasetError(f"{path}: no data rows")
-    lengths = [len(r) for _, r in rows]
-    width = max(set(lengths), key=lengths.count)  # the file's width: most rows agree
-    cells = pd.DataFrame([(r + [""] * width)[:width] for _, r in rows]).replace("", np.nan)
-    reasons = pd.Series(["" if len(r) == width else
-                         f"row has {len(r)} columns, expected {width}{_layout_hint(len(r))}"
-                         for _, r in rows], dtype=object)
-    return cells, np.array([n for n, _ in rows]), reasons, header
 
 
 def _layout_hint(width: int) -> str:
@@ -191,7 +379,7 @@ def copy_import(source: Path, raw_dir: Path, kind: str) -> Path:
     """Check an import file's layout, then keep a verbatim copy under ``raw_dir``
     (DVC versions it from there); rows are judged at ingest."""
     source = Path(source)
-    import_paper_layout(source, kind, bad_rows="quarantine")
+    _layout(source, kind)
     raw_dir = Path(raw_dir)
     raw_dir.mkdir(parents=True, exist_ok=True)
     for old in raw_dir.glob("import.*"):

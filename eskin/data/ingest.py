@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 
 from eskin.acquisition.plan import ScenePlan
-from eskin.acquisition.rawlog import LogContents, read_log
+from eskin.acquisition.rawlog import LogContents, read_log_if_any
 from eskin.data.schema import CHANNELS, DatasetError, sha256_file
 
 BAD_ROW_POLICIES = ("error", "quarantine")
@@ -38,9 +38,9 @@ def ingest_log(path: Path, plan: ScenePlan, *, bad_rows: str = "error") -> Inges
     """Build the dataset of ``plan`` from the raw log at ``path``."""
     check_policy(bad_rows)
     path = Path(path)
-    if not path.exists():
+    contents = read_log_if_any(path)
+    if contents is None:
         raise DatasetError(f"{path}: no raw log; run `eskin acquire {plan.name}` first")
-    contents = read_log(path)
     if contents.bad_lines and bad_rows == "error":
         first = contents.bad_lines[0]
         raise DatasetError(f"{first} ({len(contents.bad_lines)} malformed line(s) in the raw "

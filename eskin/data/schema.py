@@ -144,15 +144,20 @@ def sha256_file(path: Path) -> str:
     return digest.hexdigest()
 
 
+def with_metadata(schema: pa.Schema, metadata: dict) -> pa.Schema:
+    """``schema`` carrying ``metadata`` as ``eskin.*`` keys (JSON values)."""
+    extra = {f"eskin.{k}": json.dumps(v, sort_keys=True) for k, v in metadata.items()}
+    extra["eskin.schema_version"] = SCHEMA_VERSION
+    return schema.with_metadata({**(schema.metadata or {}),
+                                 **{k.encode(): v.encode() for k, v in extra.items()}})
+
+
 def write_dataset(frame: pd.DataFrame, kind: str, path: Path, metadata: dict) -> None:
     """Validate, then write Parquet with ``eskin.*`` metadata, atomically."""
     validate(frame, kind, where=str(path))
     table = pa.Table.from_pandas(frame[columns(kind)], schema=arrow_schema(kind),
                                  preserve_index=False)
-    extra = {f"eskin.{k}": json.dumps(v, sort_keys=True) for k, v in metadata.items()}
-    extra["eskin.schema_version"] = SCHEMA_VERSION
-    table = table.replace_schema_metadata({**(table.schema.metadata or {}),
-                                           **{k.encode(): v.encode() for k, v in extra.items()}})
+    table = table.replace_schema_metadata(with_metadata(table.schema, metadata).metadata)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     partial = path.with_suffix(path.suffix + ".partial")

@@ -1,14 +1,19 @@
-"""The host's serial link: pyserial underneath, the sans-I/O parser on top.
+"""The host's serial link: pyserial underneath, :class:`HostProtocol` on top.
 
 Opens any port name pyserial knows (``/dev/ttyACM0``, a pty path, or a URL
-such as ``socket://127.0.0.1:5000``) and turns requests into events. A board
-that falls silent longer than the timeout is an error naming the port,
-never a hang.
+such as ``socket://127.0.0.1:5000``). It only moves bytes, keeps deadlines
+and reopens; which frame answers which request is decided by the sans-I/O
+:class:`~eskin.device.host.HostProtocol`. Every wait has a deadline that
+only the request's own progress extends (a frame it is owed, its reply), so
+a board that trickles junk or floods frames without answering ends in an
+error naming the port, never a hang; and nothing the board sends is kept
+beyond one request's frames and a bounded sample of its junk.
 """
 
 from __future__ import annotations
 
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -16,9 +21,24 @@ import numpy as np
 import serial
 from serial.tools import list_ports
 
-from eskin.device.protocol import Event, Frame, FrameParser, Hello, ParseError, Reply, SequenceGap
+from eskin.device.host import (
+    Answered,
+    Greeted,
+    HostEvent,
+    HostProtocol,
+    Junk,
+    OtherBoard,
+    Refused,
+    Restarted,
+    SampleComplete,
+    SampleFrame,
+    Violation,
+)
+from eskin.device.protocol import Frame, Hello, ParseError
 
 BAUD = 115200
+READ_CHUNK = 4096          # bytes per read: what a flood can put in memory at once
+MAX_EVIDENCE_LINES = 64    # rejected lines kept per attempt (the rest only counted)
 
 
 class LinkError(RuntimeError):
@@ -34,7 +54,11 @@ class BoardReset(LinkError):
 
 
 class DeviceChanged(LinkError):
-    """Another board answered on the port after a reconnect."""
+    """Another board answered: a session never mixes two devices."""
+
+
+class ProtocolViolation(LinkError):
+    """The board answered a command out of turn; the next request is fenced."""
 
 
 @dataclass
@@ -44,26 +68,30 @@ class SampleBatch:
     requested: int
     frames: list[Frame] = field(default_factory=list)
     rejected: list[ParseError] = field(default_factory=list)
-    gaps: list[SequenceGap] = field(default_factory=list)
+    rejected_count: int = 0
+    violation: str | None = None
+
+    def reject(self, error: ParseError) -> None:
+        """Count a rejected line; keep the first few as evidence (bounded memory)."""
+        self.rejected_count += 1
+        if len(self.rejected) < MAX_EVIDENCE_LINES:
+            self.rejected.append(error)
 
     @property
     def problem(self) -> str | None:
         """Why this batch cannot be stored whole, or None if it can.
 
-        Whole means every requested frame, verified, in one unbroken sequence.
-        Rejected lines between such frames (line noise) are kept as evidence but
-        cost nothing: a damaged frame always shows as a gap or a short count.
+        Whole means the protocol object credited exactly the requested frames, in
+        one unbroken sequence, to this request. Rejected lines between such frames
+        (line noise) are kept as evidence but cost nothing: a damaged frame always
+        shows as a lost sequence number or a short count.
         """
-        rejected = (f" ({len(self.rejected)} line(s) rejected, first: "
+        rejected = (f" ({self.rejected_count} line(s) rejected, first: "
                     f"{self.rejected[0].reason})" if self.rejected else "")
-        if self.gaps:
-            return (f"frames lost: expected seq {self.gaps[0].expected}, "
-                    f"got {self.gaps[0].got}{rejected}")
+        if self.violation:
+            return f"{self.violation}{rejected}"
         if len(self.frames) != self.requested:
             return f"{len(self.frames)} of {self.requested} frames arrived{rejected}"
-        seqs = [f.seq for f in self.frames]
-        if any(b != a + 1 for a, b in zip(seqs, seqs[1:], strict=False)):
-            return f"frame sequence is not consecutive{rejected}"
         for a, b in zip(self.frames, self.frames[1:], strict=False):
             # Board time only grows (but for the 32-bit wrap after 49 days): a t_ms that
             # falls is a damaged frame whose CRC-8 matched by chance.
@@ -80,17 +108,21 @@ class SerialLink:
     port
         Device path or pyserial URL.
     timeout_s
-        Longest silence tolerated while waiting for an answer.
+        Longest wait for a request's next sign of progress: a frame it is owed
+        or its reply. Junk and frames nobody asked for do not count as progress.
     """
 
     def __init__(self, port: str, *, baud: int = BAUD, timeout_s: float = 5.0) -> None:
         self.port = port
         self.baud = baud
         self.timeout_s = timeout_s
+        self.protocol = HostProtocol()
+        self._pending: deque[HostEvent] = deque()
         self._serial = self._open()
-        self.parser = FrameParser()
-        self._pending: list[Event] = []
-        self.hello: Hello | None = None
+
+    @property
+    def hello(self) -> Hello | None:
+        return self.protocol.hello
 
     def _open(self) -> serial.SerialBase:
         try:
@@ -110,18 +142,20 @@ class SerialLink:
         """Close, then open and greet the board again, backing off between tries.
 
         The board that answers must be the one greeted before (same device id).
-        LinkError naming the port once ``budget_s`` has passed without success.
+        LinkError naming the port once ``budget_s`` has passed without success;
+        no try waits past the budget.
         """
-        expected = self.hello.device_id if self.hello else None
         self.close()
         started = time.monotonic()
         delay, tries = first_delay_s, 0
         while True:
             tries += 1
+            remaining = budget_s - (time.monotonic() - started)
             try:
                 self._serial = self._open()
-                hello = self.connect()
+                hello = self.connect(timeout_s=max(0.05, min(self.timeout_s, remaining)))
             except DeviceChanged:
+                self.close()
                 raise
             except LinkError as err:
                 self.close()
@@ -135,11 +169,6 @@ class SerialLink:
                 time.sleep(delay)
                 delay = min(2 * delay, max_delay_s)
                 continue
-            if expected is not None and hello.device_id != expected:
-                self.close()
-                raise DeviceChanged(f"another board answered on {self.port} after reconnecting "
-                                    f"(id {hello.device_id}, expected {expected}); stopping so "
-                                    "that one session never mixes two devices")
             if tries > 1:
                 notify(f"{self.port}: reconnected after {tries} tries "
                        f"({time.monotonic() - started:.1f} s)")
@@ -153,96 +182,167 @@ class SerialLink:
 
     # ------------------------------------------------------------ bytes
 
-    def send(self, command: str) -> None:
+    def _write(self, data: bytes, what: str) -> None:
         try:
-            self._serial.write(command.encode("ascii") + b"\n")
+            self._serial.write(data)
         except (serial.SerialException, OSError) as err:
-            raise LinkError(f"writing {command!r} to {self.port} failed: {err}") from err
+            raise LinkError(f"writing {what!r} to {self.port} failed: {err}") from err
 
-    def next_event(self) -> Event:
-        """The next event from the board; LinkError after ``timeout_s`` of silence."""
-        deadline = time.monotonic() + self.timeout_s
-        while not self._pending:
-            try:
-                data = self._serial.read(max(1, self._serial.in_waiting))
-            except (serial.SerialException, OSError) as err:
-                raise LinkError(f"reading from {self.port} failed: {err}") from err
-            if data:
-                self._pending.extend(self.parser.feed(data))
-                deadline = time.monotonic() + self.timeout_s
-            elif time.monotonic() > deadline:
-                raise LinkError(f"board on {self.port} silent for {self.timeout_s:g} s")
-        return self._pending.pop(0)
+    def _read(self) -> None:
+        """Read what the board sent (at most a chunk) into the queue of pending events."""
+        try:
+            data = self._serial.read(min(READ_CHUNK, max(1, self._serial.in_waiting)))
+        except (serial.SerialException, OSError) as err:
+            raise LinkError(f"reading from {self.port} failed: {err}") from err
+        if data:
+            self._pending.extend(self.protocol.receive(data))
+
+    def _drain(self) -> None:
+        """Take in what the board already sent, before a request: none of it is the
+        request's (it is stray, or junk, or news of a restart)."""
+        try:
+            waiting = self._serial.in_waiting
+        except (serial.SerialException, OSError) as err:
+            raise LinkError(f"{self.port} is gone: {err}") from err
+        while waiting > 0:
+            self._read()
+            waiting = max(0, waiting - READ_CHUNK)
+        while self._pending:  # events left over from the last request's read count too
+            self._raise_for_board(self._pending.popleft(), "before a request")
+
+    def _exchange(self, request: bytes, what: str,
+                  on_event: Callable[[HostEvent], bool], timeout_s: float | None = None) -> None:
+        """Send a request and feed events to ``on_event`` until it returns True.
+
+        ``on_event`` returns None for an event that is not progress; anything else
+        that is not True is progress (the deadline moves). The deadline passing,
+        the request is abandoned and LinkError names the port."""
+        timeout = self.timeout_s if timeout_s is None else timeout_s
+        self._write(request, what)
+        deadline = time.monotonic() + timeout
+        while True:
+            if not self._pending:
+                self._read()
+            # One event at a time: what follows the answer in the same read (a restart,
+            # say) stays queued for the next request to see.
+            while self._pending:
+                result = on_event(self._pending.popleft())
+                if result is True:
+                    return
+                if result is not None:
+                    deadline = time.monotonic() + timeout
+            if time.monotonic() > deadline:
+                self.protocol.abandon()
+                raise LinkError(f"board on {self.port} did not answer {what!r} within "
+                                f"{timeout:.2g} s")
+
+    def _raise_for_board(self, event: HostEvent, during: str) -> None:
+        if isinstance(event, OtherBoard):
+            raise DeviceChanged(
+                f"another board answered on {self.port} {during} (id {event.hello.device_id}, "
+                f"expected {event.expected}); stopping so that one session never mixes two "
+                "devices")
+        if isinstance(event, Restarted):
+            raise BoardReset(f"board on {self.port} restarted {during}")
 
     # ------------------------------------------------------------ requests
 
-    def connect(self) -> Hello:
+    def connect(self, *, timeout_s: float | None = None) -> Hello:
         """Discard stale bytes, greet the board and keep its #HELLO.
 
-        ``STREAM OFF`` follows the greeting as a fence: every ``#HELLO`` before
-        its ``#OK`` belongs to this connection (the board's power-up greeting may
-        arrive after the stale bytes were discarded), so one that comes later
-        can only mean the board restarted.
+        A board other than the one this link greeted before is DeviceChanged.
         """
         try:
             self._serial.reset_input_buffer()
         except (serial.SerialException, OSError) as err:
             raise LinkError(f"{self.port} is gone: {err}") from err
+        self.protocol.reset_link()
         self._pending.clear()
-        self.parser = FrameParser()
-        self.send("HELLO")
-        self.send("STREAM OFF")
-        hello = None
-        while True:
-            event = self.next_event()
-            if isinstance(event, Hello):
-                hello = event
-            elif isinstance(event, Reply) and event.command.upper() == "STREAM" and hello:
-                self.hello = hello
-                return hello
+        greeted: list[Hello] = []
 
-    def command(self, command: str) -> Reply:
+        def on_event(event: HostEvent) -> bool | None:
+            if isinstance(event, OtherBoard):
+                self._raise_for_board(event, "after reconnecting")
+            if isinstance(event, Greeted):
+                greeted.append(event.hello)
+                return True
+            if isinstance(event, Violation):
+                raise LinkError(f"board on {self.port} did not greet: {event.reason}")
+            return None
+
+        self._exchange(self.protocol.send_greeting(), "HELLO", on_event, timeout_s)
+        return greeted[0]
+
+    def fence(self) -> None:
+        """``STREAM OFF`` and its ``#OK``: the board has sent everything it owed."""
+        def on_event(event: HostEvent) -> bool | None:
+            self._raise_for_board(event, "during STREAM OFF")
+            if isinstance(event, Answered):
+                return True
+            if isinstance(event, Refused):
+                raise BoardRefused(f"board on {self.port} refused STREAM OFF: "
+                                   f"{event.reply.details}")
+            return None
+
+        self._exchange(self.protocol.send_fence(), "STREAM OFF", on_event)
+
+    def _prepare(self) -> None:
+        self._drain()
+        if self.protocol.needs_fence:
+            self.fence()
+
+    def command(self, command: str) -> None:
         """Send a command and wait for its #OK; #ERR becomes BoardRefused, a #HELLO
-        (the board restarted) BoardReset.
+        (the board restarted) BoardReset, another board DeviceChanged.
 
-        Frames arriving meanwhile (a board left streaming) are dropped: they
-        belong to no requested condition.
+        Frames arriving meanwhile (a board left streaming) are stray and dropped:
+        they belong to no requested condition.
         """
-        self.send(command)
-        name = command.split()[0].upper()
-        while True:
-            event = self.next_event()
-            if isinstance(event, Hello):
-                raise BoardReset(f"board on {self.port} restarted during {command!r}")
-            if isinstance(event, Reply) and event.command.upper() == name:
-                if not event.ok:
-                    raise BoardRefused(f"board on {self.port} refused {command!r}: "
-                                       f"{event.details}")
-                return event
+        self._prepare()
+
+        def on_event(event: HostEvent) -> bool | None:
+            self._raise_for_board(event, f"during {command!r}")
+            if isinstance(event, Answered):
+                return True
+            if isinstance(event, Refused):
+                raise BoardRefused(f"board on {self.port} refused {command!r}: "
+                                   f"{event.reply.details}")
+            if isinstance(event, Violation):
+                raise ProtocolViolation(f"board on {self.port} broke protocol during "
+                                        f"{command!r}: {event.reason}")
+            return None
+
+        self._exchange(self.protocol.send_command(command), command, on_event)
 
     def sample(self, batch: SampleBatch) -> SampleBatch:
-        """Request ``batch.requested`` frames and collect into ``batch`` all that come back,
-        good and bad, until #OK SAMPLE. Filled as they arrive, so whatever came before an
-        error or a Ctrl-C is in ``batch``."""
+        """Request ``batch.requested`` frames and collect into ``batch`` those the
+        protocol credits to this request, and the rejected lines as evidence. Filled
+        as they arrive, so whatever came before an error or a Ctrl-C is in ``batch``;
+        a protocol violation ends the request with ``batch.violation`` set."""
         n = batch.requested
-        self.parser.reset_sequence()
-        self.send(f"SAMPLE {n}")
-        while True:
-            event = self.next_event()
-            if isinstance(event, Hello):
-                raise BoardReset(f"board on {self.port} restarted during SAMPLE {n} "
-                                 f"({len(batch.frames)} frame(s) had arrived)")
-            if isinstance(event, Frame):
-                batch.frames.append(event)
-            elif isinstance(event, ParseError):
-                batch.rejected.append(event)
-            elif isinstance(event, SequenceGap):
-                batch.gaps.append(event)
-            elif isinstance(event, Reply) and event.command.upper() == "SAMPLE":
-                if not event.ok:
-                    raise BoardRefused(f"board on {self.port} refused SAMPLE {n}: "
-                                       f"{event.details}")
-                return batch
+        self._prepare()
+
+        def on_event(event: HostEvent) -> bool | None:
+            self._raise_for_board(event, f"during SAMPLE {n} ({len(batch.frames)} frame(s) "
+                                  "had arrived)")
+            if isinstance(event, SampleFrame):
+                batch.frames.append(event.frame)
+                return False
+            if isinstance(event, Junk):
+                batch.reject(event.error)
+                return None
+            if isinstance(event, SampleComplete):
+                return True
+            if isinstance(event, Violation):
+                batch.violation = event.reason
+                return True
+            if isinstance(event, Refused):
+                raise BoardRefused(f"board on {self.port} refused SAMPLE {n}: "
+                                   f"{event.reply.details}")
+            return None
+
+        self._exchange(self.protocol.send_sample(n), f"SAMPLE {n}", on_event)
+        return batch
 
 
 def jump_problem(batch: SampleBatch, max_jump_counts: float) -> str | None:

@@ -36,6 +36,9 @@ class CVResult:
     notes: dict[str, int] = field(default_factory=dict)  # fit remark → folds that made it
 
 
+LOKY_IDLE_S = 10
+
+
 def parallel_backend(name: str = "loky"):
     """The joblib backend folds run on, as a context manager.
 
@@ -60,6 +63,10 @@ def parallel_backend(name: str = "loky"):
             default_client()
         except ValueError:
             Client()  # DASK_SCHEDULER_ADDRESS, or a local cluster
+    if name == "loky":
+        # Idle workers exit after this long: a stage killed outright (SIGKILL) cannot stop
+        # its workers, and joblib's default would leave them alive for five minutes.
+        return parallel_config(backend=name, idle_worker_timeout=LOKY_IDLE_S)
     return parallel_config(backend=name)
 
 

@@ -1,0 +1,312 @@
+"""The host side of protocol v1 as a pure state machine (after h11).
+
+Bytes from the board go in through :meth:`HostProtocol.receive`; requests go
+out as the bytes :meth:`HostProtocol.send_command`, :meth:`~HostProtocol.send_sample`
+or :meth:`~HostProtocol.send_fence` return; what happened comes out as events.
+The object never touches a port or a clock: :class:`~eskin.device.link.SerialLink`
+moves the bytes, keeps the deadlines and reopens.
+
+The accounting of frames to requests lives here and only here:
+
+* one request is open at a time; it is numbered, and every frame it is
+  credited with is a :class:`SampleFrame` carrying that number;
+* a frame that arrives while no ``SAMPLE`` is open is :class:`Stray` (a board
+  left streaming, a late frame of an earlier request) and is never stored;
+* the sequence check runs across requests, never restarting but at a
+  ``#HELLO``: a replayed answer goes backwards and is a :class:`Violation`;
+* a ``SAMPLE n`` is :class:`SampleComplete` only with exactly n frames, in
+  one unbroken sequence, then ``#OK SAMPLE n``. An ``#OK`` before the n-th
+  frame, an n+1-th frame, a lost frame, a reply to another command: a
+  :class:`Violation`, and the request is closed, so everything the board
+  sends after it is stray until the next request;
+* a ``#HELLO`` from the board the session began with is :class:`Restarted`
+  (it forgot its state); from any other board it is :class:`OtherBoard`, and
+  nothing that board sends is ever credited to a request;
+* after a violation the next request should be preceded by a fence
+  (``STREAM OFF``, answered in order): what the board sent before its
+  ``#OK`` belongs to no request (:attr:`HostProtocol.needs_fence`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from eskin.device.protocol import Frame, FrameParser, Hello, ParseError, Reply, SequenceGap
+
+# A ParseError the frame parser raises for a frame whose seq did not advance.
+_BACKWARDS = "sequence went backwards"
+
+
+@dataclass(frozen=True)
+class Greeted:
+    """The board answered ``HELLO`` and the ``STREAM OFF`` fence after it."""
+
+    hello: Hello
+
+
+@dataclass(frozen=True)
+class Answered:
+    """``#OK`` for the open command (or fence)."""
+
+    request: int
+    reply: Reply
+
+
+@dataclass(frozen=True)
+class Refused:
+    """``#ERR`` for the open request: asking again will not help."""
+
+    request: int
+    reply: Reply
+
+
+@dataclass(frozen=True)
+class SampleFrame:
+    """Frame ``index`` (0-based) of the answer to ``SAMPLE`` request ``request``."""
+
+    request: int
+    index: int
+    frame: Frame
+
+
+@dataclass(frozen=True)
+class SampleComplete:
+    """Exactly the n frames asked for arrived, in sequence, then ``#OK SAMPLE n``."""
+
+    request: int
+    frames: int
+
+
+@dataclass(frozen=True)
+class Violation:
+    """The board broke the protocol for the open request, which is now closed."""
+
+    request: int
+    reason: str
+    line: bytes = field(default=b"", repr=False)
+
+
+@dataclass(frozen=True)
+class Restarted:
+    """The session's board said ``#HELLO`` unasked: it restarted and forgot its state."""
+
+    hello: Hello
+    request: int | None
+
+
+@dataclass(frozen=True)
+class OtherBoard:
+    """A ``#HELLO`` from a board other than the session's."""
+
+    hello: Hello
+    expected: str
+
+
+@dataclass(frozen=True)
+class Stray:
+    """A frame outside any ``SAMPLE`` request: counted, never stored."""
+
+    frame: Frame
+
+
+@dataclass(frozen=True)
+class Junk:
+    """A line that could not be trusted (bad CRC, torn, garbage)."""
+
+    error: ParseError
+
+
+HostEvent = (Greeted | Answered | Refused | SampleFrame | SampleComplete | Violation
+             | Restarted | OtherBoard | Stray | Junk)
+
+
+@dataclass
+class _Request:
+    number: int
+    kind: str          # "greet" | "command" | "fence" | "sample"
+    name: str          # the command word whose #OK closes it
+    text: str
+    n: int = 0         # SAMPLE: frames asked for
+    got: int = 0       # SAMPLE: frames credited
+
+
+class ProtocolStateError(RuntimeError):
+    """The host code asked for something out of order (a bug, not the board's fault)."""
+
+
+class HostProtocol:
+    """Host side of protocol v1: requests out, board bytes in, events out.
+
+    Parameters
+    ----------
+    device_id
+        The board the session began with. Once known (given here, or from
+        the first greeting), a ``#HELLO`` with another id is :class:`OtherBoard`.
+    """
+
+    def __init__(self, device_id: str | None = None) -> None:
+        self.device_id = device_id
+        self.hello: Hello | None = None
+        self.needs_fence = False
+        self.stray_frames = 0
+        self.junk_lines = 0
+        self._parser = FrameParser()
+        self._open: _Request | None = None
+        self._requests = 0
+        self._greet_hello: Hello | None = None
+
+    # ------------------------------------------------------------ requests
+
+    @property
+    def open_request(self) -> int | None:
+        return self._open.number if self._open else None
+
+    def send_greeting(self) -> bytes:
+        """``HELLO`` then the ``STREAM OFF`` fence: every ``#HELLO`` before the fence's
+        ``#OK`` belongs to this greeting (a power-up greeting may come late)."""
+        self._start("greet", "STREAM", "HELLO")
+        self._greet_hello = None
+        return b"HELLO\nSTREAM OFF\n"
+
+    def send_command(self, text: str) -> bytes:
+        """A command answered by ``#OK <word>`` (``STRETCH``, ``SIM ...``)."""
+        word = text.split()[0].upper()
+        if word in ("SAMPLE", "HELLO"):
+            raise ProtocolStateError(f"{word} has its own request method")
+        self._start("command", word, text)
+        return text.encode("ascii") + b"\n"
+
+    def send_fence(self) -> bytes:
+        """``STREAM OFF``: when its ``#OK`` arrives the board has sent all it owed."""
+        self._start("fence", "STREAM", "STREAM OFF")
+        return b"STREAM OFF\n"
+
+    def send_sample(self, n: int) -> bytes:
+        if n < 1:
+            raise ProtocolStateError(f"SAMPLE asks for at least one frame, not {n}")
+        request = self._start("sample", "SAMPLE", f"SAMPLE {n}")
+        request.n = n
+        return b"SAMPLE %d\n" % n
+
+    def abandon(self) -> None:
+        """Give up on the open request (its deadline passed, the port failed): what the
+        board sends for it later is stray, and the next request is fenced."""
+        if self._open is not None:
+            self._open = None
+            self.needs_fence = True
+
+    def reset_link(self) -> None:
+        """A new connection: partial lines and the sequence are forgotten."""
+        self._parser = FrameParser()
+        self._open = None
+
+    def _start(self, kind: str, name: str, text: str) -> _Request:
+        if self._open is not None:
+            raise ProtocolStateError(f"{text!r} sent while {self._open.text!r} is open")
+        self._requests += 1
+        self._open = _Request(self._requests, kind, name, text)
+        if kind in ("fence", "greet"):
+            self.needs_fence = False
+        return self._open
+
+    # ------------------------------------------------------------ board bytes
+
+    def receive(self, data: bytes) -> list[HostEvent]:
+        events: list[HostEvent] = []
+        for event in self._parser.feed(data):
+            self._handle(event, events)
+        return events
+
+    def _handle(self, event, events: list[HostEvent]) -> None:
+        request = self._open
+        if isinstance(event, Hello):
+            self._hello(event, events)
+        elif isinstance(event, Frame):
+            if request is None or request.kind != "sample":
+                self.stray_frames += 1
+                events.append(Stray(event))
+            elif request.got == request.n:
+                self._violate(events, f"more than the {request.n} frames asked for "
+                              f"(seq {event.seq})", event.line)
+            else:
+                events.append(SampleFrame(request.number, request.got, event))
+                request.got += 1
+        elif isinstance(event, SequenceGap):
+            if request is not None and request.kind == "sample":
+                self._violate(events, f"frames lost: expected seq {event.expected}, "
+                              f"got {event.got}")
+        elif isinstance(event, ParseError):
+            if (event.reason.startswith(_BACKWARDS) and request is not None
+                    and request.kind == "sample"):
+                self._violate(events, f"{event.reason} (a replayed or stale frame)",
+                              event.line)
+            else:
+                self.junk_lines += 1
+                events.append(Junk(event))
+        elif isinstance(event, Reply):
+            self._reply(event, events)
+
+    def _hello(self, hello: Hello, events: list[HostEvent]) -> None:
+        request = self._open
+        known = self.device_id
+        if known is not None and hello.device_id != known:
+            self._open = None
+            self.needs_fence = True
+            events.append(OtherBoard(hello, known))
+            return
+        if request is not None and request.kind == "greet":
+            self._greet_hello = hello
+            return
+        # Unasked: the board restarted. The open request is lost with its state.
+        self._open = None
+        self.needs_fence = True
+        self.hello = hello
+        events.append(Restarted(hello, request.number if request else None))
+
+    def _reply(self, reply: Reply, events: list[HostEvent]) -> None:
+        request = self._open
+        command = reply.command.upper()
+        if request is None:
+            return  # a late answer to a request already given up on: nothing to credit
+        if request.kind in ("greet", "fence"):
+            # A fence absorbs everything the board owed before it; only its own #OK ends it.
+            if command == "STREAM" and reply.ok and reply.details.strip().upper() in ("", "OFF"):
+                self._open = None
+                if request.kind == "fence":
+                    events.append(Answered(request.number, reply))
+                elif self._greet_hello is None:
+                    self._violate(events, "answered STREAM OFF without a #HELLO", reply.line,
+                                  request)
+                else:
+                    hello = self._greet_hello
+                    if self.device_id is None:
+                        self.device_id = hello.device_id
+                    self.hello = hello
+                    events.append(Greeted(hello))
+            return
+        if command != request.name:
+            self._violate(events, f"a reply to {command} while waiting for {request.text!r}",
+                          reply.line)
+            return
+        self._open = None
+        if not reply.ok:
+            events.append(Refused(request.number, reply))
+            return
+        if request.kind != "sample":
+            events.append(Answered(request.number, reply))
+            return
+        if reply.details.strip() != str(request.n):
+            self._violate(events, f"#OK SAMPLE {reply.details.strip()!r} answered "
+                          f"SAMPLE {request.n}", reply.line, request)
+        elif request.got != request.n:
+            self._violate(events, f"#OK SAMPLE after {request.got} of {request.n} frames",
+                          reply.line, request)
+        else:
+            events.append(SampleComplete(request.number, request.got))
+
+    def _violate(self, events: list[HostEvent], reason: str, line: bytes = b"",
+                 request: _Request | None = None) -> None:
+        request = request or self._open
+        self._open = None
+        self.needs_fence = True
+        events.append(Violation(request.number if request else 0, reason, line))

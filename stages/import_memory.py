@@ -1,0 +1,23 @@
+"""DVC stage of `make bench`: peak memory of importing large CSVs (eskin/memory_bench.py)."""
+
+import json
+import sys
+from pathlib import Path
+
+from eskin.cli import run_friendly
+from eskin.config import load_params, section
+from eskin.memory_bench import import_memory, markdown
+
+REPORT = Path("reports")
+
+
+def main() -> int:
+    results = import_memory([int(n) for n in section(load_params(), "bench.import_rows")])
+    (REPORT / "import_memory.json").write_text(json.dumps(results, indent=2) + "\n")
+    (REPORT / "import_memory.md").write_text(markdown(results))
+    print(markdown(results))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(run_friendly(main))

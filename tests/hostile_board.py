@@ -1,0 +1,250 @@
+"""An independent protocol-v1 board that misbehaves on cue, for the host's tests.
+
+Written from the README's protocol text alone: it imports nothing from
+``eskin`` (its own CRC-8, its own frame encoding, its own command parser), so
+the host is tested against a counterpart that does not share its mistakes.
+It speaks the simulated-board extension too (``SIM CLEAR``, ``SIM TRIAL n``,
+``SIM PRESS x y N``), so readings are a function of the trial, the stretch,
+the presses and the sample index: a condition asked again reads the same,
+and a run with misbehaviours can be compared row by row with an honest one.
+
+Misbehaviours, each at the ``at``-th ``SAMPLE`` request (1-based):
+
+* ``other_board``: half-way through the answer, another board's ``#HELLO``;
+  from then on that board answers (its own id, its sequence from 0);
+* ``replay``: the previous answer's lines again before the right one;
+* ``early_ok``: ``#OK SAMPLE n`` before the n-th frame;
+* ``extra_frame``: n + 1 frames, then ``#OK``;
+* ``restart_after_ok``: a whole answer, then at once a restart (stretch and
+  presses forgotten, its ``#HELLO``);
+* ``trickle``: from then on, one junk byte every 100 ms and no answer;
+* ``flood``: from then on, frames as fast as the line takes them, no answer.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import select
+import socket
+import threading
+import time
+import tty
+
+TERMINALS = 20
+
+
+def crc8(data: bytes) -> int:
+    crc = 0
+    for byte in data:
+        crc ^= byte
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x07) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
+    return crc
+
+
+def frame_line(seq: int, t_ms: int, counts: list[int]) -> bytes:
+    body = (f"D,{seq},{t_ms}," + ",".join(str(c) for c in counts)).encode()
+    return body + b"*" + (f"{crc8(body):02X}").encode() + b"\n"
+
+
+class HostileBoard:
+    def __init__(self, *, device_id: str = "hostile-0001", misbehaviour: str | None = None,
+                 at: int = 50) -> None:
+        self.device_id = device_id
+        self.misbehaviour = misbehaviour
+        self.at = at
+        self.samples_asked = 0
+        self.seq = 0
+        self.t_ms = 0
+        self.stretch_mm = "0"
+        self.trial = 0
+        self.presses: list[tuple[str, str, str]] = []
+        self.index = 0               # sample index within the trial
+        self.last_answer = b""
+        self.hijacked = False        # another board has taken over the line
+        self.gone_wild = False       # trickle / flood: never answers again
+        self._inbox = b""
+
+    # ---------------------------------------------------------------- readings
+
+    def counts(self, other: bool) -> list[int]:
+        if other:
+            return [777] * TERMINALS
+        key = f"{self.trial}|{self.stretch_mm}|{sorted(self.presses)}|{self.index}"
+        digest = hashlib.sha256(key.encode()).digest()
+        pressed = {int(x) for x, _, _ in self.presses} | {10 + int(y) for _, y, _ in self.presses}
+        return [500 + 7 * t + digest[t] % 9 + (120 if t + 1 in pressed else 0)
+                for t in range(TERMINALS)]
+
+    def frame(self) -> bytes:
+        line = frame_line(self.seq, self.t_ms, self.counts(self.hijacked))
+        self.seq += 1
+        self.t_ms += 12
+        self.index += 1
+        return line
+
+    def hello(self) -> bytes:
+        who = "OTHER-9999" if self.hijacked else self.device_id
+        return f"#HELLO eskin hostile-1.0 terminals=20 adc_bits=10 id={who}\n".encode()
+
+    # ---------------------------------------------------------------- commands
+
+    def handle(self, line: bytes) -> bytes:
+        words = line.decode("ascii", "replace").split()
+        if not words or self.gone_wild:
+            return b""
+        name = words[0].upper()
+        if name == "HELLO":
+            return self.hello()
+        if name == "STREAM":
+            return f"#OK STREAM {words[1].upper()}\n".encode()
+        if name == "STRETCH":
+            self.stretch_mm = words[1]
+            self.t_ms += 500
+            return f"#OK STRETCH {words[1]}\n".encode()
+        if name == "SIM" and len(words) >= 2:
+            sub = words[1].upper()
+            if sub == "CLEAR":
+                self.presses = []
+            elif sub == "TRIAL":
+                self.trial, self.index = int(words[2]), 0
+            elif sub == "PRESS":
+                self.presses.append((words[2], words[3], words[4]))
+            return f"#OK SIM {sub}\n".encode()
+        if name == "SAMPLE":
+            return self.sample(int(words[1]))
+        return f"#ERR {name} unknown command\n".encode()
+
+    def sample(self, n: int) -> bytes:
+        self.samples_asked += 1
+        cue = self.misbehaviour if self.samples_asked == self.at else None
+        ok = b"#OK SAMPLE %d\n" % n
+        if cue in ("trickle", "flood"):
+            self.gone_wild = True
+            return b""
+        if cue == "other_board":
+            first = b"".join(self.frame() for _ in range(n // 2))
+            self.hijacked, self.seq = True, 0
+            rest = b"".join(self.frame() for _ in range(n - n // 2))
+            return first + self.hello() + rest + ok
+        frames = [self.frame() for _ in range(n)]
+        answer = b"".join(frames) + ok
+        if cue == "replay":
+            out = self.last_answer + answer
+        elif cue == "early_ok":
+            out = b"".join(frames[:-1]) + ok + frames[-1]
+        elif cue == "extra_frame":
+            out = b"".join(frames) + self.frame() + ok
+        elif cue == "restart_after_ok":  # in the same write as the answer: one read
+            self.stretch_mm, self.presses, self.trial, self.seq = "0", [], 0, 0
+            out = answer + self.hello()
+        else:
+            out = answer
+        self.last_answer = answer
+        return out
+
+    def received(self, data: bytes) -> bytes:
+        self._inbox += data
+        out = b""
+        while b"\n" in self._inbox:
+            line, self._inbox = self._inbox.split(b"\n", 1)
+            out += self.handle(line.strip())
+        return out
+
+    def wild(self) -> tuple[bytes, float]:
+        """What a board gone wild sends next, and the pause after it."""
+        if self.misbehaviour == "trickle":
+            return b"~", 0.1
+        return b"".join(self.frame() for _ in range(20)), 0.0
+
+
+class Served:
+    """A :class:`HostileBoard` on a pty or a loopback socket, in a thread."""
+
+    def __init__(self, board: HostileBoard, transport: str = "pty") -> None:
+        self.board = board
+        self._stop = threading.Event()
+        if transport == "pty":
+            self._master, slave = os.openpty()
+            tty.setraw(slave)
+            self.port = os.ttyname(slave)
+            self._slave = slave
+            self._thread = threading.Thread(target=self._serve_pty, daemon=True)
+        else:
+            self._listener = socket.create_server(("127.0.0.1", 0))
+            self.port = f"socket://127.0.0.1:{self._listener.getsockname()[1]}"
+            self._thread = threading.Thread(target=self._serve_socket, daemon=True)
+        self._thread.start()
+
+    def _pump(self, read, write, readable) -> None:
+        pending = b""
+        while not self._stop.is_set():
+            if self.board.gone_wild and not pending:
+                pending, pause = self.board.wild()
+                if pause:
+                    time.sleep(pause)
+            ready_r, ready_w, _ = select.select([readable], [readable] if pending else [], [],
+                                                0.05)
+            if ready_r:
+                data = read()
+                if data is None:
+                    return
+                pending += self.board.received(data)
+            if ready_w and pending:
+                try:
+                    sent = write(pending)
+                except (BlockingIOError, InterruptedError):
+                    sent = 0
+                except OSError:
+                    return
+                pending = pending[sent:]
+
+    def _serve_pty(self) -> None:
+        os.set_blocking(self._master, False)
+
+        def read():
+            try:
+                return os.read(self._master, 4096)
+            except BlockingIOError:
+                return b""
+            except OSError:
+                return b""  # no reader on the slave side just now (between opens)
+
+        self._pump(read, lambda data: os.write(self._master, data), self._master)
+
+    def _serve_socket(self) -> None:
+        self._listener.settimeout(0.1)
+        while not self._stop.is_set():
+            try:
+                conn, _ = self._listener.accept()
+            except TimeoutError:
+                continue
+            conn.setblocking(False)
+
+            def read(conn=conn):
+                try:
+                    data = conn.recv(4096)
+                except BlockingIOError:
+                    return b""
+                except OSError:
+                    return None
+                return data if data else None
+
+            with conn:
+                self._pump(read, conn.send, conn)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+        if hasattr(self, "_master"):
+            os.close(self._master)
+            os.close(self._slave)
+        else:
+            self._listener.close()
+
+    def __enter__(self) -> Served:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

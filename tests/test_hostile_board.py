@@ -1,0 +1,317 @@
+"""Hostile boards, operators and configs (issue 18): each finding, kept as a test.
+
+The board is ``tests/hostile_board.py``, an independent implementation of
+protocol v1 that imports nothing from eskin. Every case ends in the clean
+dataset (row by row equal to an honest run's) or in a one-line error, exit
+code 1, within the timeout and reconnect budget.
+"""
+
+import copy
+import os
+import resource
+import signal
+import subprocess
+import sys
+import time
+
+import pandas as pd
+import pytest
+from conftest import eskin, small_scenes, write_params
+from hostile_board import HostileBoard, Served, frame_line
+
+from eskin.acquisition.rawlog import MAGIC, read_log
+from eskin.acquisition.runner import AcquisitionError, SimulatedPlacer
+from eskin.acquisition.session import run_session
+from eskin.config import scene_plan
+from eskin.data.ingest import ingest_log
+from eskin.data.schema import CHANNELS, LABELS
+from eskin.device.host import (
+    Greeted,
+    HostProtocol,
+    OtherBoard,
+    Restarted,
+    SampleComplete,
+    SampleFrame,
+    Stray,
+    Violation,
+)
+
+CONTENT = ["trial", "sample", *CHANNELS, *LABELS["single_force"]]
+TIMEOUT_S, RECONNECT_S = 0.5, 2.0
+
+
+def hostile_params(repo_params):
+    params = small_scenes(repo_params)
+    params["acquire"].update(timeout_s=TIMEOUT_S, reconnect_s=RECONNECT_S)
+    return params
+
+
+def acquire_from(board, tmp_path, params, transport="pty"):
+    plan = scene_plan(params, "single_force")
+    with Served(board, transport) as served:
+        report = run_session(plan, tmp_path, port=served.port, placer=SimulatedPlacer(),
+                             rest_length_mm=101.0, simulator=None, timeout_s=TIMEOUT_S,
+                             reconnect_s=RECONNECT_S, progress=False)
+    return report, plan
+
+
+@pytest.fixture(scope="module")
+def honest(tmp_path_factory, repo_params):
+    params = hostile_params(repo_params)
+    root = tmp_path_factory.mktemp("honest")
+    _, plan = acquire_from(HostileBoard(), root, params)
+    return params, ingest_log(root / "acquisition.log", plan).frame
+
+
+# ---------------------------------------------------------------- the state machine alone
+
+def greeted(device="b1"):
+    host = HostProtocol()
+    host.send_greeting()
+    events = host.receive(f"#HELLO eskin fw terminals=20 adc_bits=10 id={device}\n"
+                          "#OK STREAM OFF\n".encode())
+    assert isinstance(events[-1], Greeted)
+    return host
+
+
+def frames(first, n):
+    return b"".join(frame_line(first + i, 12 * (first + i), [500] * 20) for i in range(n))
+
+
+def test_protocol_credits_exactly_n_frames_then_ok_to_the_request():
+    host = greeted()
+    host.send_sample(3)
+    events = host.receive(frames(0, 3) + b"#OK SAMPLE 3\n")
+    assert [type(e) for e in events] == [SampleFrame] * 3 + [SampleComplete]
+    assert {e.request for e in events} == {2}
+
+
+def test_protocol_sequence_runs_across_requests_so_a_replay_is_a_violation():
+    host = greeted()
+    host.send_sample(3)
+    host.receive(frames(0, 3) + b"#OK SAMPLE 3\n")
+    host.send_sample(3)
+    events = host.receive(frames(0, 3) + frames(3, 3) + b"#OK SAMPLE 3\n")
+    assert isinstance(events[0], Violation) and "backwards" in events[0].reason
+    assert not any(isinstance(e, SampleFrame) for e in events), "nothing credited"
+    assert host.needs_fence
+
+
+def test_protocol_early_ok_and_extra_frame_are_violations():
+    host = greeted()
+    host.send_sample(3)
+    events = host.receive(frames(0, 2) + b"#OK SAMPLE 3\n" + frames(2, 1))
+    assert isinstance(events[2], Violation) and "after 2 of 3" in events[2].reason
+    assert isinstance(events[3], Stray), "the late frame belongs to no request"
+    host.send_fence()
+    host.receive(b"#OK STREAM OFF\n")
+    host.send_sample(3)
+    events = host.receive(frames(3, 4) + b"#OK SAMPLE 3\n")
+    assert isinstance(events[3], Violation) and "more than the 3" in events[3].reason
+
+
+def test_protocol_frames_outside_a_request_are_stray_and_a_wrong_count_is_a_violation():
+    host = greeted()
+    assert all(isinstance(e, Stray) for e in host.receive(frames(0, 5)))
+    host.send_sample(2)
+    events = host.receive(frames(5, 2) + b"#OK SAMPLE 3\n")
+    assert isinstance(events[-1], Violation)
+
+
+def test_protocol_tells_a_restart_from_another_board():
+    host = greeted("b1")
+    host.send_sample(4)
+    events = host.receive(frames(0, 2) + b"#HELLO eskin fw terminals=20 adc_bits=10 id=b1\n")
+    assert isinstance(events[-1], Restarted)
+    host.send_sample(4)
+    events = host.receive(frames(0, 1) + b"#HELLO eskin fw terminals=20 adc_bits=10 id=b2\n"
+                          + frames(0, 3) + b"#OK SAMPLE 4\n")
+    assert isinstance(events[1], OtherBoard) and events[1].expected == "b1"
+    assert [type(e) for e in events[2:]] == [Stray] * 3, "nothing of b2 is credited"
+
+
+# ---------------------------------------------------------------- findings 1-3, end to end
+
+@pytest.mark.parametrize("transport", ["pty", "socket"])
+@pytest.mark.parametrize("misbehaviour", ["replay", "early_ok", "extra_frame",
+                                          "restart_after_ok"])
+def test_a_board_that_answers_out_of_turn_still_gives_the_clean_dataset(
+        honest, tmp_path, misbehaviour, transport):
+    params, clean = honest
+    report, plan = acquire_from(HostileBoard(misbehaviour=misbehaviour), tmp_path, params,
+                                transport)
+    assert report.retries + report.resets >= 1, report.summary()
+    frame = ingest_log(tmp_path / "acquisition.log", plan).frame
+    pd.testing.assert_frame_equal(frame[CONTENT], clean[CONTENT])
+
+
+@pytest.mark.parametrize("transport", ["pty", "socket"])
+def test_another_board_mid_request_stops_and_none_of_its_frames_is_stored(
+        honest, tmp_path, transport):
+    params, clean = honest
+    with pytest.raises(AcquisitionError, match="another board answered .*id OTHER-9999, "
+                       "expected hostile-0001"):
+        acquire_from(HostileBoard(misbehaviour="other_board", at=50), tmp_path, params,
+                     transport)
+    contents = read_log(tmp_path / "acquisition.log")
+    assert len(contents.completed) == 49
+    stored = {key: [f.counts for f in a.frames] for key, a in contents.completed.items()}
+    for key, rows in stored.items():
+        assert all(777 not in counts for counts in rows)
+        expected = clean[clean["trial"] == key][CHANNELS].to_numpy().tolist()
+        assert [list(map(float, r)) for r in rows] == expected
+
+
+def run_cli_against(board, root, params, transport="pty"):
+    params = copy.deepcopy(params)
+    with Served(board, transport) as served:
+        params["acquire"].update(source="serial", port=served.port, indenters="board")
+        write_params(root, params)
+        started = time.monotonic()
+        result = eskin(["acquire", "single_force", "--no-progress"], root)
+        return result, time.monotonic() - started
+
+
+@pytest.mark.parametrize("misbehaviour", ["trickle", "flood"])
+def test_a_board_that_never_answers_ends_within_the_budget_in_bounded_memory(
+        honest, tmp_path, misbehaviour):
+    params, _ = honest
+    before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+    result, seconds = run_cli_against(HostileBoard(misbehaviour=misbehaviour, at=30),
+                                      tmp_path, params)
+    peak_mb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+    assert result.returncode == 1, result.stderr
+    lines = [line for line in result.stderr.splitlines() if line.startswith("eskin: error")]
+    assert len(lines) == 1 and "lost the board" in lines[0] and "Traceback" not in result.stderr
+    # Each wait is bounded: the request's timeout, then the reconnect budget (+ start-up).
+    assert seconds < 2 * TIMEOUT_S + RECONNECT_S + 8, seconds
+    assert before == 0 or peak_mb < 400, f"{peak_mb:.0f} MB"
+    contents = read_log(tmp_path / "data" / "raw" / "single_force" / "acquisition.log")
+    assert len(contents.completed) == 29, "what arrived before is kept"
+
+
+# ---------------------------------------------------------------- findings 4-6
+
+def test_a_kill_at_the_first_prompt_leaves_a_log_the_next_run_continues(tmp_path,
+                                                                       repo_params):
+    params = hostile_params(repo_params)
+    with Served(HostileBoard()) as served:
+        params["acquire"].update(source="serial", port=served.port, indenters="person")
+        write_params(tmp_path, params)
+        child = subprocess.Popen([sys.executable, "-m", "eskin", "acquire", "single_force",
+                                  "--no-progress"], cwd=tmp_path, stdin=subprocess.PIPE,
+                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        seen = b""
+        deadline = time.monotonic() + 60
+        while b"press Enter" not in seen and time.monotonic() < deadline:
+            seen += os.read(child.stdout.fileno(), 1024)
+        assert b"press Enter" in seen
+        child.send_signal(signal.SIGKILL)
+        child.wait(timeout=10)
+        log = tmp_path / "data" / "raw" / "single_force" / "acquisition.log"
+        assert not log.exists() or log.read_text().startswith(MAGIC)
+        params["acquire"]["indenters"] = "board"
+        write_params(tmp_path, params)
+        again = eskin(["acquire", "single_force", "--no-progress"], tmp_path)
+    assert again.returncode == 0, again.stderr
+    assert log.read_text().startswith(MAGIC + "\n")
+    assert eskin(["ingest", "single_force"], tmp_path).returncode == 0
+
+
+def test_an_empty_or_headerless_log_from_an_earlier_version_is_continued(honest, tmp_path):
+    params, clean = honest
+    plan = scene_plan(params, "single_force")
+    log = tmp_path / "acquisition.log"
+    log.write_bytes(b"")
+    acquire_from(HostileBoard(), tmp_path, params)
+    assert log.read_text().startswith(MAGIC + "\n")
+    log.write_text(log.read_text().removeprefix(MAGIC + "\n"))  # as eskin 0.1.0 left it
+    assert read_log(log).headerless
+    grown = copy.deepcopy(params)
+    grown["scenes"]["single_force"]["stretches"].append(1.15842)
+    report, grown_plan = acquire_from(HostileBoard(), tmp_path, grown)
+    assert (report.acquired, report.reused) == (202, 404)
+    assert log.read_text().startswith(MAGIC + "\n") and not read_log(log).headerless
+    frame = ingest_log(log, plan).frame
+    pd.testing.assert_frame_equal(frame[CONTENT], clean[CONTENT])
+
+
+def test_more_samples_per_condition_acquires_them_and_fewer_reuses(honest, tmp_path):
+    params, clean = honest
+    acquire_from(HostileBoard(), tmp_path, params)
+    more = copy.deepcopy(params)
+    more["scenes"]["single_force"]["samples"] = 6
+    report, plan = acquire_from(HostileBoard(), tmp_path, more)
+    assert (report.acquired, report.reused) == (404, 0), report.summary()
+    frame = ingest_log(tmp_path / "acquisition.log", plan).frame
+    assert len(frame) == 404 * 6
+    again, _ = acquire_from(HostileBoard(), tmp_path, more)
+    assert (again.acquired, again.reused) == (0, 404)
+    fewer, plan = acquire_from(HostileBoard(), tmp_path, params)
+    assert (fewer.acquired, fewer.reused) == (0, 404)
+    assert len(ingest_log(tmp_path / "acquisition.log", plan).frame) == 404 * 5
+
+
+@pytest.mark.parametrize("encoding", ["utf-8", "ascii"])
+def test_operator_input_closed_is_one_line_and_ascii_terminals_work(tmp_path, repo_params,
+                                                                    encoding):
+    params = hostile_params(repo_params)
+    with Served(HostileBoard()) as served:
+        params["acquire"].update(source="serial", port=served.port, indenters="person")
+        write_params(tmp_path, params)
+        result = eskin(["acquire", "single_force", "--no-progress"], tmp_path,
+                       stdin=subprocess.DEVNULL,
+                       env={**os.environ, "PYTHONIOENCODING": encoding})
+    assert result.returncode == 1 and "Traceback" not in result.stderr, result.stderr
+    assert result.stderr.count("\n") == 1 and "operator input closed" in result.stderr
+    if encoding == "ascii":
+        assert "stretch=1" in result.stdout  # the prompt, readable without λ
+
+
+# ---------------------------------------------------------------- finding 7: params.yaml
+
+MISTAKES = {
+    "folds: \"ten\"": (("cv", "folds"), "ten", "cv.folds = 'ten': Input should be a valid integer"),
+    "folds: 2.5": (("cv", "folds"), 2.5, "cv.folds = 2.5: Input should be a valid integer"),
+    "samples: 2.7": (("scenes", "single_force", "samples"), 2.7, "samples = 2.7"),
+    "forces: 1.0": (("scenes", "single_force", "forces"), 1.0, "valid list"),
+    "forces: []": (("scenes", "single_force", "forces"), [], "at least 1 item"),
+    "forces: [nan]": (("scenes", "single_force", "forces"), [float("nan")], "finite number"),
+    "reconnect_s: -5": (("acquire", "reconnect_s"), -5, "greater than or equal to 0"),
+    "max_attempts: 0": (("acquire", "max_attempts"), 0, "greater than or equal to 1"),
+    "sim.noise_pf missing": (("sim", "noise_pf"), None, "sim.noise_pf is missing (required)"),
+    "unknown key": (("acquire", "prot"), 1, "acquire.prot: unknown key"),
+    "model with no entry": (("train", "single_force", "force", "model"), "nope",
+                            "train.single_force.force: model 'nope' has no hyperparameter"),
+}
+
+
+@pytest.mark.parametrize("mistake", sorted(MISTAKES))
+def test_a_params_mistake_is_one_line_naming_the_key(tmp_path, repo_params, mistake):
+    path, value, expected = MISTAKES[mistake]
+    params = copy.deepcopy(repo_params)
+    node = params
+    for part in path[:-1]:
+        node = node[part]
+    if value is None:
+        del node[path[-1]]
+    else:
+        node[path[-1]] = value
+    write_params(tmp_path, params)
+    result = eskin(["ingest", "single_force"], tmp_path)
+    assert result.returncode == 1 and "Traceback" not in result.stderr
+    assert result.stderr.count("\n") == 1 and expected in result.stderr, result.stderr
+
+
+def test_invalid_yaml_and_a_directory_import_path_are_one_line(tmp_path, repo_params):
+    (tmp_path / "params.yaml").write_text("cv:\n  folds: [1\n")
+    result = eskin(["ingest", "single_force"], tmp_path)
+    assert result.returncode == 1 and result.stderr.startswith(
+        "eskin: error: params.yaml:3:1: not valid YAML"), result.stderr
+    params = copy.deepcopy(repo_params)
+    params["acquire"]["source"] = "import"
+    params["scenes"]["single_force"]["import_path"] = str(tmp_path)
+    write_params(tmp_path, params)
+    result = eskin(["acquire", "single_force"], tmp_path)
+    assert result.returncode == 1 and "Traceback" not in result.stderr
+    assert "is a directory" in result.stderr and "import_path" in result.stderr, result.stderr
