@@ -131,38 +131,21 @@ class CV(_Section):
 
 
 class TaskModels(BaseModel):
-    """``model: <name>`` and, beside it, each candidate's hyperparameters by name."""
+    """``model: <name>`` and, beside it, candidates' hyperparameters by name (a model
+    with no entry takes its defaults: ``-S train.<scene>.<task>.model=<name>``). The
+    name itself is checked against the registry by the train step, which imports it."""
 
     model_config = ConfigDict(extra="allow", strict=True)
     model: str
-
-    @model_validator(mode="after")
-    def _named_entry(self) -> TaskModels:
-        extra = self.model_extra or {}
-        for name, hyper in extra.items():
-            if not isinstance(hyper, dict):
-                raise ValueError(f"{name}: hyperparameters must be a mapping, got {hyper!r}")
-        if self.model not in extra:
-            raise ValueError(f"model {self.model!r} has no hyperparameter entry beside it; "
-                             f"entries: {sorted(extra)}")
-        return self
+    __pydantic_extra__: dict[str, dict[str, Any]]
 
 
 class Train(BaseModel):
+    """``configuration``, then ``<scene>: {<task>: TaskModels}``."""
+
     model_config = ConfigDict(extra="allow", strict=True)
     configuration: Literal["tuned", "paper"]
-
-    @model_validator(mode="after")
-    def _tasks(self) -> Train:
-        for scene, tasks in (self.model_extra or {}).items():
-            if not isinstance(tasks, dict):
-                raise ValueError(f"{scene}: expected a mapping of tasks, got {tasks!r}")
-            for task, models in tasks.items():
-                try:
-                    TaskModels.model_validate(models)
-                except ValidationError as err:
-                    raise ValueError(f"{scene}.{task}: {_first_message(err)}") from None
-        return self
+    __pydantic_extra__: dict[str, dict[str, TaskModels]]
 
 
 class Report(_Section):
@@ -219,13 +202,6 @@ class Params(_Section):
     stress: Stress | None = None
 
 
-def _first_message(err: ValidationError) -> str:
-    first = err.errors()[0]
-    where = ".".join(str(part) for part in first["loc"])
-    message = first["msg"].removeprefix("Value error, ")
-    return f"{where}: {message}" if where else message
-
-
 def _describe(error: dict) -> str:
     """One pydantic error as ``key = value: what is allowed``."""
     loc = [str(part) for part in error["loc"]]
@@ -236,9 +212,8 @@ def _describe(error: dict) -> str:
     if error["type"] == "extra_forbidden":
         return f"{key}: unknown key (a typo?)"
     value = error.get("input")
-    if isinstance(value, Mapping):  # a whole section's rule: the message says which key
-        return f"{key}.{message}" if error["type"] == "value_error" and ": " in message \
-            and message.split(":")[0].count(".") else f"{key}: {message}"
+    if isinstance(value, Mapping):  # a rule on a whole section: its message says what
+        return f"{key}: {message}"
     return f"{key} = {value!r}: {message}" if key else message
 
 

@@ -232,14 +232,14 @@ def load_runs(experiment: str | None = None) -> pd.DataFrame:
 
     from eskin import tracking
 
-    tracking.connect()
+    client = tracking.connect()
     name = experiment or tracking.EXPERIMENT
     experiment_ = mlflow.get_experiment_by_name(name)
     if experiment_ is None:
         raise NoRunsError(f"no MLflow experiment {name!r} at {tracking.tracking_uri()}: "
                           "run `dvc repro` first (or set MLFLOW_TRACKING_URI)")
     # A run a killed stage left RUNNING is shown as what it is: FAILED.
-    tracking.settle_stale_runs(tracking.connect(), [experiment_.experiment_id])
+    tracking.settle_stale_runs(client, [experiment_.experiment_id])
     return mlflow.search_runs(experiment_names=[name], output_format="pandas")
 
 

@@ -14,6 +14,9 @@ Misbehaviours, each at the ``at``-th ``SAMPLE`` request (1-based):
   from then on that board answers (its own id, its sequence from 0);
 * ``replay``: the previous answer's lines again before the right one;
 * ``early_ok``: ``#OK SAMPLE n`` before the n-th frame;
+* ``lagging``: from then on, ``#OK SAMPLE n`` before the n-th frame, which
+  it holds back and sends first in its next answer (every answer n frames
+  long, each shifted by one);
 * ``extra_frame``: n + 1 frames, then ``#OK``;
 * ``restart_after_ok``: a whole answer, then at once a restart (stretch and
   presses forgotten, its ``#HELLO``);
@@ -64,6 +67,7 @@ class HostileBoard:
         self.last_answer = b""
         self.hijacked = False        # another board has taken over the line
         self.gone_wild = False       # trickle / flood: never answers again
+        self.held = b""              # lagging: the frame held back for the next answer
         self._inbox = b""
 
     # ---------------------------------------------------------------- readings
@@ -128,6 +132,11 @@ class HostileBoard:
             self.hijacked, self.seq = True, 0
             rest = b"".join(self.frame() for _ in range(n - n // 2))
             return first + self.hello() + rest + ok
+        if self.misbehaviour == "lagging" and self.samples_asked >= self.at:
+            frames = [self.frame() for _ in range(n)]
+            out = self.held + b"".join(frames[:-1]) + ok
+            self.held = frames[-1]
+            return out
         frames = [self.frame() for _ in range(n)]
         answer = b"".join(frames) + ok
         if cue == "replay":

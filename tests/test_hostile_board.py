@@ -110,6 +110,18 @@ def test_protocol_early_ok_and_extra_frame_are_violations():
     assert isinstance(events[3], Violation) and "more than the 3" in events[3].reason
 
 
+def test_protocol_a_frame_owed_after_an_early_ok_is_never_the_next_answers():
+    host = greeted()
+    host.send_sample(3)
+    host.receive(frames(0, 2) + b"#OK SAMPLE 3\n")
+    host.send_fence()
+    host.receive(b"#OK STREAM OFF\n")
+    host.send_sample(3)
+    events = host.receive(frames(2, 3) + b"#OK SAMPLE 3\n")
+    assert isinstance(events[0], Stray), "seq 2 is owed to the first request"
+    assert isinstance(events[-1], Violation) and "after 2 of 3" in events[-1].reason
+
+
 def test_protocol_frames_outside_a_request_are_stray_and_a_wrong_count_is_a_violation():
     host = greeted()
     assert all(isinstance(e, Stray) for e in host.receive(frames(0, 5)))
@@ -188,6 +200,20 @@ def test_a_board_that_never_answers_ends_within_the_budget_in_bounded_memory(
     assert before == 0 or peak_mb < 400, f"{peak_mb:.0f} MB"
     contents = read_log(tmp_path / "data" / "raw" / "single_force" / "acquisition.log")
     assert len(contents.completed) == 29, "what arrived before is kept"
+
+
+@pytest.mark.parametrize("transport", ["pty", "socket"])
+def test_a_board_that_lags_by_a_frame_is_given_up_on_never_stored_shifted(
+        honest, tmp_path, transport):
+    """The early #OK of finding 2, kept up: each answer n frames long, shifted by one."""
+    params, clean = honest
+    with pytest.raises(AcquisitionError, match="failed 5 times .*#OK SAMPLE after 4 of 5"):
+        acquire_from(HostileBoard(misbehaviour="lagging", at=50), tmp_path, params, transport)
+    contents = read_log(tmp_path / "acquisition.log")
+    assert len(contents.completed) == 49
+    for key, attempt in contents.completed.items():
+        expected = clean[clean["trial"] == key][CHANNELS].to_numpy().tolist()
+        assert [list(map(float, f.counts)) for f in attempt.frames] == expected
 
 
 # ---------------------------------------------------------------- findings 4-6
@@ -281,8 +307,9 @@ MISTAKES = {
     "max_attempts: 0": (("acquire", "max_attempts"), 0, "greater than or equal to 1"),
     "sim.noise_pf missing": (("sim", "noise_pf"), None, "sim.noise_pf is missing (required)"),
     "unknown key": (("acquire", "prot"), 1, "acquire.prot: unknown key"),
-    "model with no entry": (("train", "single_force", "force", "model"), "nope",
-                            "train.single_force.force: model 'nope' has no hyperparameter"),
+    "hyperparameters not a mapping": (("train", "single_force", "force", "paper"), 3,
+                                      "train.single_force.force.paper = 3: Input should be "
+                                      "a valid dictionary"),
 }
 
 

@@ -11,11 +11,11 @@ One text file per scene, one record per line, fields separated by tabs::
     X <attempt> <reason>           attempt abandoned (it will be asked again)
 
 Every frame line is kept as it arrived, the rejected ones too (the first
-few of each attempt; the rest are counted in its ``X`` reason), so the log
-is the evidence. Only attempts closed by ``E`` count. After a crash the last
-line may be torn; reading ignores it and reopening for append cuts it off, so
-a restart resumes at the first incomplete condition and loses nothing that
-was flushed.
+64 of each attempt: a board that floods junk cannot fill the disk; the
+acquisition summary counts them all), so the log is the evidence. Only
+attempts closed by ``E`` count. After a crash the last line may be torn;
+reading ignores it and reopening for append cuts it off, so a restart
+resumes at the first incomplete condition and loses nothing that was flushed.
 
 The file comes into being with its header, atomically (written aside, then
 renamed), when the first attempt begins: an interruption before that leaves
@@ -172,9 +172,8 @@ class RawLogWriter:
         if contents is None:
             # A new log (or a 0-byte one): header written aside and renamed into place.
             _replace_atomically(self.path, MAGIC + "\n")
-        else:
-            if contents.headerless:
-                _replace_atomically(self.path, MAGIC + "\n" + self.path.read_text("ascii"))
+        elif contents.headerless:
+            _replace_atomically(self.path, MAGIC + "\n" + self.path.read_text("ascii"))
         return self.path.open("a", encoding="ascii", newline="\n")
 
     def _write(self, *fields: object) -> None:

@@ -79,10 +79,9 @@ def import_to_dataset(path: Path, kind: str, out: Path, *, bad_rows: str = "erro
     layout = _layout(path, kind)
     digest = sha256_file(path)
     # Pass 1: reasons and row hashes; copies found by sorting the hashes.
-    hashes, hash_lines, bad_count, first_bad = [], [], 0, None
-    hash_lines_count: list[np.ndarray] = []
+    hashes, hash_lines, bad_count, first_bad, rows_in_file = [], [], 0, None, 0
     for chunk in _judged_chunks(path, layout, {}):
-        hash_lines_count.append(chunk.lines)
+        rows_in_file += len(chunk.lines)
         bad = chunk.reasons != ""
         bad_count += int(bad.sum())
         if first_bad is None and bad.any():
@@ -102,7 +101,6 @@ def import_to_dataset(path: Path, kind: str, out: Path, *, bad_rows: str = "erro
         raise DatasetError(f"{path}:{first_bad[0]}: {first_bad[1]} ({bad_count} bad "
                            "row(s) in all). Set ingest.bad_rows: quarantine to set them aside.")
     # Pass 2: write, the provenance in the footer from the start.
-    rows_in_file = sum(len(lines) for lines in hash_lines_count)
     metadata = {"scene": scene or kind, "kind": kind, "plan": None,
                 "device": None, "simulator": None,
                 "source": {"kind": "import", "path": str(path), "sha256": digest,
@@ -169,18 +167,24 @@ class _TrialCounter:
 
     def __init__(self, session: str, labels: list[str]) -> None:
         self.session, self.labels = session, labels
-        self.trial, self.sample, self.last = -1, 0, None
+        self.trial, self.sample, self.last = -1, 0, None  # carried from chunk to chunk
 
     def label(self, good: pd.DataFrame) -> tuple[list[str], np.ndarray]:
         values = good[self.labels].to_numpy(dtype=float)
-        trial_of, sample_of = np.empty(len(values), np.int64), np.empty(len(values), np.int64)
-        for i, row in enumerate(values):  # a Python loop per row: cheap next to csv parsing
-            if self.last is None or not np.array_equal(row, self.last):
-                self.trial, self.sample, self.last = self.trial + 1, 0, row
-            trial_of[i], sample_of[i] = self.trial, self.sample
-            self.sample += 1
+        if not len(values):
+            return [], np.empty(0, np.int64)
+        before = values[:1] * np.nan if self.last is None else self.last[None, :]
+        starts = (values != np.vstack([before, values[:-1]])).any(axis=1)  # a new trial
+        trial_of = self.trial + np.cumsum(starts)
+        index = np.arange(len(values))
+        # Samples count from the last trial start; a trial running on from the last
+        # chunk counts on from where it was.
+        last_start = np.maximum.accumulate(np.where(starts, index, -1))
+        sample_of = np.where(last_start >= 0, index - last_start, self.sample + index)
+        self.trial, self.last = int(trial_of[-1]), values[-1]
+        self.sample = int(sample_of[-1]) + 1
         names = [f"{self.session}-t{t:05d}" for t in trial_of]
-        return names, sample_of
+        return names, sample_of.astype(np.int64)
 
 
 def _copies(hashes: np.ndarray, lines: np.ndarray) -> dict[int, int]:
@@ -232,10 +236,9 @@ def _layout(path: Path, kind: str) -> _Layout:
         lengths = [len(r) for r in data]
         width = max(set(lengths), key=lengths.count)  # the file's width: most rows agree
         layout = _Layout(kind, False, width, [], dialect, header)
-        if header:
-            layout.labels = _labels(kind, width, path)
-            _check_header(path, (1, complete[0]), CHANNELS + layout.labels)
     layout.labels = _labels(kind, layout.width, path)
+    if layout.has_header:
+        _check_header(path, (1, complete[0]), CHANNELS + layout.labels)
     return layout
 
 

@@ -22,6 +22,10 @@ The accounting of frames to requests lives here and only here:
 * a ``#HELLO`` from the board the session began with is :class:`Restarted`
   (it forgot its state); from any other board it is :class:`OtherBoard`, and
   nothing that board sends is ever credited to a request;
+* an ``#OK SAMPLE n`` after fewer than n frames leaves the missing sequence
+  numbers owed to that request: a frame carrying one of them later is stray,
+  never the first frame of the next answer (a board that lags by a frame
+  would otherwise shift every later sample by one);
 * after a violation the next request should be preceded by a fence
   (``STREAM OFF``, answered in order): what the board sent before its
   ``#OK`` belongs to no request (:attr:`HostProtocol.needs_fence`).
@@ -154,6 +158,8 @@ class HostProtocol:
         self._open: _Request | None = None
         self._requests = 0
         self._greet_hello: Hello | None = None
+        self._last_seq: int | None = None   # of the last frame seen, any request
+        self._owed_up_to: int | None = None  # seqs an early #OK left owed to its request
 
     # ------------------------------------------------------------ requests
 
@@ -199,6 +205,7 @@ class HostProtocol:
         """A new connection: partial lines and the sequence are forgotten."""
         self._parser = FrameParser()
         self._open = None
+        self._last_seq = self._owed_up_to = None
 
     def _start(self, kind: str, name: str, text: str) -> _Request:
         if self._open is not None:
@@ -222,7 +229,11 @@ class HostProtocol:
         if isinstance(event, Hello):
             self._hello(event, events)
         elif isinstance(event, Frame):
-            if request is None or request.kind != "sample":
+            self._last_seq = event.seq
+            owed = self._owed_up_to is not None and event.seq <= self._owed_up_to
+            if request is None or request.kind != "sample" or owed:
+                # An owed frame answers the request whose #OK came too early: it is
+                # never credited to a later one, however continuous its seq.
                 self.stray_frames += 1
                 events.append(Stray(event))
             elif request.got == request.n:
@@ -248,6 +259,7 @@ class HostProtocol:
 
     def _hello(self, hello: Hello, events: list[HostEvent]) -> None:
         request = self._open
+        self._last_seq = self._owed_up_to = None  # the board's sequence starts again
         known = self.device_id
         if known is not None and hello.device_id != known:
             self._open = None
@@ -299,6 +311,8 @@ class HostProtocol:
             self._violate(events, f"#OK SAMPLE {reply.details.strip()!r} answered "
                           f"SAMPLE {request.n}", reply.line, request)
         elif request.got != request.n:
+            if self._last_seq is not None:
+                self._owed_up_to = self._last_seq + request.n - request.got
             self._violate(events, f"#OK SAMPLE after {request.got} of {request.n} frames",
                           reply.line, request)
         else:

@@ -210,13 +210,14 @@ class SerialLink:
         while self._pending:  # events left over from the last request's read count too
             self._raise_for_board(self._pending.popleft(), "before a request")
 
-    def _exchange(self, request: bytes, what: str,
-                  on_event: Callable[[HostEvent], bool], timeout_s: float | None = None) -> None:
+    def _exchange(self, request: bytes, what: str, on_event: Callable[[HostEvent], bool | None],
+                  timeout_s: float | None = None) -> None:
         """Send a request and feed events to ``on_event`` until it returns True.
 
         ``on_event`` returns None for an event that is not progress; anything else
-        that is not True is progress (the deadline moves). The deadline passing,
-        the request is abandoned and LinkError names the port."""
+        that is not True is progress (the deadline moves). An ``#ERR`` for the
+        request is BoardRefused. The deadline passing, the request is abandoned and
+        LinkError names the port."""
         timeout = self.timeout_s if timeout_s is None else timeout_s
         self._write(request, what)
         deadline = time.monotonic() + timeout
@@ -226,7 +227,11 @@ class SerialLink:
             # One event at a time: what follows the answer in the same read (a restart,
             # say) stays queued for the next request to see.
             while self._pending:
-                result = on_event(self._pending.popleft())
+                event = self._pending.popleft()
+                if isinstance(event, Refused):  # #ERR: asking again will not help
+                    raise BoardRefused(f"board on {self.port} refused {what!r}: "
+                                       f"{event.reply.details}")
+                result = on_event(event)
                 if result is True:
                     return
                 if result is not None:
@@ -279,9 +284,6 @@ class SerialLink:
             self._raise_for_board(event, "during STREAM OFF")
             if isinstance(event, Answered):
                 return True
-            if isinstance(event, Refused):
-                raise BoardRefused(f"board on {self.port} refused STREAM OFF: "
-                                   f"{event.reply.details}")
             return None
 
         self._exchange(self.protocol.send_fence(), "STREAM OFF", on_event)
@@ -304,9 +306,6 @@ class SerialLink:
             self._raise_for_board(event, f"during {command!r}")
             if isinstance(event, Answered):
                 return True
-            if isinstance(event, Refused):
-                raise BoardRefused(f"board on {self.port} refused {command!r}: "
-                                   f"{event.reply.details}")
             if isinstance(event, Violation):
                 raise ProtocolViolation(f"board on {self.port} broke protocol during "
                                         f"{command!r}: {event.reason}")
@@ -336,9 +335,6 @@ class SerialLink:
             if isinstance(event, Violation):
                 batch.violation = event.reason
                 return True
-            if isinstance(event, Refused):
-                raise BoardRefused(f"board on {self.port} refused SAMPLE {n}: "
-                                   f"{event.reply.details}")
             return None
 
         self._exchange(self.protocol.send_sample(n), f"SAMPLE {n}", on_event)
