@@ -323,7 +323,7 @@ def _raw_chunks(path: Path, layout: _Layout):
 
 
 def _cells(rows: list[list[str]], numbers: list[int], width: int):
-    cells = pd.DataFrame([(r + [""] * width)[:width] for r in rows]).replace("", np.nan)
+    cells = pd.DataFrame([(r + [""] * width)[:width] for r in rows])  # "" converts to NaN
     reasons = np.array(["" if len(r) == width else
                         f"row has {len(r)} columns, expected {width}{_layout_hint(len(r))}"
                         for r in rows], dtype=object)
@@ -337,18 +337,23 @@ def _judged_chunks(path: Path, layout: _Layout, copies: dict[int, int]):
             raise DatasetError(f"{path}: {cells.shape[1]} columns, expected {layout.width}")
         frame = cells.set_axis(names, axis=1)
         numeric = frame.apply(pd.to_numeric, errors="coerce").astype(float)
-        # Text where a number belongs (empty and "nan" are NaN, judged below).
-        blank = _blank(frame.to_numpy(dtype=object)).astype(bool)
-        text = first_reason([(numeric[c].isna().to_numpy() & ~blank[:, j],
-                              f"{c} is not a number") for j, c in enumerate(names)],
-                            frame.index).to_numpy()
+        # Text where a number belongs (empty and "nan" are NaN, judged below); only the
+        # cells that did not convert are looked at, one by one.
+        missing = numeric[names].isna().to_numpy()
+        text_cell = np.zeros_like(missing)
+        if missing.any():
+            rows, cols = np.nonzero(missing)
+            text_cell[rows, cols] = ~_blank(frame.to_numpy(dtype=object)[rows, cols]
+                                            ).astype(bool)
+        text = first_reason([(text_cell[:, j], f"{c} is not a number")
+                             for j, c in enumerate(names)], frame.index).to_numpy()
         reasons = np.where(reasons == "", text, reasons)
         if "stretch" not in numeric:
             numeric["stretch"] = 1.0
         more = row_problems(numeric, kind).to_numpy()
         reasons = np.where(reasons == "", more, reasons)
-        for i in np.flatnonzero(reasons == ""):
-            if int(lines[i]) in copies:
+        if copies:
+            for i in np.flatnonzero(np.isin(lines, list(copies)) & (reasons == "")):
                 reasons[i] = f"duplicate of line {copies[int(lines[i])]} (every column equal)"
         hashes = pd.util.hash_pandas_object(numeric[names], index=False).to_numpy()
         yield _Chunk(cells, numeric, lines, reasons.astype(object), hashes)
