@@ -275,7 +275,7 @@ def default_variant(params: Mapping[str, Any], task_name: str,
     from eskin.config import section
     from eskin.models import model_settings
 
-    model, hyper = model_settings(section(params, f"train.single_force.{task_name}"),
+    model, hyper = model_settings(section(params, f"train.{task_name}"),
                                   section(params, "train.configuration"))
     for name, spec in variants.items():
         if variant_settings(spec) == (model, hyper, False):

@@ -4,30 +4,14 @@ can fix, the traceback only with ``--debug``."""
 from __future__ import annotations
 
 import argparse
-import json
 import logging
-import signal
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 
 from eskin import __version__
-
-RAW_DIR = Path("data/raw")
-PROCESSED_DIR = Path("data/processed")
-FEATURES_DIR = Path("data/features")
-MODELS_DIR = Path("models")
-METRICS_DIR = Path("reports/metrics")
-PREDICTIONS_DIR = Path("reports/predictions")
-LINEAGE_DIR = Path("reports/lineage")
-
-
-def task_outputs(scene: str, task: str) -> dict[str, Path]:
-    """Where one task's outputs go (the paths dvc.yaml declares)."""
-    return {"metrics_path": METRICS_DIR / scene / f"{task}.json",
-            "predictions_path": PREDICTIONS_DIR / scene / f"{task}.parquet",
-            "model_path": MODELS_DIR / scene / f"{task}.joblib",
-            "lineage_path": LINEAGE_DIR / scene / f"{task}.json"}
+from eskin.catalog import FEATURES_DIR, MODELS_DIR, PROCESSED_DIR, RAW_DIR, task_outputs
+from eskin.errors import run_friendly
 
 
 def _ports(args: argparse.Namespace) -> int:
@@ -42,38 +26,17 @@ def _ports(args: argparse.Namespace) -> int:
 
 
 def _simulate(args: argparse.Namespace) -> int:
-    from eskin.config import load_params, section, skin_params
-    from eskin.device.board import SimulatedBoard
-    from eskin.device.faults import FaultyLine, LinkFaults
-    from eskin.device.physics import SkinParams
-    from eskin.device.simulate import announce_stdout, serve_pty, serve_socket
+    from eskin.config import load_params, section
+    from eskin.device.simulate import serve_config
 
-    if args.config_json:
-        config = json.loads(args.config_json)
-        sim = SkinParams.from_mapping(config["sim"])
-        rest, period = config["rest_length_mm"], config["frame_period_ms"]
-        corrupt, faults = config["corrupt_fraction"], config.get("faults")
-    else:
-        params = load_params(args.params)
-        sim, rest = skin_params(params), section(params, "acquire.rest_length_mm")
-        corrupt = section(params, "sim_board.corrupt_fraction")
-        period = section(params, "sim_board.frame_period_ms")
-        faults = params["sim_board"].get("faults")
-    if args.corrupt is not None:
-        corrupt = args.corrupt
-
-    def power_on() -> SimulatedBoard:  # again after every injected reset
-        return SimulatedBoard(sim, rest_length_mm=rest, corrupt_fraction=corrupt,
-                              frame_period_ms=period)
-
-    line = FaultyLine(power_on, LinkFaults.from_mapping(faults))
-    try:
-        if args.socket is not None:
-            serve_socket(line, args.socket, announce_stdout)
-        else:
-            serve_pty(line, announce_stdout, link=args.link)
-    except KeyboardInterrupt:
-        pass
+    params = load_params(args.params)
+    config = {"sim": section(params, "sim"),
+              "rest_length_mm": section(params, "acquire.rest_length_mm"),
+              "corrupt_fraction": section(params, "sim_board.corrupt_fraction")
+              if args.corrupt is None else args.corrupt,
+              "frame_period_ms": section(params, "sim_board.frame_period_ms"),
+              "faults": section(params, "sim_board.faults")}
+    serve_config(config, socket_port=args.socket, link=args.link)
     return 0
 
 
@@ -99,7 +62,6 @@ def build_parser() -> argparse.ArgumentParser:
     simulate.add_argument("--link", type=Path, metavar="PATH",
                           help="also a symlink at PATH that follows the pty (needed for "
                           "vanish faults: the pty is replaced when the link comes back)")
-    simulate.add_argument("--config-json", help=argparse.SUPPRESS)
     simulate.set_defaults(run=_simulate)
 
     for name, helptext in (("acquire", "acquire a scene into data/raw/<scene>/ (resumes)"),
@@ -109,8 +71,8 @@ def build_parser() -> argparse.ArgumentParser:
         sub.add_argument("--params", type=Path, default=Path("params.yaml"))
         if name == "acquire":
             sub.add_argument("--source", choices=["simulated", "serial", "import"],
-                             help="override acquire.source")
-            sub.add_argument("--port", help="override acquire.port (serial source)")
+                             help="override scenes.<scene>.source")
+            sub.add_argument("--port", help="override scenes.<scene>.port (serial source)")
             sub.add_argument("--no-progress", action="store_true")
         sub.set_defaults(run=_pipeline_step)
 
@@ -214,10 +176,11 @@ def _reproduce(args: argparse.Namespace) -> int:
 def _learning_step(args: argparse.Namespace) -> int:
     from eskin import learn
     from eskin.config import load_params
+    from eskin.features import featurize_scene
 
     params = load_params(args.params)
     if args.command == "featurize":
-        print(learn.featurize(params, args.scene, PROCESSED_DIR, FEATURES_DIR, MODELS_DIR))
+        print(featurize_scene(params, args.scene, PROCESSED_DIR, FEATURES_DIR, MODELS_DIR))
     else:
         print(learn.train(params, args.scene, args.task, FEATURES_DIR,
                           params_text=Path(args.params).read_text(), track=not args.no_track,
@@ -227,18 +190,20 @@ def _learning_step(args: argparse.Namespace) -> int:
 
 def _pipeline_step(args: argparse.Namespace) -> int:
     from eskin import steps
-    from eskin.config import load_params
+    from eskin.config import load_params, section
+    from eskin.data import build
 
     params = load_params(args.params)
     if args.command == "acquire":
+        scene = section(params, f"scenes.{args.scene}")
         if args.source:
-            params["acquire"]["source"] = args.source
+            scene["source"] = args.source
         if args.port:
-            params["acquire"]["port"] = args.port
+            scene["port"] = args.port
         print(steps.acquire(params, args.scene, RAW_DIR / args.scene,
                             progress=not args.no_progress))
     else:
-        print(steps.ingest(params, args.scene, RAW_DIR / args.scene, PROCESSED_DIR))
+        print(build.ingest(params, args.scene, RAW_DIR / args.scene, PROCESSED_DIR))
     return 0
 
 
@@ -247,36 +212,3 @@ def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(level=logging.DEBUG if args.debug else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
     return run_friendly(lambda: args.run(args), debug=args.debug)
-
-
-def _terminated(signum, frame) -> None:
-    raise SystemExit(128 + signum)
-
-
-def run_friendly(call, *, debug: bool = False) -> int:
-    """Run ``call``; turn the errors a user can act on into one line and exit code 1."""
-    from eskin.acquisition.rawlog import RawLogError
-    from eskin.acquisition.runner import AcquisitionError
-    from eskin.data.schema import DatasetError
-    from eskin.device.link import LinkError
-    from eskin.experiments import NoRunsError
-
-    # SIGTERM (`dvc queue kill`, a supervisor) unwinds like an exception: an open MLflow
-    # run is closed as FAILED, worker processes are shut down, the raw log is flushed.
-    signal.signal(signal.SIGTERM, _terminated)
-    for stream in (sys.stdout, sys.stderr):  # an ASCII-only terminal: escape, never crash
-        if hasattr(stream, "reconfigure"):
-            stream.reconfigure(errors="backslashreplace")
-    try:
-        return call() or 0
-    except KeyboardInterrupt:
-        print("eskin: interrupted; everything received so far is on disk, rerun to resume",
-              file=sys.stderr)
-        return 130
-    except (DatasetError, LinkError, AcquisitionError, RawLogError, NoRunsError, ValueError,
-            KeyError, FileNotFoundError) as err:
-        if debug:
-            raise
-        message = err.args[0] if isinstance(err, KeyError) and err.args else err
-        print(f"eskin: error: {message}", file=sys.stderr)
-        return 1

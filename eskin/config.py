@@ -19,12 +19,14 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, create_model, model_validator
 
 from eskin.acquisition.plan import ScenePlan, plan_from_params
+from eskin.catalog import KINDS, SCHEMES, TASK_NAMES
 from eskin.device.physics import SkinParams
+from eskin.errors import EskinError
 
 DEFAULT_PARAMS = Path("params.yaml")
 
 
-class ParamsError(ValueError):
+class ParamsError(EskinError, ValueError):
     """params.yaml cannot be used as written; the message names the key."""
 
 
@@ -40,7 +42,7 @@ Positive = Annotated[float, Field(gt=0)]
 NonNegative = Annotated[float, Field(ge=0)]
 Count = Annotated[int, Field(ge=1)]
 Seed = Annotated[int, Field(ge=0)]
-Scheme = Literal["stratified", "grouped"]
+Scheme = Literal[SCHEMES]  # type: ignore[valid-type]
 Backend = Literal["loky", "threading", "sequential", "dask", "ray"]
 Jobs = Annotated[int, Field(ge=-1)]
 
@@ -71,8 +73,8 @@ class SimBoard(_Section):
 
 
 class Acquire(_Section):
-    source: Literal["simulated", "serial", "import"]
-    port: str | None
+    """How every scene is acquired; where each scene's data comes from is its own."""
+
     indenters: Literal["person", "board"] = "person"
     rest_length_mm: Positive
     timeout_s: Positive
@@ -94,14 +96,30 @@ class Fuzz(_Section):
     examples: Count
 
 
+Source = Literal["simulated", "serial", "import"]
+# A scene name becomes a DVC stage name (acquire@<scene>, train@<scene>-<task>), a
+# directory and an MLflow tag: letters, digits and underscores, starting with a letter.
+SCENE_NAME = r"^[A-Za-z][A-Za-z0-9_]*$"
+
+
 class Scene(_Section):
-    kind: Literal["single_force", "two_force"]
+    kind: Literal[KINDS]  # type: ignore[valid-type]
+    source: Source               # simulated (the built-in skin) | serial (a board) | import
+    port: str | None = None      # serial: /dev/ttyACM0, socket://127.0.0.1:5000, ...
+    import_path: str | None = None  # import: a CSV or Parquet file in the paper's layout
     stretches: Annotated[list[Annotated[float, Field(ge=1)]], Field(min_length=1)]
     forces: Annotated[list[NonNegative], Field(min_length=1)]
     samples: Count
     nodes_x: list[Annotated[int, Field(ge=1, le=10)]] | None = None
     nodes_y: list[Annotated[int, Field(ge=1, le=10)]] | None = None
-    import_path: str | None = None
+
+    @model_validator(mode="after")
+    def _source_fields(self) -> Scene:
+        if self.source == "import" and not self.import_path:
+            raise ValueError("source is 'import' but import_path is unset")
+        if self.source == "serial" and not self.port:
+            raise ValueError("source is 'serial' but port is unset")
+        return self
 
     @model_validator(mode="after")
     def _kind_fields(self) -> Scene:
@@ -131,21 +149,21 @@ class CV(_Section):
 
 
 class TaskModels(BaseModel):
-    """``model: <name>`` and, beside it, candidates' hyperparameters by name (a model
-    with no entry takes its defaults: ``-S train.<scene>.<task>.model=<name>``). The
-    name itself is checked against the registry by the train step, which imports it."""
+    """``model: <name>`` (or a name per kind of scene) and, beside it, candidates'
+    hyperparameters by name (a model with no entry takes its defaults:
+    ``-S train.<task>.model=<name>``). The name itself is checked against the registry
+    by the train step, which imports it."""
 
     model_config = ConfigDict(extra="allow", strict=True)
-    model: str
+    model: str | dict[Literal[KINDS], str]  # type: ignore[valid-type]
     __pydantic_extra__: dict[str, dict[str, Any]]
 
 
-class Train(BaseModel):
-    """``configuration``, then ``<scene>: {<task>: TaskModels}``."""
-
-    model_config = ConfigDict(extra="allow", strict=True)
-    configuration: Literal["tuned", "paper"]
-    __pydantic_extra__: dict[str, dict[str, TaskModels]]
+# train: ``configuration``, then one TaskModels per task, shared by every scene (the
+# stage of scene s and task t reads train.configuration and train.<t>).
+Train = create_model(
+    "Train", __base__=_Section, configuration=(Literal["tuned", "paper"], ...),
+    **{name: (TaskModels, ...) for name in TASK_NAMES})
 
 
 class Report(_Section):
@@ -189,11 +207,12 @@ class Params(_Section):
     sim: _SimSection  # type: ignore[valid-type]
     sim_board: SimBoard
     acquire: Acquire
-    scenes: Annotated[dict[str, Scene], Field(min_length=1)]
+    scenes: Annotated[dict[Annotated[str, Field(pattern=SCENE_NAME)], Scene],
+                      Field(min_length=1)]
     ingest: Ingest
     featurize: Featurize
     cv: CV
-    train: Train
+    train: Train  # type: ignore[valid-type]
     report: Report
     # make bench / make stress only: a lab's params file may leave them out.
     soak: Soak | None = None
@@ -205,6 +224,9 @@ class Params(_Section):
 def _describe(error: dict) -> str:
     """One pydantic error as ``key = value: what is allowed``."""
     loc = [str(part) for part in error["loc"]]
+    if loc[-1:] == ["[key]"]:  # a mapping's key: only scene names are checked
+        return (f"{'.'.join(loc[:-2])}: {loc[-2]!r} is not a valid scene name (letters, "
+                "digits and _, starting with a letter: it names DVC stages and directories)")
     key = ".".join(loc)
     message = error["msg"].removeprefix("Value error, ")
     if error["type"] == "missing":

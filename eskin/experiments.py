@@ -21,17 +21,17 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from eskin.catalog import HEADLINE_METRIC, SCORED_TASKS, model_path, processed_path
 from eskin.data.schema import md5_file
+from eskin.errors import EskinError
 
 TASK_KINDS = ("task", "scores")
 # The score that stands for a target in a table, by what the target is.
-HEADLINE_SCORES = ("r2", "accuracy")
-SCENE_ORDER = {"single_force": 0, "two_force": 1}
-TASK_ORDER = {t: i for i, t in enumerate(
-    ("stretch", "force", "detect", "localise", "force1", "force2", "pairs"))}
+HEADLINE_SCORES = tuple(dict.fromkeys(HEADLINE_METRIC.values()))
+TASK_ORDER = {t: i for i, t in enumerate(SCORED_TASKS)}
 
 
-class NoRunsError(LookupError):
+class NoRunsError(EskinError, LookupError):
     """The tracking store holds nothing to compare or audit."""
 
 
@@ -82,13 +82,13 @@ def _metric_label(column: str, scheme: str) -> str:
     return f"{target} {'R²' if score == 'r2' else 'acc'}"
 
 
-def _metric_order(children: pd.DataFrame, column: str) -> tuple[int, int, str, str]:
+def _metric_order(children: pd.DataFrame, column: str) -> tuple[str, int, str, str]:
     has = children[children[column].notna()]
     scene = _tag(has, "eskin.scene").iloc[0] if len(has) else ""
     task = _tag(has, "eskin.task").iloc[0] if len(has) else ""
     target = column.split(".")[-2]
     contact = target[-1] if target[-1].isdigit() else ""  # x1, y1, then x2, y2
-    return SCENE_ORDER.get(scene, 9), TASK_ORDER.get(task, 9), contact, column
+    return scene, TASK_ORDER.get(task, 9), contact, column
 
 
 def run_seconds(runs: pd.DataFrame) -> pd.Series:
@@ -132,8 +132,15 @@ def variant_table(runs: pd.DataFrame, scheme: str = "grouped", *,
     if last:
         pipelines = pipelines.tail(last)
     latest = latest[latest["_parent"].isin(set(pipelines["run_id"]))]
-    metric_columns = sorted(headline_columns(latest, scheme),
-                            key=lambda c: _metric_order(latest, c))
+    # (scene, metric) pairs: two scenes of a kind log the same metric names. A label is
+    # prefixed with its scene only where another scene has the same label.
+    scored = sorted({(scene, column) for column in headline_columns(latest, scheme)
+                     for scene in latest.loc[latest[column].notna(), "_scene"].unique()},
+                    key=lambda sc: (sc[0], _metric_order(latest, sc[1])[1:]))
+    labels = [_metric_label(column, scheme) for _, column in scored]
+    shared = {label for label in labels if labels.count(label) > 1}
+    labels = [f"{scene}: {label}" if label in shared else label
+              for (scene, _), label in zip(scored, labels, strict=True)]
     param_columns = differing_params(pipelines)
     rows = []
     for _, pipeline in pipelines.iterrows():
@@ -146,9 +153,9 @@ def variant_table(runs: pd.DataFrame, scheme: str = "grouped", *,
         }
         for column in param_columns:
             row[column.removeprefix("params.")] = pipeline[column]
-        for column in metric_columns:
-            values = own[column].dropna()
-            row[_metric_label(column, scheme)] = values.iloc[-1] if len(values) else np.nan
+        for (scene, column), label in zip(scored, labels, strict=True):
+            values = own.loc[own["_scene"] == scene, column].dropna()
+            row[label] = values.iloc[-1] if len(values) else np.nan
         row["runs"] = len(own)
         row["run time s"] = round(float(run_seconds(own).sum()), 1)
         row["finished"] = own["end_time"].max()
@@ -247,7 +254,7 @@ def workspace_digests(root: Path, scenes: list[str]) -> dict[str, str]:
     """scene → md5 of ``data/processed/<scene>.parquet`` in the workspace, where present."""
     out = {}
     for scene in scenes:
-        path = Path(root) / "data" / "processed" / f"{scene}.parquet"
+        path = Path(root) / processed_path(scene)
         if path.exists():
             out[scene] = md5_file(path)
     return out
@@ -304,11 +311,11 @@ def run_audit(run_id: str, root: Path) -> dict[str, Any]:
                                            "metrics and models may be incomplete"))
     if digest:
         checks["dataset in workspace"] = _workspace_check(
-            root, Path("data") / "processed" / f"{scene}.parquet", digest, "this version")
+            root, processed_path(scene), digest, "this version")
         checks["dataset in DVC cache"] = _cache_check(root, digest)
     if tags.get("eskin.model_md5"):
         checks["model in workspace"] = _workspace_check(
-            root, Path("models") / scene / f"{task}.joblib", tags["eskin.model_md5"],
+            root, model_path(scene, task), tags["eskin.model_md5"],
             "this run's model")
         checks["model in DVC cache"] = _cache_check(root, tags["eskin.model_md5"])
     commit = tags.get("eskin.git_commit", "")

@@ -16,13 +16,25 @@ features so that live inference applies exactly the same transform.
 
 from __future__ import annotations
 
+from pathlib import Path
+from typing import Any
+
+import joblib
 import numpy as np
 import pandas as pd
 from sklearn.base import BaseEstimator, TransformerMixin
 from sklearn.preprocessing import FunctionTransformer, StandardScaler
 from sklearn.utils.validation import check_is_fitted, validate_data
 
-from eskin.data.schema import CHANNELS, contact_free
+from eskin.config import section
+from eskin.data.schema import (
+    CHANNELS,
+    contact_free,
+    md5_file,
+    read_dataset,
+    read_metadata,
+    write_dataset,
+)
 
 METHODS = ("raw", "standardise", "baseline")
 
@@ -86,3 +98,23 @@ def featurize(frame: pd.DataFrame, featurizer: TransformerMixin) -> pd.DataFrame
     out = frame.copy()
     out[CHANNELS] = features
     return out
+
+
+def featurize_scene(params: dict[str, Any], scene: str, processed_dir: Path, features_dir: Path,
+              models_dir: Path) -> str:
+    """``<processed>/<scene>.parquet`` → ``<features>/<scene>.parquet`` + the fitted transform."""
+    source = Path(processed_dir) / f"{scene}.parquet"
+    if not source.exists():
+        raise FileNotFoundError(f"{source}: no dataset; run `dvc repro ingest@{scene}` first")
+    meta = read_metadata(source)
+    frame = read_dataset(source)
+    method = section(params, "featurize.method")
+    featurizer = fit_featurizer(method, frame, meta["kind"])
+    out = Path(features_dir) / f"{scene}.parquet"
+    meta.update(featurize={"method": method},
+                dataset={"path": source.as_posix(), "md5": md5_file(source), "rows": len(frame)})
+    write_dataset(featurize(frame, featurizer), meta["kind"], out, meta)
+    transform = Path(models_dir) / scene / "featurizer.joblib"
+    transform.parent.mkdir(parents=True, exist_ok=True)
+    joblib.dump(featurizer, transform)
+    return f"{scene}: {len(frame)} rows featurized ({method}) → {out}"

@@ -1,7 +1,6 @@
 """Pipeline steps of learning, shared by the DVC stages and the command line.
 
-``featurize`` turns a dataset's channels into features and saves the fitted
-transform; ``train`` cross-validates one task of a scene under each CV scheme, refits it
+``train`` cross-validates one task of a scene under each CV scheme, refits it
 on all the data, saves metrics, out-of-fold predictions and models, and logs an
 MLflow run; ``score_pairs`` scores a two-force scene's contacts as sets.
 """
@@ -17,33 +16,11 @@ import joblib
 import pandas as pd
 
 from eskin.config import section
-from eskin.data.schema import md5_file, read_dataset, read_metadata, write_dataset
+from eskin.data.schema import describe_source, md5_file, read_dataset, read_metadata
 from eskin.evaluation.crossval import cross_validate, fit_final, parallel_backend
 from eskin.evaluation.cv import assign_folds
-from eskin.features import featurize as featurize_frame
-from eskin.features import fit_featurizer
 from eskin.models import build_model, model_settings
 from eskin.tasks import get_task
-
-
-def featurize(params: dict[str, Any], scene: str, processed_dir: Path, features_dir: Path,
-              models_dir: Path) -> str:
-    """``<processed>/<scene>.parquet`` → ``<features>/<scene>.parquet`` + the fitted transform."""
-    source = Path(processed_dir) / f"{scene}.parquet"
-    if not source.exists():
-        raise FileNotFoundError(f"{source}: no dataset; run `dvc repro ingest@{scene}` first")
-    meta = read_metadata(source)
-    frame = read_dataset(source)
-    method = section(params, "featurize.method")
-    featurizer = fit_featurizer(method, frame, meta["kind"])
-    out = Path(features_dir) / f"{scene}.parquet"
-    meta.update(featurize={"method": method},
-                dataset={"path": source.as_posix(), "md5": md5_file(source), "rows": len(frame)})
-    write_dataset(featurize_frame(frame, featurizer), meta["kind"], out, meta)
-    transform = Path(models_dir) / scene / "featurizer.joblib"
-    transform.parent.mkdir(parents=True, exist_ok=True)
-    joblib.dump(featurizer, transform)
-    return f"{scene}: {len(frame)} rows featurized ({method}) → {out}"
 
 
 def train(params: dict[str, Any], scene: str, task_name: str, features_dir: Path, *,
@@ -63,13 +40,13 @@ def train(params: dict[str, Any], scene: str, task_name: str, features_dir: Path
     frame = read_dataset(source)
     kind = meta["kind"]
     task = get_task(kind, task_name)
-    model_name, hyper = model_settings(section(params, f"train.{scene}.{task_name}"),
-                                       section(params, "train.configuration"))
+    model_name, hyper = model_settings(section(params, f"train.{task_name}"),
+                                       section(params, "train.configuration"), kind)
     estimator = build_model(task.role, model_name, hyper)
     cv = section(params, "cv")
-    header = {"scene": scene, "task": task_name, "model": model_name,
+    header = {"scene": scene, "kind": kind, "task": task_name, "model": model_name,
               "dataset_md5": meta["dataset"]["md5"], "dataset_rows": meta["dataset"]["rows"],
-              "source": meta.get("source", {}).get("kind", "unknown")}
+              "source": describe_source(meta)}
 
     reason = task.unsupported(frame)
     if reason is not None:
@@ -83,7 +60,10 @@ def train(params: dict[str, Any], scene: str, task_name: str, features_dir: Path
     results = []
     with parallel_backend(cv.get("backend", "loky")):
         for scheme in cv["schemes"]:
-            folds = assign_folds(frame, kind, scheme, int(cv["folds"]), int(cv["seed"]))
+            try:
+                folds = assign_folds(frame, kind, scheme, int(cv["folds"]), int(cv["seed"]))
+            except ValueError as err:  # before any fold runs: name the scene
+                raise ValueError(f"scenes.{scene} ({source}): {err}") from None
             results.append(cross_validate(task, frame, folds, estimator, scheme,
                                           n_jobs=int(cv.get("n_jobs", 1))))
     models = fit_final(task, frame, estimator)
@@ -115,20 +95,13 @@ def train(params: dict[str, Any], scene: str, task_name: str, features_dir: Path
                         "eskin.features_md5": md5_file(source),
                         "eskin.featurize_method": meta["featurize"]["method"],
                         "eskin.dataset_rows": str(meta["dataset"]["rows"]),
-                        "eskin.dataset_source": _describe_source(meta)})
+                        "eskin.dataset_source": describe_source(meta)})
         run_note = (f"; MLflow run {tracked.run_id}, registered "
                     f"{', '.join(tracked.registered)}")
     headline = ", ".join(f"{r.scheme} {_headline(r.summary)}" for r in results)
     notes = "".join(f"\n  note ({r.scheme}, {n} of {len(r.per_fold[next(iter(r.per_fold))])} "
                     f"folds): {text}" for r in results for text, n in sorted(r.notes.items()))
     return f"{scene}/{task_name} [{model_name}]: {headline}{run_note}{notes}"
-
-
-def _describe_source(meta: dict[str, Any]) -> str:
-    """Where a dataset came from, in a few words: ``simulated (seed 7)``, ``serial``."""
-    kind = meta.get("source", {}).get("kind", "unknown")
-    seed = (meta.get("simulator") or {}).get("seed")  # None for imports and real boards
-    return f"{kind} (seed {seed})" if kind == "simulated" and seed is not None else kind
 
 
 def _headline(summary: dict[str, dict[str, float]]) -> str:
@@ -178,29 +151,33 @@ def score_pairs(scene: str, predictions_dir: Path, metrics_path: Path, *,
     from eskin.evaluation.pairs import score_pairs as score
 
     directory = Path(predictions_dir) / scene
+    metrics_doc: dict[str, Any] = {"scene": scene, "task": "pairs"}
+    localise = json.loads((Path(metrics_path).with_name("localise.json")).read_text())
+    if localise.get("kind") != "two_force":
+        reason = f"a {localise.get('kind')} scene has one contact; pairs need two"
+        write_json({**metrics_doc, "status": "skipped", "reason": reason}, metrics_path)
+        return f"{scene}/pairs: skipped — {reason}"
     frames = {}
-    for task in ("localise", "force1", "force2"):
+    for task in ("localise", "force"):
         path = directory / f"{task}.parquet"
         if not path.exists():
             raise FileNotFoundError(f"{path}: no predictions; run `dvc repro train@{scene}-{task}`")
         frames[task] = pd.read_parquet(path)
-    metrics_doc: dict[str, Any] = {"scene": scene, "task": "pairs"}
     if any(frame.empty for frame in frames.values()):
         skipped = [task for task, frame in frames.items() if frame.empty]
         write_json({**metrics_doc, "status": "skipped",
                     "reason": f"no predictions from {', '.join(skipped)} (skipped)"}, metrics_path)
         return f"{scene}/pairs: skipped — {', '.join(skipped)} skipped"
-    scores = score(frames["localise"], frames["force1"], frames["force2"])
+    scores = score(frames["localise"], frames["force"])
     metrics_doc.update(status="scored", **scores)
     write_json(metrics_doc, metrics_path)
     run_note = ""
     if track:
         from eskin import tracking
 
-        digest = json.loads(Path(metrics_path).with_name("localise.json").read_text())
         run_id = tracking.log_scores_run(scene=scene, task="pairs", scores=scores,
                                          params_text=params_text,
-                                         dataset_digest=digest.get("dataset_md5", ""))
+                                         dataset_digest=localise.get("dataset_md5", ""))
         run_note = f"; MLflow run {run_id}"
     parts = [f"{scheme} pair {s['pair_accuracy']:.3f} (ordered {s['pair_accuracy_ordered']:.3f}), "
              f"force R² {s['force_r2']:.3f}" for scheme, s in scores.items()]

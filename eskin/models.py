@@ -172,19 +172,27 @@ REGISTRY: dict[str, dict[str, Factory]] = {
 CONFIGURATIONS = ("tuned", "paper")
 
 
-def model_settings(task_params: Mapping[str, Any],
-                   configuration: str = "tuned") -> tuple[str, dict[str, Any]]:
-    """(model name, its hyperparameters) from a ``train.<scene>.<task>`` section.
+def model_settings(task_params: Mapping[str, Any], configuration: str = "tuned",
+                   kind: str = "single_force") -> tuple[str, dict[str, Any]]:
+    """(model name, its hyperparameters) from a ``train.<task>`` section, for a scene of
+    ``kind``.
 
     ``configuration`` is ``train.configuration``: ``tuned`` uses the task's
-    ``model`` (chosen by ``make bench``), ``paper`` its ``paper`` entry.
+    ``model`` (chosen by ``make bench``), ``paper`` its ``paper`` entry. ``model`` is a
+    name, or a name per kind (``{single_force: logistic, two_force: paper}``).
     """
     if configuration not in CONFIGURATIONS:
         raise ValueError(f"train.configuration must be one of {CONFIGURATIONS}, "
                          f"got {configuration!r}")
     if "model" not in task_params:
         raise KeyError("the task's params need a 'model' entry naming a registry model")
-    name = "paper" if configuration == "paper" else str(task_params["model"])
+    chosen = task_params["model"]
+    if isinstance(chosen, Mapping):
+        if kind not in chosen:
+            raise KeyError(f"the task's model names no model for {kind} scenes "
+                           f"(it has {', '.join(map(str, chosen))})")
+        chosen = chosen[kind]
+    name = "paper" if configuration == "paper" else str(chosen)
     hyper = task_params.get(name) or {}
     if not isinstance(hyper, Mapping):
         raise ValueError(f"hyperparameters of {name!r} must be a mapping, got {hyper!r}")

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from eskin.catalog import features_path, model_path
 from eskin.data.schema import md5_file, read_dataset, read_metadata
 from eskin.evaluation.crossval import cross_validate
 from eskin.evaluation.cv import assign_folds
@@ -70,16 +71,15 @@ def reproduce(name: str, version: str | None = None, *, root: Path = Path("."),
     tags = entry.tags
     scene, task_name, target = tags["eskin.scene"], tags["eskin.task"], tags["eskin.target"]
     run = client.get_run(entry.run_id)
-    path = versioned_file(root, Path("data") / "features" / f"{scene}.parquet",
+    path = versioned_file(root, features_path(scene),
                           tags["eskin.features_md5"], f"features of {scene}")
     frame, kind = read_dataset(path), read_metadata(path)["kind"]
     task = get_task(kind, task_name)
     # The model is the DVC-tracked file whose md5 the run recorded (eskin.model_md5, as in
     # dvc.lock), unpickled only after that md5 is checked: a pickle runs code when loaded.
     model_md5 = tags["eskin.model_md5"]
-    model_path = versioned_file(root, Path("models") / scene / f"{task_name}.joblib", model_md5,
-                                f"model {name}")
-    model = load_models(model_path, model_md5)[target]
+    saved = versioned_file(root, model_path(scene, task_name), model_md5, f"model {name}")
+    model = load_models(saved, model_md5)[target]
     params = run.data.params
     schemes = parse_param(params["cv.schemes"])
     out: dict[str, Any] = {"model": name, "version": entry.version, "run": entry.run_id,

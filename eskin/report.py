@@ -1,7 +1,9 @@
 """Pipeline step of reporting: figures, DVC plot data, the report page, the README table.
 
-Reads only the training stages' predictions and metrics, and its own
-params (``report:``), so a change of figure style reruns only this step.
+Reads only the training stages' predictions and metrics, the scene list
+(``scenes:``, names and kinds) and its own params (``report:``), so a change
+of figure style reruns only this step. Every scene gets its own figures,
+plot data and section; what a figure shows follows the scene's kind.
 """
 
 from __future__ import annotations
@@ -14,113 +16,115 @@ from typing import Any
 import matplotlib.pyplot as plt
 import pandas as pd
 
+from eskin.catalog import SCORED_TASKS
 from eskin.config import section
+from eskin.data.schema import force_columns, node_columns
 from eskin.reporting import figures as fig
 from eskin.reporting.page import readme_section, render_page, replace_readme_results
 
-TASKS = {"single_force": ("stretch", "force", "detect", "localise"),
-         "two_force": ("force1", "force2", "localise", "pairs")}
+# (figure id, task, caption, builder(oof, kind)), by kind; a figure is drawn when its task
+# has predictions.
+FIGURES = {
+    "single_force": (
+        ("stretch_parity", "stretch", "Stretch: predicted against true λ, mean ± std per "
+         "level (paper Fig. 5)", lambda oof: fig.stretch_parity(oof)),
+        ("force_parity", "force", "Force: predicted against true force, mean ± std per level "
+         "and stretch (paper Fig. 6)", lambda oof: fig.force_parity(oof)),
+        ("localisation_confusion", "localise", "Localisation of a single contact: rows (x) "
+         "and columns (y); counts, colour normalised per true row (paper Fig. 7)",
+         lambda oof: fig.confusion_grid(oof, ["x", "y"], ["x terminal", "y terminal"])),
+        ("detection", "detect", "Contact detection: confusion matrix and ROC curve",
+         lambda oof: fig.detection(oof)),
+    ),
+    "two_force": (
+        ("stretch_parity", "stretch", "Stretch: predicted against true λ, mean ± std per "
+         "level", lambda oof: fig.stretch_parity(oof)),
+        ("two_force_localisation", "localise", "Two contacts: x and y of contact 1 (top) and "
+         "contact 2 (bottom) (paper Fig. 8)",
+         lambda oof: fig.confusion_grid(oof, ["x1", "y1", "x2", "y2"],
+                                        ["x1 terminal", "y1 terminal", "x2 terminal",
+                                         "y2 terminal"])),
+        ("two_force_parity", "force", "Two contacts: force of contact 1 and contact 2, "
+         "mean ± std per level (paper Fig. 9)", lambda oof: fig.two_force_parity(oof)),
+    ),
+}
 
 
-def _load(directory: Path, suffix: str, reader) -> dict[tuple[str, str], Any]:
+def _task_files(directory: Path, scene: str, suffix: str, reader) -> dict[str, Any]:
     found = {}
-    for scene, tasks in TASKS.items():
-        for task in tasks:
-            path = Path(directory) / scene / f"{task}{suffix}"
-            if path.exists():
-                found[(scene, task)] = reader(path)
+    for task in SCORED_TASKS:
+        path = Path(directory) / scene / f"{task}{suffix}"
+        if path.exists():
+            found[task] = reader(path)
     return found
 
 
-def _figures(predictions: dict, scheme: str) -> list[tuple[str, str, Any]]:
-    """(id, caption, Figure) for every figure the predictions allow."""
-    def rows(scene: str, task: str) -> pd.DataFrame | None:
-        frame = predictions.get((scene, task))
-        if frame is None or frame.empty:
-            return None
-        return frame[frame["scheme"] == scheme]
-
+def plot_data(kind: str, predictions: dict[str, pd.DataFrame]
+              ) -> list[tuple[str, str, pd.DataFrame]]:
+    """(template, file stem, frame) behind `dvc plots` for one scene: parity data of every
+    regression target, confusion data of every class target, one CV scheme."""
     out = []
-    if (oof := rows("single_force", "stretch")) is not None:
-        out.append(("stretch_parity", "Stretch: predicted against true λ, mean ± std per level "
-                    "(paper Fig. 5)", fig.stretch_parity(oof)))
-    if (oof := rows("single_force", "force")) is not None:
-        out.append(("force_parity", "Force: predicted against true force, mean ± std per level "
-                    "and stretch (paper Fig. 6)", fig.force_parity(oof)))
-    if (oof := rows("single_force", "localise")) is not None:
-        out.append(("localisation_confusion", "Localisation of a single contact: rows (x) and "
-                    "columns (y); counts, colour normalised per true row (paper Fig. 7)",
-                    fig.confusion_grid(oof, ["x", "y"], ["x terminal", "y terminal"])))
-    if (oof := rows("single_force", "detect")) is not None:
-        out.append(("detection", "Contact detection: confusion matrix and ROC curve",
-                    fig.detection(oof)))
-    if (oof := rows("two_force", "localise")) is not None:
-        out.append(("two_force_localisation", "Two contacts: x and y of contact 1 (top) and "
-                    "contact 2 (bottom) (paper Fig. 8)",
-                    fig.confusion_grid(oof, ["x1", "y1", "x2", "y2"],
-                                       ["x1 terminal", "y1 terminal", "x2 terminal",
-                                        "y2 terminal"])))
-    force1, force2 = rows("two_force", "force1"), rows("two_force", "force2")
-    if force1 is not None and force2 is not None:
-        out.append(("two_force_parity", "Two contacts: force of contact 1 and contact 2, "
-                    "mean ± std per level (paper Fig. 9)", fig.two_force_parity(force1, force2)))
+    for task, target in (("stretch", "stretch"), *(("force", t) for t in force_columns(kind))):
+        frame = predictions.get(task)
+        if frame is not None and not frame.empty:
+            columns = {f"{target}_true": "actual", f"{target}_pred": "predicted"}
+            if task == "force" and kind == "single_force":
+                columns["stretch"] = "stretch"
+            out.append(("parity", target, frame[list(columns)].rename(columns=columns)))
+    for task, targets in (("detect", ["contact"]), ("localise", node_columns(kind))):
+        frame = predictions.get(task)
+        if frame is not None and not frame.empty:
+            for target in targets:
+                out.append(("confusion", target,
+                            frame[[f"{target}_true", f"{target}_pred"]].rename(
+                                columns={f"{target}_true": "actual",
+                                         f"{target}_pred": "predicted"})))
     return out
-
-
-# Data behind `dvc plots`: (file, scene, task, columns to keep, renames).
-PLOT_DATA = (
-    ("stretch_parity.csv", "single_force", "stretch", {"stretch_true": "actual",
-                                                        "stretch_pred": "predicted"}),
-    ("force_parity.csv", "single_force", "force", {"force_true": "actual",
-                                                    "force_pred": "predicted",
-                                                    "stretch": "stretch"}),
-    ("detection_confusion.csv", "single_force", "detect", {"contact_true": "actual",
-                                                            "contact_pred": "predicted"}),
-    *((f"localisation_{t}.csv", "single_force", "localise", {f"{t}_true": "actual",
-                                                             f"{t}_pred": "predicted"})
-      for t in ("x", "y")),
-    *((f"two_force_{t}.csv", "two_force", "localise", {f"{t}_true": "actual",
-                                                       f"{t}_pred": "predicted"})
-      for t in ("x1", "y1", "x2", "y2")),
-    *((f"two_force_{t}_parity.csv", "two_force", t, {f"{t}_true": "actual",
-                                                      f"{t}_pred": "predicted"})
-      for t in ("force1", "force2")),
-)
 
 
 def report(params: dict[str, Any], *, metrics_dir: Path, predictions_dir: Path,
            figures_dir: Path, plots_dir: Path, page_path: Path, readme_path: Path) -> str:
     settings = section(params, "report")
-    metrics = _load(metrics_dir, ".json", lambda p: json.loads(p.read_text()))
-    predictions = _load(predictions_dir, ".parquet", pd.read_parquet)
-    if not metrics:
-        raise FileNotFoundError(f"{metrics_dir}: no metrics; run the training stages first")
+    kinds = {name: scene["kind"] for name, scene in section(params, "scenes").items()}
+    metrics = {scene: _task_files(metrics_dir, scene, ".json", lambda p: json.loads(p.read_text()))
+               for scene in kinds}
+    if not any(metrics.values()):
+        raise FileNotFoundError(f"{metrics_dir}: no metrics for any scene of params.yaml "
+                                f"({', '.join(kinds)}); run the training stages first")
+    predictions = {scene: _task_files(predictions_dir, scene, ".parquet", pd.read_parquet)
+                   for scene in kinds}
 
     figures_dir, plots_dir = Path(figures_dir), Path(plots_dir)
-    figures_dir.mkdir(parents=True, exist_ok=True)
-    plots_dir.mkdir(parents=True, exist_ok=True)
-    page_figures, written = [], 0
-    for scheme in settings["schemes"]:
-        for fid, caption, figure in _figures(predictions, scheme):
-            name = f"{fid}_{scheme}"
-            for fmt in ("png", "svg"):
-                figure.savefig(figures_dir / f"{name}.{fmt}", dpi=int(settings["dpi"]),
-                               metadata={"Date": None} if fmt == "svg" else {"Software": None})
-            buffer = io.BytesIO()
-            figure.savefig(buffer, format="png", dpi=int(settings["page_dpi"]))
-            plt.close(figure)
-            page_figures.append((name, f"{caption} — {scheme} CV.", buffer.getvalue()))
-            written += 1
+    page_figures: dict[str, list[tuple[str, str, bytes]]] = {scene: [] for scene in kinds}
+    written = 0
+    for scene, kind in kinds.items():
+        for scheme in settings["schemes"]:
+            for fid, task, caption, build in FIGURES[kind]:
+                frame = predictions[scene].get(task)
+                if frame is None or frame.empty:
+                    continue
+                figure = build(frame[frame["scheme"] == scheme])
+                name = f"{fid}_{scheme}"
+                (figures_dir / scene).mkdir(parents=True, exist_ok=True)
+                for fmt in ("png", "svg"):
+                    figure.savefig(figures_dir / scene / f"{name}.{fmt}", dpi=int(settings["dpi"]),
+                                   metadata={"Date": None} if fmt == "svg" else {"Software": None})
+                buffer = io.BytesIO()
+                figure.savefig(buffer, format="png", dpi=int(settings["page_dpi"]))
+                plt.close(figure)
+                page_figures[scene].append((f"{scene}-{name}", f"{caption} — {scheme} CV.",
+                                            buffer.getvalue()))
+                written += 1
+        chosen = {task: frame[frame["scheme"] == settings["plots_scheme"]]
+                  for task, frame in predictions[scene].items() if not frame.empty}
+        for template, stem, frame in plot_data(kind, chosen):
+            (plots_dir / template).mkdir(parents=True, exist_ok=True)
+            frame.to_csv(plots_dir / template / f"{scene}_{stem}.csv", index=False)
 
-    for filename, scene, task, columns in PLOT_DATA:
-        frame = predictions.get((scene, task))
-        if frame is None or frame.empty:
-            continue
-        chosen = frame[frame["scheme"] == settings["plots_scheme"]]
-        chosen[list(columns)].rename(columns=columns).to_csv(plots_dir / filename, index=False)
-
-    Path(page_path).write_text(render_page(metrics, page_figures))
+    scenes = [(scene, kinds[scene], metrics[scene]) for scene in kinds]
+    Path(page_path).write_text(render_page(scenes, page_figures))
     readme = Path(readme_path)
-    readme.write_text(replace_readme_results(readme.read_text(), readme_section(metrics)))
-    return (f"report: {written} figures (PNG + SVG) in {figures_dir}, plot data in {plots_dir}, "
-            f"{page_path}, results table in {readme_path}")
+    readme.write_text(replace_readme_results(readme.read_text(), readme_section(scenes)))
+    return (f"report: {len(kinds)} scene(s), {written} figures (PNG + SVG) in {figures_dir}, "
+            f"plot data in {plots_dir}, {page_path}, results in {readme_path}")
+

@@ -29,8 +29,8 @@ import numpy as np
 import pandas as pd
 import yaml
 
-from eskin import steps
 from eskin.config import scene_plan
+from eskin.data import build
 from eskin.data.schema import CHANNELS, LABELS
 from eskin.device.faults import KINDS
 
@@ -95,9 +95,11 @@ def soak_params(params: dict[str, Any], settings: dict[str, Any], fault_log: Pat
     out = copy.deepcopy(params)
     out["sim_board"]["corrupt_fraction"] = float(settings["corrupt_fraction"])
     out["sim_board"]["faults"] = {**settings["faults"], "log": str(fault_log)}
-    out["acquire"].update(source="simulated", timeout_s=float(settings["timeout_s"]),
+    out["acquire"].update(timeout_s=float(settings["timeout_s"]),
                           max_attempts=int(settings["max_attempts"]),
                           reconnect_s=float(settings["reconnect_s"]))
+    for scene in out["scenes"].values():
+        scene.update(source="simulated")
     return out
 
 
@@ -162,7 +164,7 @@ def run_soak(params: dict[str, Any], settings: dict[str, Any], workdir: Path,
             raise SoakError(f"run {number} failed ({process.returncode}): {_tail(stderr_path)}")
         runs.append(out.strip())
         say(f"soak: {runs[-1]}")
-    steps.ingest(params, scene, raw_dir, workdir / "data" / "processed")
+    build.ingest(params, scene, raw_dir, workdir / "data" / "processed")
     frame = pd.read_parquet(workdir / "data" / "processed" / f"{scene}.parquet")
     counted = Counter(line.split("\t", 1)[0] for line in fault_log.read_text().splitlines())
     # Asked again because a frame passed its CRC with digits lost (eskin.device.link).

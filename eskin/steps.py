@@ -1,7 +1,9 @@
-"""Pipeline steps shared by the DVC stages and the ``eskin`` command line.
+"""The acquisition step, shared by the DVC stage and the ``eskin`` command line, and
+the checks every scene passes before any acquisition starts.
 
-Each reads its params sections, calls the library, and writes its outputs:
-the same code runs under ``dvc repro`` and by hand.
+It reads its params sections, calls the library, and writes its outputs: the same
+code runs under ``dvc repro`` and by hand. (Ingest is :mod:`eskin.data.build`, so that
+the ingest stage does not depend on the acquisition's code.)
 """
 
 from __future__ import annotations
@@ -9,31 +11,27 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from eskin.acquisition.session import LOG_NAME, acquire_scene
+from eskin.acquisition.session import acquire_scene
 from eskin.config import scene_plan, section, skin_params
-from eskin.data.importer import copy_import, find_import, import_to_dataset
-from eskin.data.ingest import ingest_log
-from eskin.data.schema import write_dataset, write_quarantine
+from eskin.data.importer import check_layout, copy_import
+from eskin.data.schema import DatasetError
 from eskin.device.faults import LinkFaults
 
 
 def acquire(params: dict[str, Any], scene: str, raw_dir: Path, *, progress: bool = True) -> str:
     """Acquire (or import) ``scene`` into ``raw_dir``; returns a one-paragraph summary."""
+    check_scenes(params)
     plan = scene_plan(params, scene)
     settings = section(params, "acquire")
-    if settings["source"] == "import":
-        source = section(params, f"scenes.{scene}").get("import_path")
-        if not source:
-            raise ValueError(f"acquire.source is 'import' but scenes.{scene}.import_path is unset")
-        if Path(source).is_dir():
-            raise ValueError(f"scenes.{scene}.import_path = {source!r} is a directory; name "
-                             "the CSV or Parquet file in it")
-        target = copy_import(Path(source), raw_dir, plan.kind)
+    scene_settings = section(params, f"scenes.{scene}")
+    if scene_settings["source"] == "import":
+        source = Path(check_import_path(params, scene))
+        target = copy_import(source, raw_dir, plan.kind)
         return f"{scene}: imported {source} as {target}"
     board = section(params, "sim_board")
     report = acquire_scene(
-        plan, raw_dir, source=settings["source"], sim=skin_params(params),
-        rest_length_mm=float(settings["rest_length_mm"]), port=settings.get("port"),
+        plan, raw_dir, source=scene_settings["source"], sim=skin_params(params),
+        rest_length_mm=float(settings["rest_length_mm"]), port=scene_settings.get("port"),
         corrupt_fraction=float(board["corrupt_fraction"]),
         faults=LinkFaults.from_mapping(board.get("faults")),
         frame_period_ms=int(board["frame_period_ms"]), timeout_s=float(settings["timeout_s"]),
@@ -44,20 +42,42 @@ def acquire(params: dict[str, Any], scene: str, raw_dir: Path, *, progress: bool
     return report.summary()
 
 
-def ingest(params: dict[str, Any], scene: str, raw_dir: Path, processed_dir: Path) -> str:
-    """Raw data of ``scene`` → ``<processed_dir>/<scene>.parquet`` and its quarantine CSV."""
-    plan = scene_plan(params, scene)
-    bad_rows = section(params, "ingest.bad_rows")
-    out = Path(processed_dir) / f"{scene}.parquet"
-    if section(params, "acquire.source") == "import":
-        # Streamed to Parquet chunk by chunk: memory does not grow with the file.
-        quarantine, metadata = import_to_dataset(find_import(raw_dir), plan.kind, out,
-                                                 bad_rows=bad_rows, scene=scene)
-        rows = metadata["source"]["rows_in_file"] - metadata["source"]["rows_quarantined"]
-    else:
-        result = ingest_log(Path(raw_dir) / LOG_NAME, plan, bad_rows=bad_rows)
-        write_dataset(result.frame, plan.kind, out, result.metadata)
-        quarantine, rows = result.quarantine, len(result.frame)
-    write_quarantine(quarantine, Path(processed_dir) / f"{scene}.quarantine.csv")
-    note = f"; {len(quarantine)} row(s) quarantined" if quarantine else ""
-    return f"{scene}: {rows} rows → {out}{note}"
+def check_scenes(params: dict[str, Any]) -> None:
+    """What can be wrong with any scene, found before the first acquisition starts (so a
+    typo in the last scene does not wait for the first to be recorded): an import file
+    missing, unreadable or not in its kind's layout; a plan with fewer trials than the
+    grouped folds. One line naming the scene, the key and the file."""
+    cv = section(params, "cv")
+    for name, scene in section(params, "scenes").items():
+        if scene["source"] == "import":
+            path = check_import_path(params, name)
+            try:
+                check_layout(Path(path), scene["kind"])
+            except DatasetError as err:
+                raise DatasetError(f"scenes.{name}.import_path: {err}") from None
+            continue
+        trials = len(scene_plan(params, name).conditions)
+        if "grouped" in cv["schemes"] and trials < int(cv["folds"]):
+            raise ValueError(f"scenes.{name}: {trials} trials (conditions), but grouped CV "
+                             f"with cv.folds = {cv['folds']} needs at least {cv['folds']}; "
+                             "add stretches, forces or nodes, or lower cv.folds")
+
+
+def check_import_path(params: dict[str, Any], scene: str) -> str:
+    """``scenes.<scene>.import_path``, checked to be a readable file (not a directory)."""
+    source = section(params, f"scenes.{scene}").get("import_path")
+    if not source:
+        raise ValueError(f"scenes.{scene}: source is 'import' but import_path is unset")
+    path = Path(source)
+    if path.is_dir():
+        raise ValueError(f"scenes.{scene}.import_path = {source!r} is a directory; name "
+                         "the CSV or Parquet file in it")
+    if not path.exists():
+        raise FileNotFoundError(f"scenes.{scene}.import_path = {source!r}: no such file")
+    try:
+        with path.open("rb") as handle:
+            handle.read(1)
+    except OSError as err:
+        raise ValueError(f"scenes.{scene}.import_path = {source!r}: cannot be read "
+                         f"({err.strerror})") from None
+    return source

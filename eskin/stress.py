@@ -136,13 +136,14 @@ CASES: tuple[Case, ...] = (
 )
 
 
-def models_under_test(params: Mapping[str, Any], scene: str = "single_force"
-                      ) -> list[tuple[str, str, dict[str, Any]]]:
+def models_under_test(params: Mapping[str, Any]) -> list[tuple[str, str, dict[str, Any]]]:
     """(task, model name, hyperparameters) of the tuned and paper configurations."""
+    from eskin.catalog import TASK_NAMES
     from eskin.models import model_settings
 
     out = []
-    for task, section in params["train"][scene].items():
+    for task in TASK_NAMES:
+        section = params["train"][task]
         for configuration in ("tuned", "paper"):
             name, hyper = model_settings(section, configuration)
             if (task, name, hyper) not in out:
@@ -316,9 +317,11 @@ def stress(params: Mapping[str, Any], features_path, out_json, out_md, out_html,
     import json
     from pathlib import Path
 
-    from eskin import learn, steps
+    from eskin import steps
     from eskin.config import section
+    from eskin.data import build
     from eskin.data.schema import read_dataset
+    from eskin.features import featurize_scene
 
     settings = section(params, "stress")
     features = read_dataset(features_path)
@@ -333,8 +336,8 @@ def stress(params: Mapping[str, Any], features_path, out_json, out_md, out_html,
         noisy["scenes"]["single_force"].update(settings["noise_scene"])
         root = Path(scratch) / name
         steps.acquire(noisy, "single_force", root / "raw", progress=False)
-        steps.ingest(noisy, "single_force", root / "raw", root / "processed")
-        learn.featurize(noisy, "single_force", root / "processed", root / "features",
+        build.ingest(noisy, "single_force", root / "raw", root / "processed")
+        featurize_scene(noisy, "single_force", root / "processed", root / "features",
                         root / "models")
         frames[name] = read_dataset(root / "features" / "single_force.parquet")
     log(f"stress: {len(frames['default']):,} samples of {len(trials)} trials, "

@@ -10,8 +10,14 @@ Single force (the paper's section III-D):
 * ``localise`` — x and y of the pressed node, contact samples only (the
   paper's localisation "assumes that there is pressure on the sensor").
 
-Two forces (section III-E): ``force1``, ``force2`` and ``localise`` (x1, y1,
-x2, y2), every sample.
+Two forces (section III-E): ``force`` (force1 and force2, one model each) and
+``localise`` (x1, y1, x2, y2), every sample; ``stretch`` where the scene has two
+or more levels. ``detect`` needs samples without contact, which a two-force
+scene has not: it is skipped, with that reason in its metrics file.
+
+Every kind has the same task names (:data:`TASK_NAMES`), so the stage graph is
+scenes × tasks, and a task a scene's data cannot support is skipped by the data,
+not by a list of which scene runs what.
 """
 
 from __future__ import annotations
@@ -22,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from eskin.catalog import KINDS, TASK_NAMES
 from eskin.data.schema import contact_mask
 
 
@@ -61,12 +68,16 @@ class Task:
         if not rows.any():
             return f"no rows for {self.name} ({self.row_note})"
         if self.name == "stretch" and frame["stretch"].nunique() < 2:
-            return "stretch regression needs two or more stretch levels; this scene has one"
+            return ("stretch regression needs two or more stretch levels; this scene has one "
+                    f"(λ = {frame['stretch'].iloc[0]:g})")
         for name, values in self.target_values(frame[rows]).items():
             if len(np.unique(values)) < 2:
-                what = "contact and no-contact samples" if self.name == "detect" else \
-                    f"two or more distinct values of {name}"
-                return f"{self.name} needs {what}; this scene has only {np.unique(values)}"
+                if self.name == "detect":
+                    has = "a contact" if bool(np.unique(values)[0]) else "no contact"
+                    return ("detect needs contact and no-contact samples; every sample of "
+                            f"this scene has {has}")
+                return (f"{self.name} needs two or more distinct values of {name}; this scene "
+                        f"has only {np.unique(values)[0].item()!r}")
         return None
 
 
@@ -80,12 +91,16 @@ TASKS: dict[str, dict[str, Task]] = {
                          rows=contact_mask, row_note="contact samples"),
     },
     "two_force": {
-        "force1": Task("force1", "force", "regression", {"force1": _physical_force("1")}),
-        "force2": Task("force2", "force", "regression", {"force2": _physical_force("2")}),
+        "stretch": Task("stretch", "stretch", "regression", {"stretch": _column("stretch")}),
+        "force": Task("force", "force", "regression",
+                      {"force1": _physical_force("1"), "force2": _physical_force("2")}),
+        "detect": Task("detect", "detect", "detection", {"contact": contact_mask}),
         "localise": Task("localise", "localise", "localisation",
                          {name: _column(name) for name in ("x1", "y1", "x2", "y2")}),
     },
 }
+
+assert tuple(TASKS) == KINDS and all(tuple(tasks) == TASK_NAMES for tasks in TASKS.values())
 
 
 def get_task(kind: str, name: str) -> Task:

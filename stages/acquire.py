@@ -3,8 +3,9 @@
 import sys
 
 from eskin import steps
-from eskin.cli import RAW_DIR, run_friendly
+from eskin.catalog import RAW_DIR
 from eskin.config import load_params
+from eskin.errors import run_friendly
 
 if __name__ == "__main__":
     scene = sys.argv[1]

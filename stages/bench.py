@@ -3,8 +3,9 @@
 import sys
 
 from eskin import benchmark
-from eskin.cli import FEATURES_DIR, PROCESSED_DIR, run_friendly
+from eskin.catalog import FEATURES_DIR, PROCESSED_DIR
 from eskin.config import load_params
+from eskin.errors import run_friendly
 
 BENCH_DIR = "reports/benchmark"
 

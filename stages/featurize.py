@@ -2,11 +2,12 @@
 
 import sys
 
-from eskin import learn
-from eskin.cli import FEATURES_DIR, MODELS_DIR, PROCESSED_DIR, run_friendly
+from eskin.catalog import FEATURES_DIR, MODELS_DIR, PROCESSED_DIR
 from eskin.config import load_params
+from eskin.errors import run_friendly
+from eskin.features import featurize_scene
 
 if __name__ == "__main__":
     scene = sys.argv[1]
     sys.exit(run_friendly(lambda: print(
-        learn.featurize(load_params(), scene, PROCESSED_DIR, FEATURES_DIR, MODELS_DIR))))
+        featurize_scene(load_params(), scene, PROCESSED_DIR, FEATURES_DIR, MODELS_DIR))))

@@ -5,8 +5,8 @@ import sys
 from pathlib import Path
 
 from eskin import fuzz
-from eskin.cli import run_friendly
 from eskin.config import load_params, section
+from eskin.errors import run_friendly
 
 TARGETS = {"parser": fuzz.fuzz_parser, "import": fuzz.fuzz_import}
 

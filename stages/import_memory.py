@@ -4,8 +4,8 @@ import json
 import sys
 from pathlib import Path
 
-from eskin.cli import run_friendly
 from eskin.config import load_params, section
+from eskin.errors import run_friendly
 from eskin.memory_bench import import_memory, markdown
 
 REPORT = Path("reports")

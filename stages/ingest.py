@@ -2,11 +2,12 @@
 
 import sys
 
-from eskin import steps
-from eskin.cli import PROCESSED_DIR, RAW_DIR, run_friendly
+from eskin.catalog import PROCESSED_DIR, RAW_DIR
 from eskin.config import load_params
+from eskin.data import build
+from eskin.errors import run_friendly
 
 if __name__ == "__main__":
     scene = sys.argv[1]
     sys.exit(run_friendly(
-        lambda: print(steps.ingest(load_params(), scene, RAW_DIR / scene, PROCESSED_DIR))))
+        lambda: print(build.ingest(load_params(), scene, RAW_DIR / scene, PROCESSED_DIR))))

@@ -3,8 +3,9 @@
 import sys
 
 from eskin import learn
-from eskin.cli import METRICS_DIR, PREDICTIONS_DIR, run_friendly
+from eskin.catalog import METRICS_DIR, PREDICTIONS_DIR
 from eskin.config import DEFAULT_PARAMS
+from eskin.errors import run_friendly
 
 if __name__ == "__main__":
     scene = sys.argv[1]

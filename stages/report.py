@@ -3,8 +3,9 @@
 import sys
 
 from eskin import report
-from eskin.cli import METRICS_DIR, PREDICTIONS_DIR, run_friendly
+from eskin.catalog import METRICS_DIR, PREDICTIONS_DIR
 from eskin.config import load_params
+from eskin.errors import run_friendly
 
 if __name__ == "__main__":
     sys.exit(run_friendly(lambda: print(report.report(

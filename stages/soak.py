@@ -7,8 +7,9 @@ from pathlib import Path
 
 import pandas as pd
 
-from eskin.cli import PROCESSED_DIR, run_friendly
+from eskin.catalog import PROCESSED_DIR
 from eskin.config import load_params, section
+from eskin.errors import run_friendly
 from eskin.soak import run_soak
 
 REPORT = Path("reports/soak")

@@ -4,8 +4,9 @@ import sys
 import tempfile
 
 from eskin import stress
-from eskin.cli import FEATURES_DIR, run_friendly
+from eskin.catalog import FEATURES_DIR
 from eskin.config import load_params
+from eskin.errors import run_friendly
 
 if __name__ == "__main__":
     with tempfile.TemporaryDirectory(prefix="eskin-stress-") as scratch:

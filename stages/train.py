@@ -3,8 +3,9 @@
 import sys
 
 from eskin import learn
-from eskin.cli import FEATURES_DIR, run_friendly, task_outputs
+from eskin.catalog import FEATURES_DIR, task_outputs
 from eskin.config import DEFAULT_PARAMS, load_params
+from eskin.errors import run_friendly
 
 if __name__ == "__main__":
     scene, task = sys.argv[1], sys.argv[2]

@@ -16,6 +16,7 @@ from eskin import steps
 from eskin.acquisition.rawlog import read_log
 from eskin.acquisition.session import acquire_scene, simulated_board
 from eskin.config import scene_plan, skin_params
+from eskin.data import build
 from eskin.data.schema import CHANNELS, LABELS, read_metadata
 from eskin.soak import run_soak, wait_for_conditions
 
@@ -26,7 +27,7 @@ CONTENT = ["trial", "sample", *CHANNELS]
 
 def acquire_and_ingest(params, root, scene="single_force"):
     summary = steps.acquire(params, scene, root / "raw" / scene, progress=False)
-    steps.ingest(params, scene, root / "raw" / scene, root / "processed")
+    build.ingest(params, scene, root / "raw" / scene, root / "processed")
     return summary, pd.read_parquet(root / "processed" / f"{scene}.parquet")
 
 
@@ -127,7 +128,7 @@ def test_a_changed_simulator_parameter_reacquires_everything(clean_run, tmp_path
     changed["sim"]["noise_pf"] = params["sim"]["noise_pf"] * 2
     summary = steps.acquire(changed, "single_force", tmp_path, progress=False)
     assert "404 condition(s) acquired, 0 reused" in summary
-    steps.ingest(changed, "single_force", tmp_path, tmp_path / "processed")
+    build.ingest(changed, "single_force", tmp_path, tmp_path / "processed")
     frame = pd.read_parquet(tmp_path / "processed" / "single_force.parquet")
     assert not frame[CHANNELS].equals(clean[CHANNELS])
     assert len(read_log(tmp_path / "acquisition.log").sessions) == 2, "nothing lost: both kept"
@@ -149,7 +150,7 @@ def test_ingest_of_an_incomplete_log_says_how_to_resume(small_params, tmp_path):
     grown["scenes"]["single_force"]["forces"].append(5.2136)
     expected = "202 of 606 planned conditions .*eskin acquire single_force"
     with pytest.raises(ValueError, match=expected):
-        steps.ingest(grown, "single_force", tmp_path, tmp_path / "processed")
+        build.ingest(grown, "single_force", tmp_path, tmp_path / "processed")
 
 
 def test_serial_source_prompts_the_operator_only_when_the_weights_change(small_params,

@@ -9,6 +9,7 @@ from sklearn.metrics import r2_score
 from sklearn.utils.estimator_checks import check_estimator
 
 from eskin import benchmark, steps
+from eskin.data import build
 from eskin.data.schema import contact_mask, read_dataset
 from eskin.device.physics import SkinParams
 from eskin.gp import FixedKernelGaussianProcess, SparseGaussianProcess, stable_cholesky
@@ -96,7 +97,7 @@ def small_dataset(tmp_path_factory, repo_params):
     params = small_scenes(repo_params)
     root = tmp_path_factory.mktemp("oracle")
     steps.acquire(params, "single_force", root / "raw", progress=False)
-    steps.ingest(params, "single_force", root / "raw", root / "processed")
+    build.ingest(params, "single_force", root / "raw", root / "processed")
     return params, read_dataset(root / "processed" / "single_force.parquet")
 
 

@@ -21,7 +21,7 @@ def run(run_id, minute, seconds, **fields):
 def pipeline(run_id, minute, name, force_model, seed=1, commit="c0ffee00aa"):
     return run(run_id, minute, 0, **{"tags.eskin.kind": "pipeline", "tags.mlflow.runName": name,
                                      "tags.eskin.git_commit": commit,
-                                     "params.train.single_force.force.model": force_model,
+                                     "params.train.force.model": force_model,
                                      "params.sim.seed": str(seed), "params.cv.folds": "10"})
 
 
@@ -55,7 +55,7 @@ def test_compare_keeps_the_latest_run_per_task_and_shows_only_differing_params(r
     table = experiments.variant_table(runs, scheme="grouped")
     assert list(table["variant"]) == ["repro 1a2b", "force-rf", "seed7"]
     assert "cv.folds" not in table  # the same everywhere
-    assert list(table["train.single_force.force.model"]) == [
+    assert list(table["train.force.model"]) == [
         "hist_gradient_boosting", "random_forest", "hist_gradient_boosting"]
     assert list(table["sim.seed"]) == ["1", "1", "7"]
     assert table["force R²"].tolist() == [0.60, 0.58, 0.55]  # force-rf: its newer run
@@ -73,7 +73,7 @@ def test_compare_keeps_the_latest_run_per_task_and_shows_only_differing_params(r
 def test_compare_picks_variants_by_name_or_recency(runs):
     picked = experiments.variant_table(runs, variants=["force-rf", "seed7"])
     assert list(picked["variant"]) == ["force-rf", "seed7"]
-    assert "train.single_force.force.model" in picked and "pairs acc" in picked
+    assert "train.force.model" in picked and "pairs acc" in picked
     newest = experiments.variant_table(runs, last=1)
     assert list(newest["variant"]) == ["seed7"]
     assert "sim.seed" not in newest and "force R²" in newest  # nothing differs in one row

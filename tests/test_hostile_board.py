@@ -191,7 +191,8 @@ def run_cli_against(board, root, params, transport="pty"):
     the process's own peak memory in MB)."""
     params = copy.deepcopy(params)
     with Served(board, transport) as served:
-        params["acquire"].update(source="serial", port=served.port, indenters="board")
+        params["acquire"]["indenters"] = "board"
+        params["scenes"]["single_force"].update(source="serial", port=served.port)
         write_params(root, params)
         started = time.monotonic()
         child = subprocess.Popen([sys.executable, "-m", "eskin", "acquire", "single_force",
@@ -243,7 +244,8 @@ def test_a_kill_at_the_first_prompt_leaves_a_log_the_next_run_continues(tmp_path
                                                                        repo_params):
     params = hostile_params(repo_params)
     with Served(HostileBoard()) as served:
-        params["acquire"].update(source="serial", port=served.port, indenters="person")
+        params["acquire"]["indenters"] = "person"
+        params["scenes"]["single_force"].update(source="serial", port=served.port)
         write_params(tmp_path, params)
         child = subprocess.Popen([sys.executable, "-m", "eskin", "acquire", "single_force",
                                   "--no-progress"], cwd=tmp_path, stdin=subprocess.PIPE,
@@ -304,7 +306,8 @@ def test_operator_input_closed_is_one_line_and_ascii_terminals_work(tmp_path, re
                                                                     encoding):
     params = hostile_params(repo_params)
     with Served(HostileBoard()) as served:
-        params["acquire"].update(source="serial", port=served.port, indenters="person")
+        params["acquire"]["indenters"] = "person"
+        params["scenes"]["single_force"].update(source="serial", port=served.port)
         write_params(tmp_path, params)
         result = eskin(["acquire", "single_force", "--no-progress"], tmp_path,
                        stdin=subprocess.DEVNULL,
@@ -328,9 +331,16 @@ MISTAKES = {
     "max_attempts: 0": (("acquire", "max_attempts"), 0, "greater than or equal to 1"),
     "sim.noise_pf missing": (("sim", "noise_pf"), None, "sim.noise_pf is missing (required)"),
     "unknown key": (("acquire", "prot"), 1, "acquire.prot: unknown key"),
-    "hyperparameters not a mapping": (("train", "single_force", "force", "paper"), 3,
-                                      "train.single_force.force.paper = 3: Input should be "
+    "hyperparameters not a mapping": (("train", "force", "paper"), 3,
+                                      "train.force.paper = 3: Input should be "
                                       "a valid dictionary"),
+    "a task missing": (("train", "detect"), None, "train.detect is missing (required)"),
+    "source typo": (("scenes", "two_force", "source"), "serail", "scenes.two_force.source = "
+                    "'serail': Input should be 'simulated', 'serial' or 'import'"),
+    "import with no file": (("scenes", "two_force", "source"), "import",
+                            "scenes.two_force: source is 'import' but import_path is unset"),
+    "serial with no port": (("scenes", "two_force", "source"), "serial",
+                            "scenes.two_force: source is 'serial' but port is unset"),
 }
 
 
@@ -357,8 +367,7 @@ def test_invalid_yaml_and_a_directory_import_path_are_one_line(tmp_path, repo_pa
     assert result.returncode == 1 and result.stderr.startswith(
         "eskin: error: params.yaml:3:1: not valid YAML"), result.stderr
     params = copy.deepcopy(repo_params)
-    params["acquire"]["source"] = "import"
-    params["scenes"]["single_force"]["import_path"] = str(tmp_path)
+    params["scenes"]["single_force"].update(source="import", import_path=str(tmp_path))
     write_params(tmp_path, params)
     result = eskin(["acquire", "single_force"], tmp_path)
     assert result.returncode == 1 and "Traceback" not in result.stderr

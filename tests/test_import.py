@@ -9,6 +9,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from eskin import steps
+from eskin.data import build
 from eskin.data.importer import import_paper_layout
 from eskin.data.schema import CHANNELS, DatasetError, arrow_schema, read_metadata
 
@@ -115,11 +116,10 @@ def test_truncated_parquet_is_a_clear_error(tmp_path):
 def test_import_source_runs_through_the_pipeline_steps(tmp_path, small_params):
     source = write_csv(tmp_path / "lab.csv", paper_rows())
     params = copy.deepcopy(small_params)
-    params["acquire"]["source"] = "import"
-    params["scenes"]["single_force"]["import_path"] = str(source)
+    params["scenes"]["single_force"].update(source="import", import_path=str(source))
     steps.acquire(params, "single_force", tmp_path / "raw")
     assert (tmp_path / "raw" / "import.csv").read_bytes() == source.read_bytes()
-    message = steps.ingest(params, "single_force", tmp_path / "raw", tmp_path / "out")
+    message = build.ingest(params, "single_force", tmp_path / "raw", tmp_path / "out")
     assert "24 rows" in message
     frame = pq.read_table(tmp_path / "out" / "single_force.parquet").to_pandas()
     assert len(frame) == 24
@@ -144,3 +144,40 @@ def test_streaming_in_small_chunks_gives_the_same_dataset_and_quarantine(tmp_pat
     reasons = [q["reason"] for q in chunked.quarantine]
     assert sum(r.startswith("duplicate of line") for r in reasons) == 3
     assert any("is not a number" in r for r in reasons)
+
+
+LAB_HEADERS = {
+    # The paper's own names: the terminals are x1..x10 and y1..y10.
+    "paper": [f"x{i}" for i in range(1, 11)] + [f"y{i}" for i in range(1, 11)]
+    + ["force", "x", "y", "stretch"],
+    "numbered channels, units": [f"C{i}" for i in range(1, 21)]
+    + ["Force (N)", "node_x", "node_y", "λ"],
+    "upper case, spaces": [f"CX {i}" for i in range(1, 11)] + [f"CY {i}" for i in range(1, 11)]
+    + ["FORCE", "X", "Y", "Stretch"],
+}
+
+
+@pytest.mark.parametrize("naming", sorted(LAB_HEADERS))
+def test_a_lab_header_in_its_own_names_is_recognised(tmp_path, naming):
+    path = write_csv(tmp_path / "lab.csv", paper_rows(), LAB_HEADERS[naming])
+    result = import_paper_layout(path, "single_force")
+    assert len(result.frame) == 24 and result.frame["stretch"].nunique() == 2
+
+
+def test_a_two_force_header_in_the_papers_names_is_recognised(tmp_path):
+    header = ([f"x{i}" for i in range(1, 11)] + [f"y{i}" for i in range(1, 11)]
+              + ["F1", "x1", "y1", "F2", "x2", "y2"])
+    result = import_paper_layout(write_csv(tmp_path / "two.csv", paper_rows(kind="two_force"),
+                                           header), "two_force")
+    assert len(result.frame) == 24 and (result.frame["x2"] == 6).all()
+
+
+def test_a_header_naming_a_column_elsewhere_says_what_to_rename(tmp_path):
+    header = LAB_HEADERS["paper"][:20] + ["x", "y", "force", "stretch"]
+    path = write_csv(tmp_path / "swapped.csv", paper_rows(), header)
+    with pytest.raises(DatasetError) as refused:
+        import_paper_layout(path, "single_force")
+    message = str(refused.value)
+    assert message.startswith(f"{path}:1: the header has 'x' in column 21, where the layout "
+                              "has 'force'") and "rename it" in message, message
+    assert "\n" not in message

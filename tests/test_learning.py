@@ -9,10 +9,12 @@ from conftest import small_scenes
 from sklearn.utils.estimator_checks import check_estimator
 
 from eskin import learn, steps
+from eskin.catalog import TASK_NAMES
+from eskin.data import build
 from eskin.data.schema import CHANNELS, md5_file, node_id
 from eskin.evaluation.crossval import cross_validate, parallel_backend
 from eskin.evaluation.cv import assign_folds, strata
-from eskin.features import BaselineDelta, fit_featurizer
+from eskin.features import BaselineDelta, featurize_scene, fit_featurizer
 from eskin.models import REGISTRY, SubsampledGaussianProcess, build_model, model_settings
 from eskin.tasks import TASKS, get_task
 
@@ -22,16 +24,13 @@ def project(tmp_path_factory, repo_params):
     """Small scenes acquired over the pty, ingested and featurized, in a scratch project."""
     params = small_scenes(repo_params)
     params["cv"]["folds"] = 5  # training tests; the fold tests ask for 10 themselves
-    params["train"]["single_force"]["localise"]["paper"]["n_estimators"] = 20
-    params["train"]["two_force"]["localise"]["paper"]["n_estimators"] = 20
-    params["train"]["single_force"]["force"]["paper"]["subsample"] = 300
-    for task in ("force1", "force2"):
-        params["train"]["two_force"][task]["paper"]["subsample"] = 300
+    params["train"]["localise"]["paper"]["n_estimators"] = 20
+    params["train"]["force"]["paper"]["subsample"] = 300
     root = tmp_path_factory.mktemp("project")
     for scene in ("single_force", "two_force"):
         steps.acquire(params, scene, root / "raw" / scene, progress=False)
-        steps.ingest(params, scene, root / "raw" / scene, root / "processed")
-        learn.featurize(params, scene, root / "processed", root / "features", root / "models")
+        build.ingest(params, scene, root / "raw" / scene, root / "processed")
+        featurize_scene(params, scene, root / "processed", root / "features", root / "models")
     return params, root
 
 
@@ -124,9 +123,10 @@ def test_a_single_stretch_level_skips_stretch_with_its_reason(project, tmp_path)
     assert "two or more stretch levels" in metrics["reason"]
 
 
-def test_every_task_of_both_scenes_is_defined_with_a_registered_role():
-    assert set(TASKS["single_force"]) == {"stretch", "force", "detect", "localise"}
-    assert set(TASKS["two_force"]) == {"force1", "force2", "localise"}
+def test_every_kind_has_the_catalogs_tasks_each_with_a_registered_role():
+    for kind in ("single_force", "two_force"):
+        assert tuple(TASKS[kind]) == TASK_NAMES
+    assert set(TASKS["two_force"]["force"].targets) == {"force1", "force2"}
     for tasks in TASKS.values():
         for task in tasks.values():
             assert "paper" in REGISTRY[task.role]
@@ -218,16 +218,31 @@ def test_detection_keeps_a_score_per_sample_for_roc_curves(project, tmp_path):
     assert oof["contact_score"].notna().all()
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     assert 0.5 < metrics["stratified"]["contact"]["roc_auc"] <= 1
-    assert metrics["source"] == "simulated" and metrics["dataset_rows"] == len(oof) // 2
+    assert metrics["source"] == "simulated (seed 20230529)"
+    assert metrics["dataset_rows"] == len(oof) // 2
 
 
 def test_two_force_tasks_train(project, tmp_path):
     summary = train(project, "two_force", "localise", tmp_path / "loc")
     metrics = json.loads((tmp_path / "loc" / "metrics.json").read_text())
     assert set(metrics["stratified"]) == {"x1", "y1", "x2", "y2"}, summary
-    train(project, "two_force", "force2", tmp_path / "f2")
-    metrics = json.loads((tmp_path / "f2" / "metrics.json").read_text())
+    train(project, "two_force", "force", tmp_path / "f")
+    metrics = json.loads((tmp_path / "f" / "metrics.json").read_text())
+    assert np.isfinite(metrics["grouped"]["force1"]["r2"])
     assert np.isfinite(metrics["grouped"]["force2"]["r2"])
+    for task, reason in (("stretch", "two or more stretch levels"),
+                         ("detect", "contact and no-contact samples")):
+        train(project, "two_force", task, tmp_path / task)
+        metrics = json.loads((tmp_path / task / "metrics.json").read_text())
+        assert metrics["status"] == "skipped" and reason in metrics["reason"], metrics
+
+
+def test_a_task_model_may_be_named_per_kind():
+    section = {"model": {"single_force": "logistic", "two_force": "paper"}, "logistic": {"C": 2.0}}
+    assert model_settings(section, "tuned", "single_force") == ("logistic", {"C": 2.0})
+    assert model_settings(section, "tuned", "two_force") == ("paper", {})
+    with pytest.raises(KeyError, match="no model for"):
+        model_settings({"model": {"single_force": "logistic"}}, "tuned", "two_force")
 
 
 def test_node_ids_are_row_major():

@@ -65,7 +65,7 @@ def test_matching_never_scores_worse_than_the_order_given(cases):
     assert result["wrong_contacts"].between(0, 2).all()
 
 
-def test_score_pairs_joins_the_three_tasks_per_scheme_and_fold():
+def test_score_pairs_joins_localise_and_force_per_scheme_and_fold():
     rows = []
     for scheme in ("stratified", "grouped"):
         for trial in range(4):
@@ -74,12 +74,12 @@ def test_score_pairs_joins_the_three_tasks_per_scheme_and_fold():
                                   forces_pred=(5.0, 1.0) if trial else (1.0, 5.0))})
     frame = pd.DataFrame(rows)
     loc = frame.drop(columns=[c for c in frame if c.startswith("force")])
-    force1 = frame[["scheme", "trial", "sample", "force1_true", "force1_pred"]]
-    force2 = frame[["scheme", "trial", "sample", "force2_true", "force2_pred"]]
-    scores = score_pairs(loc, force1, force2)
+    force = frame[["scheme", "trial", "sample", "force1_true", "force1_pred", "force2_true",
+                   "force2_pred"]]
+    scores = score_pairs(loc, force)
     assert set(scores) == {"stratified", "grouped"}
     # fold 0: trials 0 (one wrong) and 2 (swapped, right); fold 1: both right.
     assert scores["grouped"]["pair_accuracy"] == pytest.approx(0.75)
     assert scores["grouped"]["pair_accuracy_ordered"] == pytest.approx(0.0)
     with pytest.raises(ValueError, match="do not cover the same samples"):
-        score_pairs(loc, force1.iloc[:3], force2)
+        score_pairs(loc, force.iloc[:3])

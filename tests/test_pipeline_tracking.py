@@ -44,11 +44,8 @@ def scratch(tmp_path_factory, repo_params, mlflow_server):
     params = small_scenes(repo_params)
     params["cv"].update(n_jobs=1, folds=5)
     params["report"].update(dpi=60, page_dpi=50)
-    for scene, task in (("single_force", "force"), ("two_force", "force1"),
-                        ("two_force", "force2")):
-        params["train"][scene][task]["paper"]["subsample"] = 200
-    for scene in ("single_force", "two_force"):
-        params["train"][scene]["localise"]["paper"]["n_estimators"] = 20
+    params["train"]["force"]["paper"]["subsample"] = 200
+    params["train"]["localise"]["paper"]["n_estimators"] = 20
     write_params(root, params)
     bin_dir = str(Path(sys.executable).parent)  # dvc, and the python DVC's stages call
     env = {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ.get('PATH', '')}",
@@ -88,7 +85,7 @@ def test_dvc_metrics_show_lists_the_headline_metrics(scratch):
 def test_a_second_force_model_is_a_second_mlflow_run_on_the_same_dataset(scratch, repo_params):
     root, env = scratch
     out = run(["dvc", "exp", "run", "-n", "force-rf", "-S",
-               "train.single_force.force.model=random_forest"], root, env)
+               "train.force.model=random_forest"], root, env)
     assert "train@single_force-force" in out
     assert "Running stage 'train@single_force-stretch'" not in out  # only what changed reruns
 
@@ -97,7 +94,7 @@ def test_a_second_force_model_is_a_second_mlflow_run_on_the_same_dataset(scratch
     runs = mlflow.search_runs(experiment_names=["eskin"],
                               filter_string="tags.`eskin.task` = 'force' and "
                                             "tags.`eskin.scene` = 'single_force'")
-    default = repo_params["train"]["single_force"]["force"]["model"]
+    default = repo_params["train"]["force"]["model"]
     assert sorted(runs["params.model"]) == sorted([default, "random_forest"])
     digest = md5_file(root / "data" / "processed" / "single_force.parquet")
     assert set(runs["tags.eskin.dataset_digest"]) == {digest}
@@ -135,7 +132,10 @@ def test_a_repro_groups_its_task_runs_under_one_pipeline_run(scratch):
     runs = mlflow.search_runs(experiment_names=["eskin"],
                               filter_string="tags.`eskin.kind` = 'task' and "
                                             "tags.`eskin.dvc_experiment` = ''")
-    assert len(runs) == 7
+    # Four single-force tasks; two-force force and localise (stretch and detect skip).
+    assert sorted(runs["tags.eskin.scene"] + "/" + runs["tags.eskin.task"]) == [
+        *(f"single_force/{t}" for t in ("detect", "force", "localise", "stretch")),
+        "two_force/force", "two_force/localise"]
     assert runs["tags.mlflow.parentRunId"].nunique() == 1
     # Artifacts go through the server: predictions and models come back from it.
     run_id = runs[runs["tags.eskin.task"] == "detect"].iloc[0]["run_id"]
@@ -179,8 +179,8 @@ def wait_for_queue(root, env, timeout=600):
 def test_queued_experiments_run_two_at_a_time_and_compare_side_by_side(scratch):
     root, env = scratch
     # Against the workspace, which the force-rf experiment above left with its params.
-    for name, setting in (("q-logistic", "train.single_force.detect.model=logistic"),
-                          ("q-ridge", "train.single_force.stretch.model=ridge")):
+    for name, setting in (("q-logistic", "train.detect.model=logistic"),
+                          ("q-ridge", "train.stretch.model=ridge")):
         run(["dvc", "exp", "run", "--queue", "-n", name, "-S", setting], root, env)
     run(["dvc", "queue", "start", "-j", "2"], root, env)
     status = wait_for_queue(root, env)
@@ -202,9 +202,9 @@ def test_queued_experiments_run_two_at_a_time_and_compare_side_by_side(scratch):
     eskin_cli(["compare", "--format", "csv", "--output", str(csv)], root, env)
     table = pd.read_csv(csv).set_index("variant")
     assert {"q-logistic", "q-ridge", "force-rf"} <= set(table.index)
-    assert table.loc["q-logistic", "train.single_force.detect.model"] == "logistic"
-    assert table.loc["q-ridge", "train.single_force.stretch.model"] == "ridge"
-    assert table.loc["force-rf", "train.single_force.force.model"] == "random_forest"
+    assert table.loc["q-logistic", "train.detect.model"] == "logistic"
+    assert table.loc["q-ridge", "train.stretch.model"] == "ridge"
+    assert table.loc["force-rf", "train.force.model"] == "random_forest"
     assert table.loc["q-logistic", "runs"] == 1 and table.loc["q-logistic", "run time s"] > 0
     assert 0.5 < table.loc["q-logistic", "contact acc"] <= 1
     assert -1 < table.loc["force-rf", "force R²"] <= 1

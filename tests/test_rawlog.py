@@ -7,6 +7,7 @@ from conftest import eskin, write_params
 
 from eskin import steps
 from eskin.acquisition.rawlog import RawLogError, RawLogWriter, read_log
+from eskin.data import build
 from eskin.data.schema import DatasetError
 from eskin.device.protocol import encode_frame, parse_line
 
@@ -59,14 +60,14 @@ def test_damaged_log_stops_ingest_or_goes_to_quarantine(tmp_path, small_params):
     lines[frame_line] = lines[frame_line].replace(",", ";", 3)
     log.write_text("".join(lines))
     with pytest.raises(DatasetError, match=f"acquisition.log:{frame_line + 1}: .*quarantine"):
-        steps.ingest(small_params, "single_force", tmp_path, tmp_path / "out")
+        build.ingest(small_params, "single_force", tmp_path, tmp_path / "out")
     lenient = copy.deepcopy(small_params)
     lenient["ingest"]["bad_rows"] = "quarantine"
     with pytest.raises(DatasetError, match="1 of 404 planned conditions"):
-        steps.ingest(lenient, "single_force", tmp_path, tmp_path / "out")
+        build.ingest(lenient, "single_force", tmp_path, tmp_path / "out")
     summary = steps.acquire(lenient, "single_force", tmp_path, progress=False)
     assert "1 condition(s) acquired, 403 reused" in summary
-    message = steps.ingest(lenient, "single_force", tmp_path, tmp_path / "out")
+    message = build.ingest(lenient, "single_force", tmp_path, tmp_path / "out")
     assert "2020 rows" in message and "1 row(s) quarantined" in message
     assert "does not verify" in (tmp_path / "out" / "single_force.quarantine.csv").read_text()
 

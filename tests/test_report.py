@@ -28,7 +28,8 @@ def fake_outputs(root):
             (root / sub / scene).mkdir(parents=True, exist_ok=True)
         frame.to_parquet(root / "predictions" / scene / f"{task}.parquet")
         (root / "metrics" / scene / f"{task}.json").write_text(json.dumps(
-            {"scene": scene, "task": task, "status": "trained", "dataset_md5": "0" * 32,
+            {"scene": scene, "kind": scene, "task": task, "status": "trained",
+             "dataset_md5": "0" * 32,
              "dataset_rows": 120, "source": "simulated", "model": "paper",
              "model_md5": f"{task:0>32}", **metrics}))
 
@@ -61,10 +62,13 @@ def fake_outputs(root):
     two = base.assign(**{f"{c}_true": node[:, i] for i, c in enumerate(["x1", "y1", "x2", "y2"])},
                       **{f"{c}_pred": node[:, i] for i, c in enumerate(["x1", "y1", "x2", "y2"])})
     write("two_force", "localise", two, {})
-    for task in ("force1", "force2"):
-        write("two_force", task, base.assign(**{f"{task}_true": force + 1,
-                                                f"{task}_pred": force + 1.2}),
-              regression(task, force))
+    write("two_force", "force", base.assign(force1_true=force + 1, force1_pred=force + 1.2,
+                                            force2_true=force, force2_pred=force + 0.1),
+          {s: {**regression("force1", force)[s], **regression("force2", force)[s]}
+           for s in scores})
+    (root / "metrics" / "two_force" / "stretch.json").write_text(json.dumps(
+        {"scene": "two_force", "kind": "two_force", "task": "stretch", "status": "skipped",
+         "reason": "stretch regression needs two or more stretch levels; this scene has one"}))
     (root / "README.md").write_text(f"# x\n\n{README_BEGIN}\nstale table\n{README_END}\n\nkept\n")
     return root
 
@@ -73,7 +77,9 @@ def fake_outputs(root):
 def built(tmp_path_factory):
     root = fake_outputs(tmp_path_factory.mktemp("report"))
     params = {"report": {"schemes": ["stratified", "grouped"], "plots_scheme": "stratified",
-                         "dpi": 60, "page_dpi": 50}}
+                         "dpi": 60, "page_dpi": 50},
+              "scenes": {"single_force": {"kind": "single_force"},
+                         "two_force": {"kind": "two_force"}}}
     summary = report.report(params, metrics_dir=root / "metrics",
                             predictions_dir=root / "predictions",
                             figures_dir=root / "figures", plots_dir=root / "plots",
@@ -83,21 +89,30 @@ def built(tmp_path_factory):
 
 def test_every_figure_is_written_as_png_and_svg_per_scheme(built):
     root, summary = built
-    names = {p.stem for p in (root / "figures").glob("*.png")}
-    expected = {f"{fid}_{scheme}" for scheme in ("stratified", "grouped") for fid in (
-        "stretch_parity", "force_parity", "localisation_confusion", "detection",
-        "two_force_localisation", "two_force_parity")}
+    names = {p.relative_to(root / "figures").with_suffix("").as_posix()
+             for p in (root / "figures").rglob("*.png")}
+    expected = {f"{scene}/{fid}_{scheme}" for scheme in ("stratified", "grouped")
+                for scene, fids in (("single_force", ("stretch_parity", "force_parity",
+                                                      "localisation_confusion", "detection")),
+                                    ("two_force", ("two_force_localisation",
+                                                   "two_force_parity")))
+                for fid in fids}
     assert names == expected, summary
-    assert {p.stem for p in (root / "figures").glob("*.svg")} == expected
+    assert {p.relative_to(root / "figures").with_suffix("").as_posix()
+            for p in (root / "figures").rglob("*.svg")} == expected
 
 
 def test_dvc_plot_data_has_the_columns_dvc_yaml_names(built):
     root, _ = built
-    confusion = pd.read_csv(root / "plots" / "localisation_x.csv")
+    confusion = pd.read_csv(root / "plots" / "confusion" / "single_force_x.csv")
     assert list(confusion.columns) == ["actual", "predicted"]
-    parity = pd.read_csv(root / "plots" / "force_parity.csv")
+    parity = pd.read_csv(root / "plots" / "parity" / "single_force_force.csv")
     assert list(parity.columns) == ["actual", "predicted", "stretch"]
     assert len(parity) == 60  # the stratified half only
+    assert {p.stem for p in (root / "plots").rglob("*.csv")} == {
+        "single_force_stretch", "single_force_force", "two_force_force1", "two_force_force2",
+        "single_force_contact", "single_force_x", "single_force_y",
+        *(f"two_force_{t}" for t in ("x1", "y1", "x2", "y2"))}
 
 
 def test_readme_table_replaces_only_its_section(built):
@@ -105,12 +120,15 @@ def test_readme_table_replaces_only_its_section(built):
     readme = (root / "README.md").read_text()
     assert "stale table" not in readme and readme.endswith("kept\n")
     assert "| force R² [paper] | 0.900 ± 0.010 | 0.900 ± 0.010 | 0.827 |" in readme
+    assert readme.index("#### single_force (single force)") < readme.index(
+        "#### two_force (two force)")
+    assert "two_force/stretch skipped: stretch regression needs two or more" in readme
     with pytest.raises(ValueError, match="lacks the results markers"):
         replace_readme_results("# no markers\n", "table")
 
 
 def test_missing_and_skipped_tasks_say_so_in_the_table():
-    rows = headline_rows({("single_force", "stretch"): {"status": "skipped"}})
+    rows = headline_rows("single_force", {"stretch": {"status": "skipped"}})
     by_label = {r[0]: r for r in rows}
     assert by_label["stretch R²"][1:3] == ["skipped", "skipped"]
     assert by_label["force R²"][1:3] == ["missing", "missing"]
@@ -130,10 +148,13 @@ def test_the_page_loads_every_image_in_headless_chromium(built):
         page.wait_for_load_state("load")
         widths = page.eval_on_selector_all("img", "imgs => imgs.map(i => i.naturalWidth)")
         headline = page.eval_on_selector_all(
-            "h2:text('Headline') + table tbody tr", "rows => rows.map(r => r.cells[0].innerText)")
+            "#scene-single_force table tbody tr", "rows => rows.map(r => r.cells[0].innerText)")
+        skipped = page.inner_text("#scene-two_force ul")
         models = page.inner_text("h2:text('Models') + p + table")
         browser.close()
     assert len(widths) == 12 and all(w > 0 for w in widths), widths
-    assert [h.split(' [')[0] for h in headline] == [row.label for row in HEADLINES]
+    assert [h.split(' [')[0] for h in headline] == [row.label for row in HEADLINES
+                                                    if row.kind == "single_force"]
+    assert "stretch: stretch regression needs two or more stretch levels" in skipped
     assert headline[0] == f"{HEADLINES[0].label} [paper]"
     assert "00000000000000000000000000force" in models

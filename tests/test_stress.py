@@ -10,16 +10,19 @@ from conftest import small_scenes
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from eskin import learn, steps, stress
+from eskin import steps, stress
+from eskin.catalog import TASK_NAMES
+from eskin.data import build
 from eskin.data.schema import CHANNELS, read_dataset
+from eskin.features import featurize_scene
 from eskin.models import build_model, model_settings
 from eskin.tasks import get_task
 
 
 def acquire_features(params, root):
     steps.acquire(params, "single_force", root / "raw", progress=False)
-    steps.ingest(params, "single_force", root / "raw", root / "processed")
-    learn.featurize(params, "single_force", root / "processed", root / "features",
+    build.ingest(params, "single_force", root / "raw", root / "processed")
+    featurize_scene(params, "single_force", root / "processed", root / "features",
                     root / "models")
     return read_dataset(root / "features" / "single_force.parquet")
 
@@ -27,8 +30,8 @@ def acquire_features(params, root):
 @pytest.fixture(scope="module")
 def small(tmp_path_factory, repo_params):
     params = small_scenes(repo_params)
-    params["train"]["single_force"]["force"]["paper"]["subsample"] = 300
-    params["train"]["single_force"]["localise"]["paper"]["n_estimators"] = 20
+    params["train"]["force"]["paper"]["subsample"] = 300
+    params["train"]["localise"]["paper"]["n_estimators"] = 20
     frames = {"default": acquire_features(params, tmp_path_factory.mktemp("stress"))}
     for name, factor in (("noise_zero", 0.0), ("noise_x10", 10.0)):
         noisy = copy.deepcopy(params)
@@ -103,7 +106,8 @@ def default_fits(small):
     params, frames = small
     frame = frames["default"].iloc[::3].reset_index(drop=True)
     out = []
-    for task_name, section in params["train"]["single_force"].items():
+    for task_name in TASK_NAMES:
+        section = params["train"][task_name]
         task = get_task("single_force", task_name)
         name, hyper = model_settings(section, "tuned")
         data = frame[task.rows(frame)]

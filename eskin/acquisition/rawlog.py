@@ -32,11 +32,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from eskin.device.protocol import Frame, ParseError, parse_line
+from eskin.errors import EskinError
 
 MAGIC = "#eskin-raw 1"
 
 
-class RawLogError(ValueError):
+LOG_NAME = "acquisition.log"  # data/raw/<scene>/acquisition.log
+
+
+class RawLogError(EskinError, ValueError):
     """A raw log line that cannot be trusted; names the file and the line."""
 
 

@@ -36,11 +36,12 @@ from eskin.device.link import (
     SerialLink,
     jump_problem,
 )
+from eskin.errors import EskinError
 
 log = logging.getLogger(__name__)
 
 
-class AcquisitionError(RuntimeError):
+class AcquisitionError(EskinError, RuntimeError):
     """Acquisition could not complete a condition."""
 
 

@@ -20,7 +20,7 @@ from pathlib import Path
 
 from eskin import __version__
 from eskin.acquisition.plan import ScenePlan
-from eskin.acquisition.rawlog import LogContents, RawLogWriter, read_log_if_any
+from eskin.acquisition.rawlog import LOG_NAME, LogContents, RawLogWriter, read_log_if_any
 from eskin.acquisition.runner import (
     AcquisitionError,
     AcquisitionReport,
@@ -33,8 +33,6 @@ from eskin.device.faults import LinkFaults
 from eskin.device.link import LinkError, SerialLink
 from eskin.device.physics import SkinParams
 from eskin.device.protocol import Hello
-
-LOG_NAME = "acquisition.log"
 
 
 @dataclass(frozen=True)
@@ -57,8 +55,7 @@ def simulated_board(sim: SkinParams, *, rest_length_mm: float, corrupt_fraction:
               "corrupt_fraction": corrupt_fraction, "frame_period_ms": frame_period_ms,
               "faults": (faults or LinkFaults()).as_dict()}
     scratch = tempfile.TemporaryDirectory(prefix="eskin-board-")
-    command = [sys.executable, "-m", "eskin", "device", "simulate",
-               "--config-json", json.dumps(config)]
+    command = [sys.executable, "-m", "eskin.device.simulate", "--config-json", json.dumps(config)]
     command += (["--socket", str(socket_port)] if socket_port is not None
                 else ["--link", str(Path(scratch.name) / "tty")])
     # The board's stderr goes to a file, not a pipe nobody drains: a traceback is kept
@@ -175,7 +172,7 @@ def acquire_scene(plan: ScenePlan, raw_dir: Path, *, source: str, sim: SkinParam
                                **options)
     if source == "serial":
         if not port:
-            raise ValueError("acquire.source is 'serial' but acquire.port is not set")
+            raise ValueError("source is 'serial' but no port is set (scenes.<scene>.port)")
         placer = SimulatedPlacer() if indenters == "board" else OperatorPlacer(ask)
         return run_session(plan, raw_dir, port=port, placer=placer, simulator=None, **options)
-    raise ValueError(f"acquire.source must be 'simulated', 'serial' or 'import', got {source!r}")
+    raise ValueError(f"source must be 'simulated' or 'serial' here, got {source!r}")

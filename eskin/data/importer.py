@@ -370,17 +370,63 @@ def _layout_hint(width: int) -> str:
     return f" (a {other} row: scenes mixed in one file?)" if other else ""
 
 
+def _normalise(name: str) -> str:
+    """``Force (N)`` → ``force``, ``C_X 1`` → ``cx1``, ``λ`` → ``lambda``."""
+    name = name.strip().lower().split("(")[0].split("[")[0]
+    name = "".join(ch for ch in name if ch.isalnum() or ch == "λ")
+    return name.replace("λ", "lambda")
+
+
+def header_names(expected: list[str]) -> list[set[str]]:
+    """Per column of a layout, the names a lab's header may give it (normalised): ours,
+    the paper's (x1..x10, y1..y10 for the terminals), numbered channels (c1..c20,
+    ch1, channel1), and common label spellings (f, load, lambda, node_x)."""
+    out = []
+    for position, ours in enumerate(expected):
+        names = {ours}
+        if position < len(CHANNELS):
+            number = position + 1
+            axis, index = ours[1], ours[2:]   # cx3 → x, 3
+            names |= {f"{axis}{index}", f"c{axis}{index}", f"{axis}ch{index}",
+                      *(f"{p}{number}" for p in ("c", "ch", "channel", "cap", "s"))}
+        else:
+            contact = ours[-1] if ours[-1].isdigit() else ""
+            base = ours.rstrip("12")
+            spellings = {"force": ["force", "f", "load", "forcen", "fn", "fz"],
+                         "x": ["x", "nodex", "xnode", "posx", "row", "i"],
+                         "y": ["y", "nodey", "ynode", "posy", "col", "column", "j"],
+                         "stretch": ["stretch", "lambda", "stretchratio", "l"]}[base]
+            names |= {f"{name}{contact}" for name in spellings}
+            if contact:
+                names |= {f"{name}_{contact}".replace("_", "") for name in spellings}
+        out.append(names)
+    return out
+
+
 def _check_header(path: Path, header: tuple[int, list[str]], expected: list[str]) -> None:
-    """A header that names our columns must name them where the layout has them."""
+    """A header may name the columns its own way (:func:`header_names`); one that names
+    a column of the layout somewhere else is refused, saying what to rename."""
     line, names = header
-    known = set(CHANNELS) | {label for labels in LABELS.values() for label in labels}
-    for position, name in enumerate(names):
-        name = name.strip().lower()
-        if name in known and (position >= len(expected) or expected[position] != name):
-            where = expected[position] if position < len(expected) else "no column"
-            raise DatasetError(f"{path}:{line}: the header has {name!r} in column "
-                               f"{position + 1}, where the layout has {where!r}; put the "
-                               f"columns in the paper's order ({', '.join(expected[18:])})")
+    accepted = header_names(expected)
+    elsewhere = {name: i for i, names_at in enumerate(accepted) for name in names_at}
+    for position, raw in enumerate(names):
+        name = _normalise(raw)
+        if position < len(accepted) and name in accepted[position]:
+            continue
+        if name in elsewhere and elsewhere[name] != position:
+            where = (f"where the layout has {expected[position]!r}" if position < len(expected)
+                     else "beyond the layout's columns")
+            raise DatasetError(
+                f"{path}:{line}: the header has {raw.strip()!r} in column {position + 1}, "
+                f"{where} ({raw.strip()!r} names column {elsewhere[name] + 1}, "
+                f"{expected[elsewhere[name]]!r}); rename it, or put the columns in the "
+                f"paper's order: 20 terminals, then {', '.join(expected[20:])}")
+
+
+def check_layout(path: Path, kind: str) -> None:
+    """What can be judged of an import file without reading its rows (existence, width,
+    header, encoding of the first 64 KiB): a DatasetError naming the file, else None."""
+    _layout(Path(path), kind)
 
 
 def copy_import(source: Path, raw_dir: Path, kind: str) -> Path:

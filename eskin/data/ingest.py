@@ -52,7 +52,8 @@ def ingest_log(path: Path, plan: ScenePlan, *, bad_rows: str = "error") -> Inges
     metadata = {
         "scene": plan.name, "kind": plan.kind, "plan": plan.as_dict(),
         "device": last["device"], "simulator": last.get("simulator"),
-        "source": {"kind": last.get("source"), "path": str(path), "sha256": sha256_file(path),
+        "source": {"kind": last.get("source"), "port": last.get("port"),
+                   "path": str(path), "sha256": sha256_file(path),
                    "sessions": sorted({s for s in frame["session"].unique()}),
                    "frames_rejected_on_link": contents.frames_rejected},
     }

@@ -25,6 +25,8 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from eskin.errors import EskinError
+
 X_CHANNELS = [f"cx{i}" for i in range(1, 11)]
 Y_CHANNELS = [f"cy{i}" for i in range(1, 11)]
 CHANNELS = X_CHANNELS + Y_CHANNELS
@@ -36,7 +38,7 @@ PROVENANCE = ["session", "trial", "sample", "seq", "t_ms"]
 SCHEMA_VERSION = "1"
 
 
-class DatasetError(ValueError):
+class DatasetError(EskinError, ValueError):
     """A dataset that breaks the schema; the message says where."""
 
 
@@ -108,16 +110,17 @@ def validate(frame: pd.DataFrame, kind: str, where: str = "dataset") -> None:
 
 
 def contact_mask(frame: pd.DataFrame) -> np.ndarray:
-    """Single force: True where a sample is a contact (force > 0 and node > 0)."""
-    return ((frame["force"] > 0) & (frame["x"] > 0)).to_numpy()
+    """True where an indenter presses the skin (force > 0 and node > 0): either one,
+    in a two-force scene."""
+    if "force" in frame:
+        return ((frame["force"] > 0) & (frame["x"] > 0)).to_numpy()
+    touching = [(frame[f"force{i}"] > 0) & (frame[f"x{i}"] > 0) for i in (1, 2)]
+    return (touching[0] | touching[1]).to_numpy()
 
 
 def contact_free(frame: pd.DataFrame, kind: str) -> np.ndarray:
     """True where no indenter presses the skin (never, in a two-force scene)."""
-    if kind == "single_force":
-        return ~contact_mask(frame)
-    touching = [(frame[f"force{i}"] > 0) & (frame[f"x{i}"] > 0) for i in (1, 2)]
-    return ~(touching[0] | touching[1]).to_numpy()
+    return ~contact_mask(frame)
 
 
 def node_id(x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -181,3 +184,24 @@ def write_quarantine(rows: list[dict], path: Path) -> None:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     pd.DataFrame(rows, columns=["source", "line", "reason", "text"]).to_csv(path, index=False)
+
+
+def describe_source(meta: dict) -> str:
+    """Where a dataset came from, in one line, from its own metadata: ``simulated (seed
+    7)``, ``serial /dev/ttyACM0, device ESKIN-1 firmware 1.0``, ``import lab.csv (sha256
+    ab12…)``. Every field may be absent (older or foreign datasets)."""
+    source = meta.get("source") or {}
+    kind = source.get("kind") or "unknown"
+    if kind == "simulated":
+        seed = (meta.get("simulator") or {}).get("seed")
+        return f"simulated (seed {seed})" if seed is not None else "simulated"
+    if kind == "serial":
+        device = meta.get("device") or {}
+        parts = [source.get("port") or "port unknown"]
+        if device.get("id"):
+            parts.append(f"device {device['id']} firmware {device.get('firmware', '?')}")
+        return "serial " + ", ".join(parts)
+    if kind == "import":
+        digest = source.get("sha256") or ""
+        return f"import {source.get('path', '?')} (sha256 {digest[:12]}…)"
+    return kind

@@ -35,13 +35,14 @@ from eskin.device.host import (
     Violation,
 )
 from eskin.device.protocol import Frame, Hello, ParseError
+from eskin.errors import EskinError
 
 BAUD = 115200
 READ_CHUNK = 4096          # bytes per read: what a flood can put in memory at once
 MAX_EVIDENCE_LINES = 64    # rejected lines kept per attempt (the rest only counted)
 
 
-class LinkError(RuntimeError):
+class LinkError(EskinError, RuntimeError):
     """The board could not be reached or stopped answering."""
 
 

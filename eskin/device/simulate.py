@@ -199,3 +199,47 @@ def announce_stdout(port: str) -> None:
     """First stdout line is the port: what a parent process reads to connect."""
     sys.stdout.write(port + "\n")
     sys.stdout.flush()
+
+
+def serve_config(config: dict, *, socket_port: int | None = None,
+                 link: Path | None = None) -> None:
+    """Serve the simulated board ``config`` describes (``sim``, ``rest_length_mm``,
+    ``corrupt_fraction``, ``frame_period_ms``, ``faults``) on a pty, or on a loopback
+    socket, announcing the port on stdout; until the parent process is gone."""
+    from eskin.device.faults import LinkFaults
+    from eskin.device.physics import SkinParams
+
+    sim = SkinParams.from_mapping(config["sim"])
+
+    def power_on() -> SimulatedBoard:  # again after every injected reset
+        return SimulatedBoard(sim, rest_length_mm=config["rest_length_mm"],
+                              corrupt_fraction=config["corrupt_fraction"],
+                              frame_period_ms=config["frame_period_ms"])
+
+    line = FaultyLine(power_on, LinkFaults.from_mapping(config.get("faults")))
+    try:
+        if socket_port is not None:
+            serve_socket(line, socket_port, announce_stdout)
+        else:
+            serve_pty(line, announce_stdout, link=link)
+    except KeyboardInterrupt:
+        pass
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m eskin.device.simulate --config-json JSON [--socket PORT | --link PATH]``:
+    the acquisition's own board process (``eskin device simulate`` is the user's)."""
+    import argparse
+    import json
+
+    parser = argparse.ArgumentParser(prog="python -m eskin.device.simulate")
+    parser.add_argument("--config-json", required=True)
+    parser.add_argument("--socket", type=int)
+    parser.add_argument("--link", type=Path)
+    args = parser.parse_args(argv)
+    serve_config(json.loads(args.config_json), socket_port=args.socket, link=args.link)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -20,9 +20,8 @@ import numpy as np
 import pandas as pd
 from sklearn.model_selection import StratifiedGroupKFold, StratifiedKFold
 
+from eskin.catalog import SCHEMES
 from eskin.data.schema import node_id
-
-SCHEMES = ("stratified", "grouped")
 
 
 def strata(frame: pd.DataFrame, kind: str) -> np.ndarray:

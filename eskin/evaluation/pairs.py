@@ -88,18 +88,15 @@ def pair_scores(outcomes: pd.DataFrame) -> dict[str, float]:
             **{f"force_{name}": value for name, value in force.items()}}
 
 
-def score_pairs(localise: pd.DataFrame, force1: pd.DataFrame,
-                force2: pd.DataFrame) -> dict[str, dict[str, float]]:
+def score_pairs(localise: pd.DataFrame, force: pd.DataFrame) -> dict[str, dict[str, float]]:
     """Per CV scheme, mean and std over folds of :func:`pair_scores`.
 
-    The three frames are the out-of-fold predictions of the two-force tasks
-    (one row per sample and scheme, keyed by trial and sample).
+    The frames are the out-of-fold predictions of a two-force scene's localise and
+    force tasks (one row per sample and scheme, keyed by trial and sample).
     """
     key = ["scheme", "trial", "sample"]
-    joined = localise.merge(force1[key + ["force1_pred", "force1_true"]], on=key,
-                            validate="one_to_one")
-    joined = joined.merge(force2[key + ["force2_pred", "force2_true"]], on=key,
-                          validate="one_to_one")
+    forces = [f"force{i}_{what}" for i in CONTACTS for what in ("pred", "true")]
+    joined = localise.merge(force[key + forces], on=key, validate="one_to_one")
     if len(joined) != len(localise):
         raise ValueError(f"the two-force predictions do not cover the same samples: "
                          f"{len(localise)} localised, {len(joined)} with both forces")

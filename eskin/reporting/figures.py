@@ -117,12 +117,12 @@ def confusion_grid(oof: pd.DataFrame, targets: list[str], names: list[str],
     return fig
 
 
-def two_force_parity(force1: pd.DataFrame, force2: pd.DataFrame) -> Figure:
+def two_force_parity(oof: pd.DataFrame) -> Figure:
     """Force parity of contact 1 and contact 2 side by side (paper Fig. 9)."""
     with plt.rc_context(STYLE):
         fig, axes = plt.subplots(1, 2, figsize=(PAGE_IN, PAGE_IN / 2))
-        force_parity(force1, "force1", by=None, ax=axes[0], title="contact 1")
-        force_parity(force2, "force2", by=None, ax=axes[1], title="contact 2")
+        force_parity(oof, "force1", by=None, ax=axes[0], title="contact 1")
+        force_parity(oof, "force2", by=None, ax=axes[1], title="contact 2")
     return fig
 
 

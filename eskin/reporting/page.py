@@ -12,17 +12,21 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-SCHEMES = ("stratified", "grouped")
+from eskin.catalog import SCHEMES
+
+# (scene, kind, {task: metrics document}) for each scene of params.yaml, in its order.
+Scenes = list[tuple[str, str, Mapping[str, Mapping]]]
 README_BEGIN = "<!-- results:begin (written by the report stage; edits here are overwritten) -->"
 README_END = "<!-- results:end -->"
 
 
 @dataclass(frozen=True)
 class Headline:
-    """One row of the headline table: where its number is, and the paper's value."""
+    """One row of a scene's headline table: where its number is, and the paper's value
+    for that kind of scene."""
 
     label: str
-    scene: str
+    kind: str
     task: str
     target: str | None     # None: the scores sit directly under the scheme (pairs)
     metric: str
@@ -46,9 +50,10 @@ HEADLINES = (
     Headline("y accuracy", "single_force", "localise", "y", "accuracy",
              "“effective” (Fig. 7)"),
     Headline("y within one node", "single_force", "localise", "y", "within_one"),
-    Headline("two forces: force 1 R²", "two_force", "force1", "force1", "r2",
+    Headline("two forces: stretch R²", "two_force", "stretch", "stretch", "r2"),
+    Headline("two forces: force 1 R²", "two_force", "force", "force1", "r2",
              "0.695"),
-    Headline("two forces: force 2 R²", "two_force", "force2", "force2", "r2",
+    Headline("two forces: force 2 R²", "two_force", "force", "force2", "r2",
              "0.771"),
     *(Headline(f"two forces: {t} accuracy", "two_force", "localise", t,
                "accuracy", "“high” (Fig. 8)") for t in ("x1", "y1", "x2", "y2")),
@@ -62,8 +67,8 @@ HEADLINES = (
 )
 
 
-def _value(metrics: Mapping, row: Headline, scheme: str) -> str:
-    document = metrics.get((row.scene, row.task))
+def _value(metrics: Mapping[str, Mapping], row: Headline, scheme: str) -> str:
+    document = metrics.get(row.task)
     if document is None:
         return "missing"
     if document.get("status") == "skipped":
@@ -81,35 +86,40 @@ def _value(metrics: Mapping, row: Headline, scheme: str) -> str:
     return f"{fmt.format(mean)} ± {fmt.format(std)}" if math.isfinite(std) else fmt.format(mean)
 
 
-def headline_rows(metrics: Mapping[tuple[str, str], Mapping]) -> list[list[str]]:
-    """[metric, stratified, grouped, paper] per headline, as display strings."""
+def headline_rows(kind: str, metrics: Mapping[str, Mapping]) -> list[list[str]]:
+    """[metric, stratified, grouped, paper] per headline of a ``kind`` scene whose metrics
+    documents are ``metrics`` (by task), as display strings."""
     return [[_label(metrics, row), *(_value(metrics, row, s) for s in SCHEMES), row.paper]
-            for row in HEADLINES]
+            for row in HEADLINES if row.kind == kind]
 
 
-def _label(metrics: Mapping, row: Headline) -> str:
+def _label(metrics: Mapping[str, Mapping], row: Headline) -> str:
     """The row's label with the model that produced its number (the paper's, or another)."""
-    model = metrics.get((row.scene, row.task), {}).get("model")
+    model = metrics.get(row.task, {}).get("model")
     return f"{row.label} [{model}]" if model else row.label
 
 
-def headline_markdown(metrics: Mapping[tuple[str, str], Mapping]) -> str:
+def headline_markdown(kind: str, metrics: Mapping[str, Mapping]) -> str:
     lines = ["| metric | stratified CV (the paper's) | grouped CV (whole trials out) | paper |",
              "|---|---|---|---|"]
-    lines += ["| " + " | ".join(cells) + " |" for cells in headline_rows(metrics)]
+    lines += ["| " + " | ".join(cells) + " |" for cells in headline_rows(kind, metrics)]
     return "\n".join(lines)
 
 
-def datasets(metrics: Mapping[tuple[str, str], Mapping]) -> list[list[str]]:
-    """[scene, DVC md5, rows, source] per scene that trained."""
-    seen: dict[str, list[str]] = {}
-    for (scene, _), document in sorted(metrics.items()):
-        if "dataset_md5" in document and scene not in seen:
+def dataset(metrics: Mapping[str, Mapping]) -> tuple[str, str, str] | None:
+    """(DVC md5, rows, source) of the dataset a scene's tasks trained on."""
+    for document in metrics.values():
+        if "dataset_md5" in document:
             rows = document.get("dataset_rows")
-            seen[scene] = [scene, document["dataset_md5"],
-                           f"{rows:,}" if isinstance(rows, int) else "?",
-                           str(document.get("source", "?"))]
-    return list(seen.values())
+            return (document["dataset_md5"], f"{rows:,}" if isinstance(rows, int) else "?",
+                    str(document.get("source", "?")))
+    return None
+
+
+def skipped(metrics: Mapping[str, Mapping]) -> list[tuple[str, str]]:
+    """(task, reason) of each task the scene's data did not support."""
+    return [(task, str(document.get("reason", "")))
+            for task, document in metrics.items() if document.get("status") == "skipped"]
 
 
 def replace_readme_results(readme: str, section: str) -> str:
@@ -121,11 +131,17 @@ def replace_readme_results(readme: str, section: str) -> str:
     return f"{head}{README_BEGIN}\n{section.strip()}\n{README_END}{tail}"
 
 
-def readme_section(metrics: Mapping[tuple[str, str], Mapping]) -> str:
-    scenes = "; ".join(f"{scene}: {rows} rows, {source}, DVC md5 `{md5}`"
-                       for scene, md5, rows, source in datasets(metrics))
-    return (f"{headline_markdown(metrics)}\n\nMean ± std over folds. Datasets — {scenes}. "
-            "Figures and model hashes: `reports/index.html`.")
+def readme_section(scenes: Scenes) -> str:
+    parts = []
+    for scene, kind, metrics in scenes:
+        data = dataset(metrics)
+        about = (f"{data[1]} rows, {data[2]}, DVC md5 `{data[0]}`" if data
+                 else "no trained task")
+        parts.append(f"#### {scene} ({kind.replace('_', ' ')})\n\n{about}.\n\n"
+                     f"{headline_markdown(kind, metrics)}")
+        parts += [f"\n{scene}/{task} skipped: {reason}" for task, reason in skipped(metrics)]
+    return ("\n\n".join(parts) + "\n\nMean ± std over folds. Figures and model hashes: "
+            "`reports/index.html`.")
 
 
 def _table(header: list[str], rows: list[list[str]]) -> str:
@@ -148,23 +164,46 @@ figcaption { font-size: 0.9em; color: #555; }
 """
 
 
-def models(metrics: Mapping[tuple[str, str], Mapping]) -> list[list[str]]:
+def models(scenes: Scenes) -> list[list[str]]:
     """(scene/task, model, model md5) of each trained task: the key to its MLflow run."""
     return [[f"{scene}/{task}", str(document.get("model", "?")), document["model_md5"]]
-            for (scene, task), document in sorted(metrics.items()) if "model_md5" in document]
+            for scene, _, metrics in scenes for task, document in metrics.items()
+            if "model_md5" in document]
 
 
-def render_page(metrics: Mapping[tuple[str, str], Mapping],
-                figures: list[tuple[str, str, bytes]], commit: str = "") -> str:
-    """The report: headline table, datasets, models, and figures embedded as PNG.
-
-    ``figures`` are (id, caption, PNG bytes); the page needs no other file.
-    """
-    figure_html = "".join(
+def _figures(figures: list[tuple[str, str, bytes]]) -> str:
+    return "".join(
         f'<figure id="{html.escape(fid)}"><img alt="{html.escape(caption)}" '
         f'src="data:image/png;base64,{base64.b64encode(png).decode()}">'
         f"<figcaption>{html.escape(caption)}</figcaption></figure>"
         for fid, caption, png in figures)
+
+
+def _scene_section(scene: str, kind: str, metrics: Mapping[str, Mapping],
+                   figures: list[tuple[str, str, bytes]]) -> str:
+    data = dataset(metrics)
+    about = (f"{html.escape(data[1])} rows; source: {html.escape(data[2])}; dataset DVC md5 "
+             f"<code>{html.escape(data[0])}</code>." if data else "No task trained.")
+    skips = "".join(f"<li>{html.escape(task)}: {html.escape(reason)}</li>"
+                    for task, reason in skipped(metrics))
+    return f"""<section id="scene-{html.escape(scene)}">
+<h2>Scene {html.escape(scene)} ({html.escape(kind.replace("_", " "))})</h2>
+<p>{about}</p>
+{_table(["metric", "stratified CV (the paper's)", "grouped CV", "paper"],
+        headline_rows(kind, metrics))}
+{f"<p>Skipped, for want of the data they need:</p><ul>{skips}</ul>" if skips else ""}
+{_figures(figures)}
+</section>
+"""
+
+
+def render_page(scenes: Scenes, figures: Mapping[str, list[tuple[str, str, bytes]]],
+                commit: str = "") -> str:
+    """The report: per scene its headline table, dataset and figures (embedded as PNG),
+    then the models. ``figures`` are (id, caption, PNG bytes) by scene; the page needs
+    no other file."""
+    sections = "".join(_scene_section(scene, kind, metrics, figures.get(scene, []))
+                       for scene, kind, metrics in scenes)
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>eskin report</title>
 <style>{CSS}</style></head><body>
@@ -173,19 +212,14 @@ def render_page(metrics: Mapping[tuple[str, str], Mapping],
 Mean ± std over the folds of each cross-validation scheme: <em>stratified</em> is the paper's
 (10 folds stratified on the node); <em>grouped</em> holds whole trials out.
 {f"Git commit <code>{html.escape(commit)}</code>." if commit else ""}</p>
-<h2>Headline</h2>
-{_table(["metric", "stratified CV (the paper's)", "grouped CV", "paper"], headline_rows(metrics))}
-<h2>Datasets</h2>
-{_table(["scene", "DVC md5", "rows", "source"], datasets(metrics))}
+{sections}
 <h2>Models</h2>
 <p>Each model file's md5 is the one in <code>dvc.lock</code>; its MLflow run carries it as the tag
 <code>eskin.model_md5</code>
 (<code>mlflow.search_runs(filter_string="tags.`eskin.model_md5` = '…'")</code>).</p>
-{_table(["scene/task", "model", "model md5"], models(metrics))}
+{_table(["scene/task", "model", "model md5"], models(scenes))}
 <p>Beside this page, from their own pipelines: <a href="benchmark/summary.md">the benchmark</a>
 (<code>make bench</code>) and <a href="stress.html">numerical stress</a>
 (<code>make stress</code>).</p>
-<h2>Figures</h2>
-{figure_html}
 </body></html>
 """

@@ -1,0 +1,72 @@
+"""The project's vocabulary and where each artifact lives, defined once.
+
+Scenes are declared in params.yaml (``scenes:``); their kinds, tasks and CV
+schemes are named here and in :mod:`eskin.tasks`; every path a stage writes or
+reads is a function of the scene (and task) below, so dvc.yaml, the stages,
+the report, compare, audit and reproduce agree by construction (a test checks
+dvc.yaml against these).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+# Every kind has the same tasks (eskin/tasks.py says what each means for each kind), so
+# the stage graph is scenes × tasks; a task a scene's data cannot support is skipped.
+KINDS: tuple[str, ...] = ("single_force", "two_force")
+TASK_NAMES: tuple[str, ...] = ("stretch", "force", "detect", "localise")
+SCHEMES: tuple[str, ...] = ("stratified", "grouped")
+# The pairs stage scores a two-force scene's localise and force predictions together.
+PAIRS = "pairs"
+SCORED_TASKS: tuple[str, ...] = (*TASK_NAMES, PAIRS)
+
+# The one score a task is summarised by (MLflow compare, stage output, audit), by scorer.
+HEADLINE_METRIC = {"regression": "r2", "detection": "accuracy", "localisation": "accuracy"}
+
+RAW_DIR = Path("data/raw")
+PROCESSED_DIR = Path("data/processed")
+FEATURES_DIR = Path("data/features")
+MODELS_DIR = Path("models")
+METRICS_DIR = Path("reports/metrics")
+PREDICTIONS_DIR = Path("reports/predictions")
+LINEAGE_DIR = Path("reports/lineage")
+FIGURES_DIR = Path("reports/figures")
+PLOTS_DIR = Path("reports/plots")
+PAGE = Path("reports/index.html")
+README = Path("README.md")
+
+
+def raw_dir(scene: str) -> Path:
+    return RAW_DIR / scene
+
+
+def processed_path(scene: str) -> Path:
+    return PROCESSED_DIR / f"{scene}.parquet"
+
+
+def features_path(scene: str) -> Path:
+    return FEATURES_DIR / f"{scene}.parquet"
+
+
+def featurizer_path(scene: str) -> Path:
+    return MODELS_DIR / scene / "featurizer.joblib"
+
+
+def metrics_path(scene: str, task: str) -> Path:
+    return METRICS_DIR / scene / f"{task}.json"
+
+
+def predictions_path(scene: str, task: str) -> Path:
+    return PREDICTIONS_DIR / scene / f"{task}.parquet"
+
+
+def model_path(scene: str, task: str) -> Path:
+    return MODELS_DIR / scene / f"{task}.joblib"
+
+
+def task_outputs(scene: str, task: str) -> dict[str, Path]:
+    """Where one task's outputs go (the paths dvc.yaml declares)."""
+    return {"metrics_path": metrics_path(scene, task),
+            "predictions_path": predictions_path(scene, task),
+            "model_path": model_path(scene, task),
+            "lineage_path": LINEAGE_DIR / scene / f"{task}.json"}

@@ -1,0 +1,241 @@
+"""Data we did not make, through the whole pipeline under real DVC and a real MLflow server.
+
+One scratch project with three scenes declared in params.yaml only:
+
+* ``lab_single`` — a single-force CSV written the way a lab writes it: a header
+  in the paper's own names (x1..x10, y1..y10, force, x, y, stretch), two
+  stretch levels;
+* ``lab_pairs`` — a two-force CSV with no header and no stretch column;
+* ``board_day1`` — a single-force session recorded over a loopback socket from
+  ``tests/hostile_board.py``, a board that imports nothing of eskin, at one
+  stretch level (so its stretch task is skipped, with the reason).
+
+`dvc repro` runs through to the report; `eskin compare`, `eskin audit` and
+`eskin reproduce` work on the result; removing a scene from params removes its
+stages.
+"""
+
+from __future__ import annotations
+
+import copy
+import csv
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from conftest import ROOT, write_params
+from hostile_board import HostileBoard, Served
+
+COPIED = ["eskin", "stages", "dvc.yaml", ".dvcignore", ".gitignore", "pyproject.toml",
+          "README.md"]
+NODES = (1, 5, 10)
+SAMPLES = 4
+
+
+def run(args, cwd, env, *, ok=True):
+    done = subprocess.run(args, cwd=cwd, env=env, text=True, capture_output=True, timeout=900)
+    if ok:
+        assert done.returncode == 0, f"{' '.join(args)} failed:\n{done.stdout}\n{done.stderr}"
+    return done
+
+
+def channels(rng, presses, stretch):
+    """A plausible reading: every terminal's baseline, a rise under each press, a drift
+    with stretch, noise. (Any function would do: the test is about the plumbing.)"""
+    x = np.full(10, 310.0) + 12 * (stretch - 1) * 100
+    y = np.full(10, 290.0) + 9 * (stretch - 1) * 100
+    for force, px, py in presses:
+        if force > 0 and px > 0:
+            x[px - 1] += 18 * force
+            y[py - 1] += 15 * force
+    return list(np.round(np.concatenate([x, y]) + rng.normal(0, 1.5, 20), 3))
+
+
+def write_lab_single(path: Path) -> int:
+    rng = np.random.default_rng(1)
+    header = ([f"x{i}" for i in range(1, 11)] + [f"y{i}" for i in range(1, 11)]
+              + ["force", "x", "y", "stretch"])
+    rows = []
+    for stretch in (1.0, 1.1):
+        for force in (0.0, 2.0, 4.0):
+            for px in NODES if force else (0,):
+                for py in NODES if force else (0,):
+                    rows += [channels(rng, [(force, px, py)], stretch) + [force, px, py, stretch]
+                             for _ in range(SAMPLES)]
+    with path.open("w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(header)
+        writer.writerows(rows)
+    return len(rows)
+
+
+def write_lab_pairs(path: Path) -> int:
+    rng = np.random.default_rng(2)
+    nodes = [(x, y) for x in NODES for y in NODES]
+    rows = []
+    for i, first in enumerate(nodes):
+        for second in nodes[i + 1:]:
+            for f1, f2 in ((1.5, 3.0), (3.0, 1.5)):
+                rows += [channels(rng, [(f1, *first), (f2, *second)], 1.0)
+                         + [f1, *first, f2, *second] for _ in range(SAMPLES)]
+    with path.open("w", newline="") as handle:
+        csv.writer(handle).writerows(rows)
+    return len(rows)
+
+
+def scenes(lab_single: Path, lab_pairs: Path, port: str) -> dict:
+    return {
+        "lab_single": {"kind": "single_force", "source": "import", "import_path": str(lab_single),
+                       "stretches": [1.0, 1.1], "forces": [0.0, 2.0, 4.0], "samples": SAMPLES},
+        "lab_pairs": {"kind": "two_force", "source": "import", "import_path": str(lab_pairs),
+                      "stretches": [1.0], "forces": [1.5, 3.0], "nodes_x": list(NODES),
+                      "nodes_y": list(NODES), "samples": SAMPLES},
+        "board_day1": {"kind": "single_force", "source": "serial", "port": port,
+                       "stretches": [1.0], "forces": [0.0, 3.2536], "samples": 3},
+    }
+
+
+@pytest.fixture(scope="module")
+def project(tmp_path_factory, repo_params, mlflow_server):
+    root = tmp_path_factory.mktemp("foreign")
+    for name in COPIED:
+        source = ROOT / name
+        if source.is_dir():
+            shutil.copytree(source, root / name, ignore=shutil.ignore_patterns("__pycache__"))
+        else:
+            shutil.copy2(source, root / name)
+    files = tmp_path_factory.mktemp("lab_files")
+    rows = {"lab_single": write_lab_single(files / "lab_single.csv"),
+            "lab_pairs": write_lab_pairs(files / "lab_pairs.csv")}
+    bin_dir = str(Path(sys.executable).parent)
+    env = {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ.get('PATH', '')}",
+           "DVC_NO_ANALYTICS": "1", "MLFLOW_ENABLE_TELEMETRY": "false",
+           "MLFLOW_TRACKING_URI": mlflow_server,
+           "GIT_AUTHOR_NAME": "t", "GIT_AUTHOR_EMAIL": "t@t", "GIT_COMMITTER_NAME": "t",
+           "GIT_COMMITTER_EMAIL": "t@t"}
+    env.pop("DVC_ROOT", None)
+    board = HostileBoard(device_id="lab-board-7")
+    with Served(board, "socket") as served:
+        params = copy.deepcopy(repo_params)
+        params["scenes"] = scenes(files / "lab_single.csv", files / "lab_pairs.csv", served.port)
+        params["acquire"]["indenters"] = "board"
+        params["cv"].update(n_jobs=1, folds=5)
+        params["report"].update(dpi=60, page_dpi=50)
+        params["train"]["localise"]["paper"]["n_estimators"] = 20
+        params["train"]["force"]["paper"]["subsample"] = 200
+        write_params(root, params)
+        for args in (["git", "init", "-q"], ["dvc", "init", "-q"],
+                     ["dvc", "config", "core.analytics", "false"], ["git", "add", "-A"],
+                     ["git", "commit", "-qm", "scratch"]):
+            run(args, root, env)
+        repro = run(["dvc", "repro"], root, env).stdout
+    run(["git", "add", "-A"], root, env)
+    run(["git", "commit", "-qm", "repro"], root, env)
+    return root, env, params, rows, served.port, repro
+
+
+def metrics(root: Path, scene: str, task: str) -> dict:
+    return json.loads((root / "reports/metrics" / scene / f"{task}.json").read_text())
+
+
+def test_every_scene_gets_its_stages_from_params_alone(project):
+    root, env, *_ = project
+    listed = run(["dvc", "stage", "list", "--name-only"], root, env).stdout.split()
+    for scene in ("lab_single", "lab_pairs", "board_day1"):
+        assert {f"acquire@{scene}", f"ingest@{scene}", f"featurize@{scene}",
+                f"pairs@{scene}"} <= set(listed)
+        assert {f"train@{scene}-{t}" for t in ("stretch", "force", "detect", "localise")} <= \
+            set(listed)
+    assert not [s for s in listed if "single_force" in s or "two_force" in s], listed
+
+
+def test_each_scene_trains_what_its_data_supports_and_says_why_it_skips_the_rest(project):
+    root, *_ = project
+    for task in ("stretch", "force", "detect", "localise"):
+        assert metrics(root, "lab_single", task)["status"] == "trained", task
+    assert metrics(root, "lab_single", "stretch")["stratified"]["stretch"]["r2"] > 0.9
+    assert metrics(root, "lab_single", "pairs")["reason"].startswith("a single_force scene")
+    pairs = {task: metrics(root, "lab_pairs", task) for task in
+             ("stretch", "force", "detect", "localise", "pairs")}
+    assert pairs["force"]["status"] == "trained"
+    assert set(pairs["force"]["grouped"]) == {"force1", "force2"}
+    assert pairs["localise"]["status"] == "trained" and pairs["pairs"]["status"] == "scored"
+    assert "two or more stretch levels" in pairs["stretch"]["reason"]
+    assert "contact and no-contact samples" in pairs["detect"]["reason"]
+    board = metrics(root, "board_day1", "stretch")
+    assert board["status"] == "skipped" and "this scene has one (λ = 1)" in board["reason"]
+    assert metrics(root, "board_day1", "force")["status"] == "trained"
+
+
+def test_the_datasets_name_their_sources(project):
+    root, _, _, rows, port, _ = project
+    single = metrics(root, "lab_single", "force")
+    assert single["dataset_rows"] == rows["lab_single"]
+    assert single["source"].startswith("import ") and "lab_single.csv (sha256 " in \
+        single["source"]
+    board = metrics(root, "board_day1", "force")
+    assert board["source"] == f"serial {port}, device lab-board-7 firmware hostile-1.0"
+
+
+def test_the_report_has_a_section_and_figures_per_scene(project):
+    root, *_ = project
+    page = (root / "reports/index.html").read_text()
+    for scene in ("lab_single", "lab_pairs", "board_day1"):
+        assert f'id="scene-{scene}"' in page
+    assert page.index('id="scene-lab_single"') < page.index('id="scene-lab_pairs"') < \
+        page.index('id="scene-board_day1"')  # the order of params.yaml
+    figures = {p.relative_to(root / "reports/figures").as_posix()
+               for p in (root / "reports/figures").rglob("*.png")}
+    assert {"lab_single/stretch_parity_grouped.png", "lab_single/force_parity_grouped.png",
+            "lab_pairs/two_force_parity_grouped.png", "board_day1/force_parity_grouped.png",
+            "board_day1/detection_grouped.png"} <= figures
+    assert not any(f.startswith("board_day1/stretch") for f in figures)
+    readme = (root / "README.md").read_text()
+    assert "#### board_day1 (single force)" in readme
+    assert "board_day1/stretch skipped: stretch regression needs two or more" in readme
+    plots = json.loads(run(["dvc", "plots", "show", "--json"], root, project[1]).stdout)
+    assert any("lab_pairs_force1.csv" in key for key in json.dumps(plots).split('"'))
+
+
+def test_compare_audit_and_reproduce_work_on_foreign_data(project, monkeypatch):
+    root, env, _, _, port, _ = project
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", env["MLFLOW_TRACKING_URI"])
+    compare = run([sys.executable, "-m", "eskin", "compare", "--format", "csv"], root, env)
+    header = compare.stdout.splitlines()[0].split(",")
+    # Two single-force scenes log the same metric names: their columns carry the scene.
+    assert "lab_single: force R²" in header and "board_day1: force R²" in header, header
+    assert "force1 R²" in header  # one scene only: no prefix
+    import mlflow
+
+    found = mlflow.search_runs(experiment_names=["eskin"], output_format="list")
+    runs = {f"{r.data.tags.get('eskin.scene')}/{r.data.tags.get('eskin.task')}": r.info.run_id
+            for r in found}
+    audit = run([sys.executable, "-m", "eskin", "audit", "--run", runs["lab_single/force"]],
+                root, env).stdout
+    assert "lab_single.csv (sha256 " in audit and "dataset in workspace  ok" in audit, audit
+    audit = run([sys.executable, "-m", "eskin", "audit", "--run", runs["board_day1/force"]],
+                root, env).stdout
+    assert f"serial {port}, device lab-board-7" in audit, audit
+    reproduced = run([sys.executable, "-m", "eskin", "reproduce", "lab_pairs.force.force2"],
+                     root, env, ok=False)
+    assert reproduced.returncode == 0 and "  reproduced" in reproduced.stdout, (
+        reproduced.stdout + reproduced.stderr)
+
+
+def test_removing_a_scene_from_params_removes_its_stages(project, tmp_path):
+    root, env, params, *_ = project
+    fewer = copy.deepcopy(params)
+    del fewer["scenes"]["board_day1"]
+    (root / "params.yaml").rename(tmp_path / "params.yaml")
+    try:
+        (root / "params.yaml").write_text(yaml.safe_dump(fewer, sort_keys=False))
+        listed = run(["dvc", "stage", "list", "--name-only"], root, env).stdout.split()
+    finally:
+        (tmp_path / "params.yaml").replace(root / "params.yaml")
+    assert not [s for s in listed if "board_day1" in s] and "train@lab_single-force" in listed

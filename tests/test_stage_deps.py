@@ -1,0 +1,163 @@
+"""Declared equals read: each DVC stage lists exactly the code it runs.
+
+A stage's code is the import closure of the module its command runs
+(``python -m stages.X``), computed from the source: every ``import`` and
+``from … import`` of eskin or stages modules, at module level or inside a
+function, and every module a child process is started on (``"-m", "<module>"``
+in an argument list, or the imports of ``"-c", <code>``). A package's ``__init__.py`` counts
+imported by name (``from eskin import __version__``); the others hold no code
+(checked below). The test fails when dvc.yaml, bench/dvc.yaml or stress/dvc.yaml
+misses a file of the closure or lists one the stage does not run, and says which.
+"""
+
+from __future__ import annotations
+
+import ast
+import shlex
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("eskin", "stages")
+
+
+def module_file(name: str) -> Path | None:
+    """The file of module ``name`` in this project (None for anything else)."""
+    if name.split(".")[0] not in PACKAGES:
+        return None
+    base = ROOT.joinpath(*name.split("."))
+    if base.with_suffix(".py").is_file():
+        return base.with_suffix(".py")
+    if (base / "__init__.py").is_file():
+        return base / "__init__.py"
+    return None
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def imported_modules(path: Path, source: str | None = None) -> Iterator[str]:
+    """Every project module ``path`` (or ``source``, code run as ``path``'s child)
+    imports or starts a process on."""
+    tree = ast.parse(source or path.read_text(encoding="utf-8"), str(path))
+    package = module_name(path) if path.name == "__init__.py" else \
+        module_name(path).rpartition(".")[0]
+    strings = {target.id: node.value.value for node in tree.body
+               if isinstance(node, ast.Assign) and isinstance(node.value, ast.Constant)
+               and isinstance(node.value.value, str)
+               for target in node.targets if isinstance(target, ast.Name)}
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            yield from (alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                anchor = package.split(".")[: len(package.split(".")) - node.level + 1]
+                base = ".".join([*anchor, base] if base else anchor)
+            yield base
+            for alias in node.names:  # `from eskin import learn`: a module, not a name
+                if module_file(f"{base}.{alias.name}") is not None:
+                    yield f"{base}.{alias.name}"
+        elif isinstance(node, ast.List | ast.Tuple):
+            values = [e.value if isinstance(e, ast.Constant) else
+                      strings.get(e.id) if isinstance(e, ast.Name) else None for e in node.elts]
+            for flag, target in zip(values, values[1:], strict=False):
+                if flag == "-m" and isinstance(target, str):
+                    yield "eskin.__main__" if target == "eskin" else target
+                if flag == "-c" and isinstance(target, str):
+                    yield from imported_modules(path, target)
+
+
+def closure(module: str) -> set[Path]:
+    """The files ``module`` runs: itself and everything it imports, transitively."""
+    start = module_file(module)
+    assert start is not None, f"no module {module}"
+    seen: set[Path] = set()
+    todo = [start]
+    while todo:
+        path = todo.pop()
+        if path in seen:
+            continue
+        seen.add(path)
+        for name in imported_modules(path):
+            found = module_file(name)
+            if found is not None and found not in seen:
+                todo.append(found)
+    return seen
+
+
+def declared_code(paths: list[Path]) -> set[Path]:
+    """The .py files that the declared deps cover (a directory: every file in it)."""
+    out = set()
+    for path in paths:
+        if path.suffix == ".py":
+            out.add(path)
+        elif path.is_dir():
+            out |= set(path.rglob("*.py"))
+    return {p for p in out if "__pycache__" not in p.parts}
+
+
+def implicit_init(path: Path) -> bool:
+    return path.name == "__init__.py"
+
+
+def stages() -> list[tuple[str, str, list[Path]]]:
+    """(stage address, module its command runs, declared deps) of every DVC stage."""
+    from dvc.repo import Repo
+
+    out = []
+    with Repo(str(ROOT)) as repo:
+        for stage in repo.index.stages:
+            words = shlex.split(stage.cmd if isinstance(stage.cmd, str) else stage.cmd[0])
+            assert words[:2] == ["python", "-m"], f"{stage.addressing}: {stage.cmd}"
+            deps = [Path(dep.fs_path) for dep in stage.deps
+                    if Path(dep.fs_path).is_relative_to(ROOT)]
+            out.append((stage.addressing, words[2], deps))
+    return out
+
+
+STAGES = stages()
+
+
+@pytest.mark.parametrize("address, module, deps", STAGES, ids=[s[0] for s in STAGES])
+def test_each_stage_lists_exactly_the_code_it_runs(address, module, deps):
+    ran = closure(module)
+    declared = declared_code([d for d in deps if d.parts[len(ROOT.parts)] in PACKAGES])
+    missing = sorted(str(p.relative_to(ROOT)) for p in ran - declared if not (
+        implicit_init(p) and p != ROOT / "eskin" / "__init__.py"))
+    unused = sorted(str(p.relative_to(ROOT)) for p in declared - ran if not implicit_init(p))
+    assert not missing and not unused, (
+        f"{address} (python -m {module}): dvc.yaml misses {missing or 'nothing'}; "
+        f"lists, but does not run, {unused or 'nothing'}")
+
+
+def test_subpackage_init_files_hold_no_code():
+    """So a stage that imports eskin.device.link need not list eskin/device/__init__.py."""
+    for path in ROOT.glob("*/**/__init__.py"):
+        if path.parts[len(ROOT.parts)] not in PACKAGES or path == ROOT / "eskin/__init__.py":
+            continue
+        body = ast.parse(path.read_text()).body
+        assert all(isinstance(node, ast.Expr) and isinstance(node.value, ast.Constant)
+                   for node in body), f"{path} holds code"
+
+
+def test_the_closure_finds_what_a_stage_imports_lazily_and_starts_as_a_process(tmp_path):
+    """The checker itself: a function-local import and a child process both count."""
+    learn = closure("eskin.learn")
+    assert ROOT / "eskin/tracking.py" in learn      # imported inside train()
+    assert ROOT / "eskin/gp.py" in learn            # through eskin.models
+    session = closure("eskin.acquisition.session")
+    assert ROOT / "eskin/device/board.py" in session  # the simulated board's own process
+
+
+def test_dvc_yaml_trains_every_task_of_the_catalog():
+    import yaml
+
+    from eskin.catalog import TASK_NAMES
+
+    pipeline = yaml.safe_load((ROOT / "dvc.yaml").read_text())
+    assert tuple(pipeline["stages"]["train"]["matrix"]["task"]) == TASK_NAMES
