@@ -21,7 +21,9 @@ def ingest(params: dict[str, Any], scene: str, raw_dir: Path, processed_dir: Pat
     if section(params, f"scenes.{scene}.source") == "import":
         # Streamed to Parquet chunk by chunk: memory does not grow with the file.
         quarantine, metadata = import_to_dataset(find_import(raw_dir), plan.kind, out,
-                                                 bad_rows=bad_rows, scene=scene)
+                                                 bad_rows=bad_rows, scene=scene,
+                                                 imported_from=section(
+                                                     params, f"scenes.{scene}.import_path"))
         rows = metadata["source"]["rows_in_file"] - metadata["source"]["rows_quarantined"]
     else:
         result = ingest_log(Path(raw_dir) / LOG_NAME, plan, bad_rows=bad_rows)

@@ -67,8 +67,10 @@ def import_paper_layout(path: Path, kind: str, *, bad_rows: str = "error",
 
 
 def import_to_dataset(path: Path, kind: str, out: Path, *, bad_rows: str = "error",
-                      scene: str | None = None) -> tuple[list[dict], dict]:
+                      scene: str | None = None, imported_from: str | None = None
+                      ) -> tuple[list[dict], dict]:
     """Stream ``path`` into the dataset file ``out``: (quarantined rows, metadata).
+    ``imported_from``: the file ``path`` is a verbatim copy of (the user's own).
 
     Two passes of ``CHUNK_ROWS`` rows each, so memory stays a few chunks: the first
     judges every row and finds copies of earlier rows (by a 64-bit hash per row),
@@ -104,6 +106,7 @@ def import_to_dataset(path: Path, kind: str, out: Path, *, bad_rows: str = "erro
     metadata = {"scene": scene or kind, "kind": kind, "plan": None,
                 "device": None, "simulator": None,
                 "source": {"kind": "import", "path": str(path), "sha256": digest,
+                           "imported_from": imported_from or str(path),
                            "rows_in_file": rows_in_file, "rows_quarantined": bad_count,
                            "stretch_assumed": "stretch" not in layout.labels}}
     session = f"import-{digest[:10]}"

@@ -203,5 +203,6 @@ def describe_source(meta: dict) -> str:
         return "serial " + ", ".join(parts)
     if kind == "import":
         digest = source.get("sha256") or ""
-        return f"import {source.get('path', '?')} (sha256 {digest[:12]}…)"
+        where = source.get("imported_from") or source.get("path", "?")
+        return f"import {where} (sha256 {digest[:12]}…)"
     return kind
