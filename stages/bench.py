@@ -2,10 +2,10 @@
 
 import sys
 
-from eskin import benchmark
 from eskin.catalog import FEATURES_DIR, PROCESSED_DIR
 from eskin.config import load_params
 from eskin.errors import run_friendly
+from harness import benchmark
 
 BENCH_DIR = "reports/benchmark"
 

@@ -1,12 +1,12 @@
-"""DVC stage of `make bench`: fuzz the frame parser or the import reader (eskin/fuzz.py)."""
+"""DVC stage of `make bench`: fuzz the frame parser or the import reader (harness/fuzz.py)."""
 
 import json
 import sys
 from pathlib import Path
 
-from eskin import fuzz
 from eskin.config import load_params, section
 from eskin.errors import run_friendly
+from harness import fuzz
 
 TARGETS = {"parser": fuzz.fuzz_parser, "import": fuzz.fuzz_import}
 

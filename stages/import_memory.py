@@ -1,4 +1,4 @@
-"""DVC stage of `make bench`: peak memory of importing large CSVs (eskin/memory_bench.py)."""
+"""DVC stage of `make bench`: peak memory of importing large CSVs (harness/memory_bench.py)."""
 
 import json
 import sys
@@ -6,7 +6,7 @@ from pathlib import Path
 
 from eskin.config import load_params, section
 from eskin.errors import run_friendly
-from eskin.memory_bench import import_memory, markdown
+from harness.memory_bench import import_memory, markdown
 
 REPORT = Path("reports")
 

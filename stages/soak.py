@@ -1,4 +1,4 @@
-"""DVC stage of `make bench`: the soak (eskin/soak.py) on the whole single-force scene."""
+"""DVC stage of `make bench`: the soak (harness/soak.py) on the whole single-force scene."""
 
 import json
 import sys
@@ -10,7 +10,7 @@ import pandas as pd
 from eskin.catalog import PROCESSED_DIR
 from eskin.config import load_params, section
 from eskin.errors import run_friendly
-from eskin.soak import run_soak
+from harness.soak import run_soak
 
 REPORT = Path("reports/soak")
 

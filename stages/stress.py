@@ -1,12 +1,12 @@
-"""DVC stage of `make stress`: the numerical stress suite (eskin/stress.py)."""
+"""DVC stage of `make stress`: the numerical stress suite (harness/stress.py)."""
 
 import sys
 import tempfile
 
-from eskin import stress
 from eskin.catalog import FEATURES_DIR
 from eskin.config import load_params
 from eskin.errors import run_friendly
+from harness import stress
 
 if __name__ == "__main__":
     with tempfile.TemporaryDirectory(prefix="eskin-stress-") as scratch:

@@ -18,7 +18,7 @@ from eskin.acquisition.session import acquire_scene, simulated_board
 from eskin.config import scene_plan, skin_params
 from eskin.data import build
 from eskin.data.schema import CHANNELS, LABELS, read_metadata
-from eskin.soak import run_soak, wait_for_conditions
+from harness.soak import run_soak, wait_for_conditions
 
 # What a sample is, independent of how the link delivered it (seq and t_ms count wire
 # traffic, and a retried condition uses more of it).

@@ -8,13 +8,14 @@ from scipy.linalg import LinAlgError
 from sklearn.metrics import r2_score
 from sklearn.utils.estimator_checks import check_estimator
 
-from eskin import benchmark, steps
+from eskin import steps
 from eskin.data import build
 from eskin.data.schema import contact_mask, read_dataset
 from eskin.device.physics import SkinParams
 from eskin.gp import FixedKernelGaussianProcess, SparseGaussianProcess, stable_cholesky
-from eskin.oracle import plan_conditions, posterior_predictions
 from eskin.tasks import get_task
+from harness import benchmark
+from harness.oracle import plan_conditions, posterior_predictions
 
 
 def smooth_problem(n=1500, d=4, seed=0):

@@ -1,6 +1,6 @@
-"""A small sample of the fuzzers `make bench` runs at 100,000 inputs each (eskin/fuzz.py)."""
+"""A small sample of the fuzzers `make bench` runs at 100,000 inputs each (harness/fuzz.py)."""
 
-from eskin import fuzz
+from harness import fuzz
 
 
 def test_frame_parser_survives_damaged_streams():

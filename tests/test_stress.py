@@ -10,13 +10,14 @@ from conftest import small_scenes
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from eskin import steps, stress
+from eskin import steps
 from eskin.catalog import TASK_NAMES
 from eskin.data import build
 from eskin.data.schema import CHANNELS, read_dataset
 from eskin.features import featurize_scene
 from eskin.models import build_model, model_settings
 from eskin.tasks import get_task
+from harness import stress
 
 
 def acquire_features(params, root):

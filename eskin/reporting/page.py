@@ -137,9 +137,10 @@ def readme_section(scenes: Scenes) -> str:
         data = dataset(metrics)
         about = (f"{data[1]} rows, {data[2]}, DVC md5 `{data[0]}`" if data
                  else "no trained task")
+        skips = "".join(f"\n- {scene}/{task} skipped: {reason}"
+                        for task, reason in skipped(metrics))
         parts.append(f"#### {scene} ({kind.replace('_', ' ')})\n\n{about}.\n\n"
-                     f"{headline_markdown(kind, metrics)}")
-        parts += [f"\n{scene}/{task} skipped: {reason}" for task, reason in skipped(metrics)]
+                     f"{headline_markdown(kind, metrics)}" + (f"\n{skips}" if skips else ""))
     return ("\n\n".join(parts) + "\n\nMean ± std over folds. Figures and model hashes: "
             "`reports/index.html`.")
 

@@ -90,5 +90,5 @@ def markdown(results: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
-if __name__ == "__main__":  # python -m eskin.memory_bench 100000
+if __name__ == "__main__":  # python -m harness.memory_bench 100000
     print(markdown(import_memory([int(a) for a in sys.argv[1:]] or [100_000])))

@@ -48,7 +48,7 @@ def _channels(transform: Callable[[np.ndarray], np.ndarray]):
 
 def _counts_to_pf(context: Mapping[str, Any]) -> Callable[[np.ndarray], np.ndarray]:
     from eskin.device.physics import SkinModel, SkinParams
-    from eskin.oracle import counts_to_pf
+    from harness.oracle import counts_to_pf
 
     model = SkinModel(SkinParams.from_mapping(context["sim"]))
     return lambda counts: counts_to_pf(model, counts)

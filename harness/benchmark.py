@@ -9,7 +9,7 @@ process by default, so their times and memory are comparable; the ratios the
 issue asks for are computed from these numbers, in one run. More jobs, or a
 cluster backend, trade that comparability for throughput.
 
-The Bayes bound (:mod:`eskin.oracle`) is scored on the same folds, so each
+The Bayes bound (:mod:`harness.oracle`) is scored on the same folds, so each
 task's table says how far each variant is from the best possible and what
 share of the paper configuration's gap it closes.
 """
@@ -207,7 +207,7 @@ def bayes_bound(params: Mapping[str, Any], dataset_path: Path, out_path: Path, *
     """The oracle's answers for every sample of a simulated single-force dataset → Parquet."""
     from eskin.config import section, skin_params
     from eskin.data.schema import read_dataset, read_metadata
-    from eskin.oracle import posterior_predictions
+    from harness.oracle import posterior_predictions
 
     meta = read_metadata(dataset_path)
     if meta.get("kind") != "single_force" or meta.get("source", {}).get("kind") != "simulated":
