@@ -181,3 +181,36 @@ def test_a_header_naming_a_column_elsewhere_says_what_to_rename(tmp_path):
     assert message.startswith(f"{path}:1: the header has 'x' in column 21, where the layout "
                               "has 'force'") and "rename it" in message, message
     assert "\n" not in message
+
+
+BAD_SCENES = {
+    "missing file": (lambda d: {"import_path": str(d / "nowhere.csv")},
+                     "scenes.lab.import_path = '{d}/nowhere.csv': no such file"),
+    "other kind's layout": (lambda d: {"import_path": str(write_csv(
+        d / "two.csv", paper_rows(kind="two_force")))},
+        "scenes.lab.import_path: {d}/two.csv: 26 columns, but the single_force layout has 24 "
+        "— that is the two_force layout"),
+    "too few trials": (lambda d: {"kind": "two_force", "source": "simulated",
+                                  "stretches": [1.0], "forces": [1.0], "nodes_x": [1, 6],
+                                  "nodes_y": [1]},
+                       "scenes.lab: 1 trials (conditions), but grouped CV with cv.folds = 10 "
+                       "needs at least 10; add stretches, forces or nodes, or lower cv.folds"),
+}
+
+
+@pytest.mark.parametrize("mistake", sorted(BAD_SCENES))
+def test_a_bad_scene_stops_every_acquisition_before_it_starts(tmp_path, repo_params, mistake):
+    """One line naming the scene and the key, before the first scene is acquired; nothing
+    of the good scene is recorded."""
+    from conftest import eskin, write_params
+
+    make, expected = BAD_SCENES[mistake]
+    params = copy.deepcopy(repo_params)
+    params["scenes"]["lab"] = {"kind": "single_force", "source": "import",
+                               "stretches": [1.0, 1.1], "forces": [0.0, 2.0], "samples": 4,
+                               **make(tmp_path)}
+    write_params(tmp_path, params)
+    result = eskin(["acquire", "single_force", "--no-progress"], tmp_path)
+    assert result.returncode == 1 and result.stderr.count("\n") == 1, result.stderr
+    assert result.stderr.strip() == f"eskin: error: {expected.format(d=tmp_path)}"
+    assert not (tmp_path / "data").exists()
