@@ -10,7 +10,14 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from eskin import __version__
-from eskin.catalog import FEATURES_DIR, MODELS_DIR, PROCESSED_DIR, RAW_DIR, task_outputs
+from eskin.catalog import (
+    FEATURES_DIR,
+    MODELS_DIR,
+    PROCESSED_DIR,
+    RAW_DIR,
+    TASK_NAMES,
+    task_outputs,
+)
 from eskin.errors import run_friendly
 
 
@@ -82,10 +89,11 @@ def build_parser() -> argparse.ArgumentParser:
     featurize.add_argument("--params", type=Path, default=Path("params.yaml"))
     featurize.set_defaults(run=_learning_step)
     train = commands.add_parser("train", help="cross-validate, refit and log one task "
-                                "(train.<scene>.<task> in params.yaml)")
+                                "of a scene (train.<task> in params.yaml)")
     train.add_argument("scene")
-    train.add_argument("task", help="single_force: stretch, force, detect, localise; "
-                       "two_force: force1, force2, localise")
+    train.add_argument("task", choices=TASK_NAMES,
+                       help="a task (train.<task> in params.yaml); one a scene's data cannot "
+                       "support is skipped, with the reason in its metrics file")
     train.add_argument("--params", type=Path, default=Path("params.yaml"))
     train.add_argument("--no-track", action="store_true", help="do not log to MLflow")
     train.set_defaults(run=_learning_step)
