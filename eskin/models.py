@@ -1,9 +1,9 @@
 """The model registry: each task role's models by name, built from params.
 
-``train.<scene>.<task>.model`` names an entry of ``REGISTRY[role]``; the
-hyperparameters of model ``m`` sit beside it under ``train.<scene>.<task>.m``
-so that switching models (``dvc exp run -S train.single_force.force.model=
-random_forest``) needs no other change. Every role has an entry named
+``train.<task>.model`` names an entry of ``REGISTRY[role]`` (or one per kind of
+scene); the hyperparameters of model ``m`` sit beside it under ``train.<task>.m``
+so that switching models (``dvc exp run -S train.force.model=random_forest``)
+needs no other change. Every role has an entry named
 ``paper``: the paper's configuration, and the default.
 
 The paper's models (section III): linear regression → stretch; a Gaussian

@@ -1,8 +1,8 @@
 """One acquisition session: pick the source, connect, resume, run, log.
 
-``simulated`` starts ``eskin device simulate`` in its own process on a
-pseudo-terminal and talks to it through pyserial, exactly as to a board on
-``/dev/ttyACM0``; ``serial`` opens the given port and prompts the operator.
+``simulated`` starts the simulated board (``python -m eskin.device.simulate``) in its
+own process on a pseudo-terminal and talks to it through pyserial, exactly as to a
+board on ``/dev/ttyACM0``; ``serial`` opens the given port and prompts the operator.
 """
 
 from __future__ import annotations
