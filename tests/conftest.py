@@ -44,10 +44,10 @@ def eskin(args, cwd, **kwargs):
                           capture_output=True, timeout=300, **kwargs)
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="module")
 def mlflow_server(tmp_path_factory):
     """A real `mlflow server` on 127.0.0.1 (SQLite backend, proxied artifacts in a temp dir);
-    yields its URI."""
+    yields its URI. One per test module, so one module's runs are not another's."""
     import socket
     import time
     import urllib.request
