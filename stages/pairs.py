@@ -3,12 +3,12 @@
 import sys
 
 from eskin import learn
-from eskin.catalog import METRICS_DIR, PREDICTIONS_DIR
+from eskin.catalog import PAIRS, PREDICTIONS_DIR, metrics_path
 from eskin.config import DEFAULT_PARAMS
 from eskin.errors import run_friendly
 
 if __name__ == "__main__":
     scene = sys.argv[1]
     sys.exit(run_friendly(lambda: print(learn.score_pairs(
-        scene, PREDICTIONS_DIR, METRICS_DIR / scene / "pairs.json",
+        scene, PREDICTIONS_DIR, metrics_path(scene, PAIRS),
         params_text=DEFAULT_PARAMS.read_text()))))
