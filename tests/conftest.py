@@ -38,6 +38,46 @@ def write_params(directory: Path, params: dict) -> Path:
     return path
 
 
+PROJECT_FILES = ["eskin", "stages", "dvc.yaml", ".dvcignore", ".gitignore", "pyproject.toml",
+                 "README.md"]
+
+
+def run_checked(args, cwd, env, *, ok=True) -> subprocess.CompletedProcess:
+    """Run a command (dvc, git, eskin) in ``cwd``; with ``ok``, fail the test on a non-zero
+    exit, showing its output."""
+    done = subprocess.run(args, cwd=cwd, env=env, text=True, capture_output=True, timeout=900)
+    if ok:
+        assert done.returncode == 0, f"{' '.join(args)} failed:\n{done.stdout}\n{done.stderr}"
+    return done
+
+
+def scratch_project(root: Path, params: dict, tracking_uri: str) -> dict:
+    """A scratch copy of the project at ``root`` (code, dvc.yaml, README) with ``params``,
+    committed in a fresh git and DVC repository; returns the environment its commands run
+    in, logging to MLflow at ``tracking_uri``."""
+    import shutil
+
+    for name in PROJECT_FILES:
+        source = ROOT / name
+        if source.is_dir():
+            shutil.copytree(source, root / name, ignore=shutil.ignore_patterns("__pycache__"))
+        else:
+            shutil.copy2(source, root / name)
+    write_params(root, params)
+    bin_dir = str(Path(sys.executable).parent)  # dvc, and the python DVC's stages call
+    env = {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ.get('PATH', '')}",
+           "DVC_NO_ANALYTICS": "1", "MLFLOW_ENABLE_TELEMETRY": "false",
+           "MLFLOW_TRACKING_URI": tracking_uri,
+           "GIT_AUTHOR_NAME": "t", "GIT_AUTHOR_EMAIL": "t@t", "GIT_COMMITTER_NAME": "t",
+           "GIT_COMMITTER_EMAIL": "t@t"}
+    env.pop("DVC_ROOT", None)
+    for args in (["git", "init", "-q"], ["dvc", "init", "-q"],
+                 ["dvc", "config", "core.analytics", "false"], ["git", "add", "-A"],
+                 ["git", "commit", "-qm", "scratch"]):
+        run_checked(args, root, env)
+    return env
+
+
 def eskin(args, cwd, **kwargs):
     """Run the eskin CLI in its own process, as a user would."""
     return subprocess.run([sys.executable, "-m", "eskin", *args], cwd=cwd, text=True,

@@ -20,29 +20,18 @@ from __future__ import annotations
 import copy
 import csv
 import json
-import os
-import shutil
-import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
-from conftest import ROOT, write_params
+from conftest import run_checked as run
+from conftest import scratch_project
 from hostile_board import HostileBoard, Served
 
-COPIED = ["eskin", "stages", "dvc.yaml", ".dvcignore", ".gitignore", "pyproject.toml",
-          "README.md"]
 NODES = (1, 5, 10)
 SAMPLES = 4
-
-
-def run(args, cwd, env, *, ok=True):
-    done = subprocess.run(args, cwd=cwd, env=env, text=True, capture_output=True, timeout=900)
-    if ok:
-        assert done.returncode == 0, f"{' '.join(args)} failed:\n{done.stdout}\n{done.stderr}"
-    return done
 
 
 def channels(rng, presses, stretch):
@@ -104,22 +93,9 @@ def scenes(lab_single: Path, lab_pairs: Path, port: str) -> dict:
 @pytest.fixture(scope="module")
 def project(tmp_path_factory, repo_params, mlflow_server):
     root = tmp_path_factory.mktemp("foreign")
-    for name in COPIED:
-        source = ROOT / name
-        if source.is_dir():
-            shutil.copytree(source, root / name, ignore=shutil.ignore_patterns("__pycache__"))
-        else:
-            shutil.copy2(source, root / name)
     files = tmp_path_factory.mktemp("lab_files")
     rows = {"lab_single": write_lab_single(files / "lab_single.csv"),
             "lab_pairs": write_lab_pairs(files / "lab_pairs.csv")}
-    bin_dir = str(Path(sys.executable).parent)
-    env = {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ.get('PATH', '')}",
-           "DVC_NO_ANALYTICS": "1", "MLFLOW_ENABLE_TELEMETRY": "false",
-           "MLFLOW_TRACKING_URI": mlflow_server,
-           "GIT_AUTHOR_NAME": "t", "GIT_AUTHOR_EMAIL": "t@t", "GIT_COMMITTER_NAME": "t",
-           "GIT_COMMITTER_EMAIL": "t@t"}
-    env.pop("DVC_ROOT", None)
     board = HostileBoard(device_id="lab-board-7")
     with Served(board, "socket") as served:
         params = copy.deepcopy(repo_params)
@@ -131,11 +107,7 @@ def project(tmp_path_factory, repo_params, mlflow_server):
                                 plots_scheme="grouped")
         params["train"]["localise"]["paper"]["n_estimators"] = 20
         params["train"]["force"]["paper"]["subsample"] = 200
-        write_params(root, params)
-        for args in (["git", "init", "-q"], ["dvc", "init", "-q"],
-                     ["dvc", "config", "core.analytics", "false"], ["git", "add", "-A"],
-                     ["git", "commit", "-qm", "scratch"]):
-            run(args, root, env)
+        env = scratch_project(root, params, mlflow_server)
         repro = run(["dvc", "repro"], root, env).stdout
     run(["git", "add", "-A"], root, env)
     run(["git", "commit", "-qm", "repro"], root, env)

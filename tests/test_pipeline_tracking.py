@@ -8,57 +8,31 @@ through MLFLOW_TRACKING_URI, and the tests read the runs back through its client
 """
 
 import json
-import os
-import shutil
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import pandas as pd
 import pytest
 import yaml
-from conftest import ROOT, small_scenes, write_params
+from conftest import run_checked, scratch_project, small_scenes
 
 from eskin.data.schema import CHANNELS, md5_file
 
-COPIED = ["eskin", "stages", "dvc.yaml", ".dvcignore", ".gitignore", "pyproject.toml",
-          "README.md"]
-
 
 def run(args, cwd, env):
-    done = subprocess.run(args, cwd=cwd, env=env, text=True, capture_output=True, timeout=900)
-    assert done.returncode == 0, f"{' '.join(args)} failed:\n{done.stdout}\n{done.stderr}"
-    return done.stdout
+    return run_checked(args, cwd, env).stdout
 
 
 @pytest.fixture(scope="module")
 def scratch(tmp_path_factory, repo_params, mlflow_server):
     root = tmp_path_factory.mktemp("pipeline")
-    for name in COPIED:
-        source = ROOT / name
-        if source.is_dir():
-            shutil.copytree(source, root / name, ignore=shutil.ignore_patterns("__pycache__"))
-        else:
-            shutil.copy2(source, root / name)
     params = small_scenes(repo_params)
     params["cv"].update(n_jobs=1, folds=5)
     params["report"].update(dpi=60, page_dpi=50)
     params["train"]["force"]["paper"]["subsample"] = 200
     params["train"]["localise"]["paper"]["n_estimators"] = 20
-    write_params(root, params)
-    bin_dir = str(Path(sys.executable).parent)  # dvc, and the python DVC's stages call
-    env = {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ.get('PATH', '')}",
-           "DVC_NO_ANALYTICS": "1", "MLFLOW_ENABLE_TELEMETRY": "false",
-           "MLFLOW_TRACKING_URI": mlflow_server,
-           "GIT_AUTHOR_NAME": "t", "GIT_AUTHOR_EMAIL": "t@t", "GIT_COMMITTER_NAME": "t",
-           "GIT_COMMITTER_EMAIL": "t@t"}
-    env.pop("DVC_ROOT", None)
-    run(["git", "init", "-q"], root, env)
-    run(["dvc", "init", "-q"], root, env)
-    run(["dvc", "config", "core.analytics", "false"], root, env)
-    run(["git", "add", "-A"], root, env)
-    run(["git", "commit", "-qm", "scratch"], root, env)
+    env = scratch_project(root, params, mlflow_server)
     run(["dvc", "repro"], root, env)
     run(["git", "add", "-A"], root, env)
     run(["git", "commit", "-qm", "repro"], root, env)
