@@ -29,7 +29,7 @@ from sklearn.utils.validation import check_is_fitted, validate_data
 from eskin.config import section
 from eskin.data.schema import (
     CHANNELS,
-    contact_free,
+    contact_mask,
     md5_file,
     read_dataset,
     read_metadata,
@@ -72,10 +72,10 @@ def make_featurizer(method: str) -> TransformerMixin:
     raise ValueError(f"featurize.method must be one of {METHODS}, got {method!r}")
 
 
-def baseline_rows(frame: pd.DataFrame, kind: str) -> np.ndarray:
+def baseline_rows(frame: pd.DataFrame) -> np.ndarray:
     """No-contact samples at the lowest stretch recorded."""
     rest = frame["stretch"] == frame["stretch"].min()
-    return (rest.to_numpy() & contact_free(frame, kind))
+    return (rest.to_numpy() & ~contact_mask(frame))
 
 
 def fit_featurizer(method: str, frame: pd.DataFrame, kind: str) -> TransformerMixin:
@@ -83,7 +83,7 @@ def fit_featurizer(method: str, frame: pd.DataFrame, kind: str) -> TransformerMi
     featurizer = make_featurizer(method)
     channels = frame[CHANNELS]
     if method == "baseline":
-        rows = baseline_rows(frame, kind)
+        rows = baseline_rows(frame)
         if not rows.any():
             raise ValueError(
                 "featurize.method 'baseline' needs no-contact samples at the lowest stretch, "

@@ -25,7 +25,7 @@ def acquire(params: dict[str, Any], scene: str, raw_dir: Path, *, progress: bool
     settings = section(params, "acquire")
     scene_settings = section(params, f"scenes.{scene}")
     if scene_settings["source"] == "import":
-        source = Path(check_import_path(params, scene))
+        source = Path(scene_settings["import_path"])  # checked by check_scenes above
         target = copy_import(source, raw_dir, plan.kind)
         return f"{scene}: imported {source} as {target}"
     board = section(params, "sim_board")

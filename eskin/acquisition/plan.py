@@ -23,9 +23,8 @@ import json
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
+from eskin.catalog import KINDS
 from eskin.device.physics import GRID
-
-SCENE_KINDS = ("single_force", "two_force")
 
 
 @dataclass(frozen=True, order=True)
@@ -110,8 +109,8 @@ def two_force_plan(name: str, stretches: Sequence[float], forces: Sequence[float
 def plan_from_params(name: str, section: Mapping[str, object]) -> ScenePlan:
     """The plan of scene ``name`` from its params.yaml section, checked."""
     kind = section.get("kind")
-    if kind not in SCENE_KINDS:
-        raise ValueError(f"scenes.{name}.kind must be one of {SCENE_KINDS}, got {kind!r}")
+    if kind not in KINDS:
+        raise ValueError(f"scenes.{name}.kind must be one of {KINDS}, got {kind!r}")
     samples = int(section["samples"])
     if samples < 1:
         raise ValueError(f"scenes.{name}.samples must be ≥ 1")

@@ -399,9 +399,7 @@ def header_names(expected: list[str]) -> list[set[str]]:
                          "x": ["x", "nodex", "xnode", "posx", "row", "i"],
                          "y": ["y", "nodey", "ynode", "posy", "col", "column", "j"],
                          "stretch": ["stretch", "lambda", "stretchratio", "l"]}[base]
-            names |= {f"{name}{contact}" for name in spellings}
-            if contact:
-                names |= {f"{name}_{contact}".replace("_", "") for name in spellings}
+            names |= {f"{name}{contact}" for name in spellings}  # F_1 normalises to f1
         out.append(names)
     return out
 

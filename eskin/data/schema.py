@@ -118,11 +118,6 @@ def contact_mask(frame: pd.DataFrame) -> np.ndarray:
     return (touching[0] | touching[1]).to_numpy()
 
 
-def contact_free(frame: pd.DataFrame, kind: str) -> np.ndarray:
-    """True where no indenter presses the skin (never, in a two-force scene)."""
-    return ~contact_mask(frame)
-
-
 def node_id(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Node number 1..100 in row-major order ((x − 1)·10 + y); 0 where x is 0 (no node)."""
     x = np.asarray(x, dtype=np.int64)
