@@ -104,7 +104,10 @@ def mlflow_server(tmp_path_factory):
          "--backend-store-uri", f"sqlite:///{home / 'mlflow.db'}",
          "--artifacts-destination", str(home / "artifacts")],
         stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
-        env={**os.environ, "MLFLOW_ENABLE_TELEMETRY": "false"})
+        # No job runner: MLflow 3 starts six huey consumers that poll for (GenAI) jobs
+        # eskin never submits, and took half a core for the server's whole life.
+        env={**os.environ, "MLFLOW_ENABLE_TELEMETRY": "false",
+             "MLFLOW_SERVER_ENABLE_JOB_EXECUTION": "false"})
     deadline = time.monotonic() + 90
     while True:
         try:
