@@ -1,8 +1,9 @@
 # make repro: set up everything and run the whole pipeline on the simulated skin.
 # make test:  set up everything and run the tests.
-# make bench: bench/dvc.yaml: variants' run time against error, the Bayes bound; the soak
-#             (a whole scene over a faulty link, two SIGKILLs); the fuzzers (100,000 inputs each).
-# make stress: the numerical stress suite (stress/dvc.yaml).
+# make bench: bench/dvc.yaml, per scene: variants' run time against error, the Bayes bound;
+#             the soak (a whole scene over a faulty link, two SIGKILLs); then the fuzzers
+#             (100,000 inputs each) and the import's memory.
+# make stress: the numerical stress suite (stress/dvc.yaml), per scene.
 SHELL := /bin/bash
 PYTHON ?= python3
 VENV := .venv
@@ -38,13 +39,13 @@ repro: setup
 # Outside `make repro`: `dvc repro` reads only the top-level dvc.yaml.
 bench: setup
 	dvc repro dvc.yaml bench/dvc.yaml
-	@cat reports/benchmark/summary.md reports/soak/soak.md
+	@cat reports/benchmark/*/summary.md reports/soak/*.md
 	@cat reports/fuzz/parser.json reports/fuzz/import.json reports/import_memory.md
 
 # Every model under the data real users produce (stress/dvc.yaml): reports/stress.{json,md}.
 stress: setup
 	dvc repro dvc.yaml stress/dvc.yaml
-	@cat reports/stress.md
+	@cat reports/stress/*.md
 
 test: setup browser
 	pytest -q

@@ -32,6 +32,9 @@ PREDICTIONS_DIR = Path("reports/predictions")
 LINEAGE_DIR = Path("reports/lineage")
 FIGURES_DIR = Path("reports/figures")
 PLOTS_DIR = Path("reports/plots")
+BENCH_DIR = Path("reports/benchmark")
+SOAK_DIR = Path("reports/soak")
+STRESS_DIR = Path("reports/stress")
 PAGE = Path("reports/index.html")
 README = Path("README.md")
 
@@ -62,6 +65,12 @@ def predictions_path(scene: str, task: str) -> Path:
 
 def model_path(scene: str, task: str) -> Path:
     return MODELS_DIR / scene / f"{task}.joblib"
+
+
+def bench_dir(scene: str) -> Path:
+    """`make bench`'s outputs for one scene: the Bayes bound, a JSON and a plot per task,
+    the summary."""
+    return BENCH_DIR / scene
 
 
 def task_outputs(scene: str, task: str) -> dict[str, Path]:

@@ -9,7 +9,12 @@ never a value silently truncated or replaced by a default.
 
 from __future__ import annotations
 
+import atexit
+import contextlib
 import dataclasses
+import json
+import os
+import sys
 import typing
 from collections.abc import Mapping
 from pathlib import Path
@@ -24,6 +29,9 @@ from eskin.device.physics import SkinParams
 from eskin.errors import EskinError
 
 DEFAULT_PARAMS = Path("params.yaml")
+# Set to a directory, each process notes there the params keys it read after validation
+# (tests/test_stage_deps.py compares them with each DVC stage's declared params).
+TRACE_ENV = "ESKIN_PARAMS_TRACE"
 
 
 class ParamsError(EskinError, ValueError):
@@ -278,7 +286,91 @@ def load_params(path: Path = DEFAULT_PARAMS) -> dict[str, Any]:
         raise ParamsError(f"{where}: not valid YAML: {problem}") from None
     except UnicodeDecodeError as err:
         raise ParamsError(f"{path}: not UTF-8 text ({err.reason})") from None
-    return validate_params(params, path)
+    params = validate_params(params, path)
+    trace_dir = os.environ.get(TRACE_ENV)
+    return _traced(params, trace_dir) if trace_dir else params
+
+
+# ------------------------------------------------------------------ read tracing
+
+class _TracedSection(dict):
+    """A params mapping that notes the keys read from it: a value's dotted key when a
+    value is read, a section's when the section is read whole (iterated, copied)."""
+
+    def __init__(self, data: Mapping[str, Any], key: str, reads: set[str]) -> None:
+        # Sections wrapped once, here, so a section read twice is one object (and a
+        # change made through one reference is seen through the other).
+        super().__init__({name: _TracedSection(value, self._join(key, name), reads)
+                          if isinstance(value, dict) else value
+                          for name, value in data.items()})
+        self._key, self._reads = key, reads
+
+    @staticmethod
+    def _join(key: str, name: str) -> str:
+        return f"{key}.{name}" if key else str(name)
+
+    def _child(self, name: str, value: Any) -> Any:
+        if not isinstance(value, _TracedSection) and _recording[0]:
+            self._reads.add(self._join(self._key, name))
+        return value
+
+    def _whole(self) -> None:
+        if _recording[0]:
+            self._reads.add(self._key or "*")
+
+    def __getitem__(self, name: str) -> Any:
+        return self._child(name, super().__getitem__(name))
+
+    def get(self, name: str, default: Any = None) -> Any:
+        return self[name] if name in self else default
+
+    def __iter__(self):
+        self._whole()
+        return super().__iter__()
+
+    def keys(self):
+        self._whole()
+        return super().keys()
+
+    def items(self):
+        self._whole()
+        return super().items()
+
+    def values(self):
+        self._whole()
+        return super().values()
+
+    def __deepcopy__(self, memo: dict) -> dict:
+        import copy
+
+        self._whole()
+        return copy.deepcopy(dict(super().items()), memo)
+
+
+_recording = [True]
+
+
+@contextlib.contextmanager
+def validating():
+    """Reads that only check the file (another scene's import path exists, before a long
+    acquisition) are not a stage's knobs: not traced."""
+    was, _recording[0] = _recording[0], False
+    try:
+        yield
+    finally:
+        _recording[0] = was
+
+
+def _traced(params: dict[str, Any], trace_dir: str) -> dict[str, Any]:
+    reads: set[str] = set()
+    out = Path(trace_dir) / f"params-read-{os.getpid()}.json"
+
+    def write() -> None:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps({"argv": sys.argv, "reads": sorted(reads)}))
+
+    atexit.register(write)
+    return _TracedSection(params, "", reads)
 
 
 def section(params: Mapping[str, Any], dotted: str) -> Any:

@@ -20,7 +20,7 @@ from eskin.data.schema import describe_source, md5_file, read_dataset, read_meta
 from eskin.evaluation.crossval import cross_validate, fit_final, parallel_backend
 from eskin.evaluation.cv import assign_folds
 from eskin.models import build_model, model_settings
-from eskin.tasks import get_task
+from eskin.tasks import Task, get_task
 
 
 def train(params: dict[str, Any], scene: str, task_name: str, features_dir: Path, *,
@@ -98,18 +98,16 @@ def train(params: dict[str, Any], scene: str, task_name: str, features_dir: Path
                         "eskin.dataset_source": describe_source(meta)})
         run_note = (f"; MLflow run {tracked.run_id}, registered "
                     f"{', '.join(tracked.registered)}")
-    headline = ", ".join(f"{r.scheme} {_headline(r.summary)}" for r in results)
+    headline = ", ".join(f"{r.scheme} {_headline(task, r.summary)}" for r in results)
     notes = "".join(f"\n  note ({r.scheme}, {n} of {len(r.per_fold[next(iter(r.per_fold))])} "
                     f"folds): {text}" for r in results for text, n in sorted(r.notes.items()))
     return f"{scene}/{task_name} [{model_name}]: {headline}{run_note}{notes}"
 
 
-def _headline(summary: dict[str, dict[str, float]]) -> str:
-    parts = []
-    for target, scores in summary.items():
-        name = "r2" if "r2" in scores else "accuracy"
-        parts.append(f"{target} {name} {scores[name]:.3f}±{scores[name + '_std']:.3f}")
-    return " ".join(parts)
+def _headline(task: Task, summary: dict[str, dict[str, float]]) -> str:
+    name = task.headline_metric
+    return " ".join(f"{target} {name} {scores[name]:.3f}±{scores[name + '_std']:.3f}"
+                    for target, scores in summary.items())
 
 
 def write_json(document: dict, path: Path) -> None:

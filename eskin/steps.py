@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from eskin.acquisition.session import acquire_scene
-from eskin.config import scene_plan, section, skin_params
+from eskin.config import scene_plan, section, skin_params, validating
 from eskin.data.importer import check_layout, copy_import
 from eskin.data.schema import DatasetError
 from eskin.device.faults import LinkFaults
@@ -20,7 +20,8 @@ from eskin.device.faults import LinkFaults
 
 def acquire(params: dict[str, Any], scene: str, raw_dir: Path, *, progress: bool = True) -> str:
     """Acquire (or import) ``scene`` into ``raw_dir``; returns a one-paragraph summary."""
-    check_scenes(params)
+    with validating():  # every scene is checked, but only this one's settings are used
+        check_scenes(params)
     plan = scene_plan(params, scene)
     settings = section(params, "acquire")
     scene_settings = section(params, f"scenes.{scene}")

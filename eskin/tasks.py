@@ -22,13 +22,13 @@ not by a list of which scene runs what.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
 
-from eskin.catalog import KINDS, TASK_NAMES
+from eskin.catalog import HEADLINE_METRIC, KINDS, TASK_NAMES
 from eskin.data.schema import contact_mask
 
 
@@ -61,6 +61,14 @@ class Task:
 
     def target_values(self, frame: pd.DataFrame) -> dict[str, np.ndarray]:
         return {name: get(frame) for name, get in self.targets.items()}
+
+    @property
+    def headline_metric(self) -> str:
+        return HEADLINE_METRIC[self.scorer]
+
+    def headline(self, scores: Mapping[str, Mapping[str, float]]) -> float:
+        """The task's one score (mean over its targets of the headline metric)."""
+        return float(np.mean([scores[target][self.headline_metric] for target in self.targets]))
 
     def unsupported(self, frame: pd.DataFrame) -> str | None:
         """Why this scene cannot train the task, or None when it can."""

@@ -31,15 +31,7 @@ from eskin.evaluation import metrics
 from eskin.evaluation.crossval import parallel_backend
 from eskin.evaluation.cv import assign_folds
 from eskin.models import build_model
-from eskin.tasks import Task
-
-# The score each task is judged on, higher is better: (target, score) pairs, averaged.
-HEADLINE: dict[str, list[tuple[str, str]]] = {
-    "stretch": [("stretch", "r2")],
-    "force": [("force", "r2")],
-    "detect": [("contact", "accuracy")],
-    "localise": [("x", "accuracy"), ("y", "accuracy")],
-}
+from eskin.tasks import Task, get_task
 
 
 def peak_memory_mb() -> float | None:
@@ -156,10 +148,14 @@ def pareto_front(points: Mapping[str, tuple[float, float]]) -> list[str]:
     return sorted(front, key=lambda n: points[n][0])
 
 
-def headline_error(task_name: str, scores: Mapping[str, Mapping[str, float]]) -> float:
+def headline_error(task: Task, scores: Mapping[str, Mapping[str, float]]) -> float:
     """1 − the task's headline score (mean over its targets): lower is better."""
-    values = [scores[target][name] for target, name in HEADLINE[task_name]]
-    return 1.0 - float(np.mean(values))
+    return 1.0 - task.headline(scores)
+
+
+def doc_task(doc: Mapping[str, Any]) -> Task:
+    """The task a bench document scored (its scene's kind and the task's name)."""
+    return get_task(doc["kind"], doc["task"])
 
 
 def benchmark_task(task: Task, frame: pd.DataFrame, kind: str, variants: Mapping[str, Mapping],
@@ -170,7 +166,7 @@ def benchmark_task(task: Task, frame: pd.DataFrame, kind: str, variants: Mapping
     rows = task.rows(frame)
     data = frame[rows].reset_index(drop=True)
     oracle_rows = oracle[rows].reset_index(drop=True) if oracle is not None else None
-    doc: dict[str, Any] = {"task": task.name, "rows": int(rows.sum()),
+    doc: dict[str, Any] = {"task": task.name, "kind": kind, "rows": int(rows.sum()),
                            "evaluate_folds": evaluate_folds, "folds": folds, "schemes": {}}
     for scheme in schemes:
         fold_of = assign_folds(frame, kind, scheme, folds, seed)[rows]
@@ -184,13 +180,13 @@ def benchmark_task(task: Task, frame: pd.DataFrame, kind: str, variants: Mapping
         for (name, spec), outcome in zip(variants.items(), runs, strict=True):
             results[name] = {"spec": dict(spec), **outcome}
             log(f"  {task.name} {scheme}: {name} {outcome['seconds_per_fold']:.2f} s/fold, "
-                f"error {headline_error(task.name, outcome['scores']):.4f}")
-        points = {n: (r["seconds_per_fold"], headline_error(task.name, r["scores"]))
+                f"error {headline_error(task, outcome['scores']):.4f}")
+        points = {n: (r["seconds_per_fold"], headline_error(task, r["scores"]))
                   for n, r in results.items()}
         entry: dict[str, Any] = {"variants": results, "pareto_front": pareto_front(points)}
         if oracle_rows is not None:
             bound = bound_scores(task, data, oracle_rows, fold_of, fold_ids)
-            bound_error = headline_error(task.name, bound)
+            bound_error = headline_error(task, bound)
             paper_error = points["paper"][1] if "paper" in points else float("nan")
             gap = paper_error - bound_error
             entry["bayes_bound"] = {"scores": bound, "error": bound_error}
@@ -202,140 +198,183 @@ def benchmark_task(task: Task, frame: pd.DataFrame, kind: str, variants: Mapping
 
 # ---------------------------------------------------------------- pipeline steps
 
-def bayes_bound(params: Mapping[str, Any], dataset_path: Path, out_path: Path, *,
+def bayes_bound(params: Mapping[str, Any], scene: str, dataset_path: Path, out_path: Path, *,
                 log=print) -> str:
-    """The oracle's answers for every sample of a simulated single-force dataset → Parquet."""
+    """The oracle's answers for every sample of a scene's dataset → Parquet.
+
+    Only the simulator knows the answers, and the oracle covers one contact: for any
+    other scene the file holds the sample keys alone and says why (``attrs["unavailable"]``),
+    so the bench tables show "no bound" and the reason instead of stopping."""
     from eskin.config import section, skin_params
     from eskin.data.schema import read_dataset, read_metadata
     from harness.oracle import posterior_predictions
 
     meta = read_metadata(dataset_path)
-    if meta.get("kind") != "single_force" or meta.get("source", {}).get("kind") != "simulated":
-        raise ValueError(f"{dataset_path}: the Bayes bound needs a simulated single-force "
-                         f"dataset (this one: {meta.get('kind')}, "
-                         f"{meta.get('source', {}).get('kind')})")
     frame = read_dataset(dataset_path)
-    scene = section(params, f"scenes.{meta.get('scene', 'single_force')}")
+    keys = frame[["session", "trial", "sample"]].reset_index(drop=True)
+    source = meta.get("source", {}).get("kind")
+    reason = None
+    if source != "simulated":
+        reason = (f"no simulator made this data (source: {source}), so no one knows the "
+                  "answers' probabilities")
+    elif meta.get("kind") != "single_force":
+        reason = f"the oracle covers single-contact scenes only (this one: {meta.get('kind')})"
+    out_path = Path(out_path)
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    if reason is not None:
+        keys.attrs["unavailable"] = reason
+        keys.to_parquet(out_path, index=False)
+        return f"{scene}: no Bayes bound — {reason} → {out_path}"
+    settings = section(params, f"scenes.{scene}")
     last = [0.0]
 
     def progress(done: int, total: int) -> None:
         if done == total or time.perf_counter() - last[0] > 10:
             last[0] = time.perf_counter()
-            log(f"  Bayes bound: {done:,}/{total:,} samples")
+            log(f"  {scene} Bayes bound: {done:,}/{total:,} samples")
 
-    answers = posterior_predictions(frame, skin_params(params), scene["stretches"],
-                                    scene["forces"], progress=progress)
-    answers.insert(0, "sample", frame["sample"].to_numpy())
-    answers.insert(0, "trial", frame["trial"].to_numpy())
-    answers.insert(0, "session", frame["session"].to_numpy())
-    out_path = Path(out_path)
-    out_path.parent.mkdir(parents=True, exist_ok=True)
+    answers = posterior_predictions(frame, skin_params(params), settings["stretches"],
+                                    settings["forces"], progress=progress)
+    answers = pd.concat([keys, answers.reset_index(drop=True)], axis=1)
     answers.to_parquet(out_path, index=False)
-    return f"Bayes bound: {len(answers):,} samples → {out_path}"
+    return f"{scene} Bayes bound: {len(answers):,} samples → {out_path}"
 
 
-def bench(params: Mapping[str, Any], task_name: str, features_path: Path, bound_path: Path,
-          out_dir: Path, *, log=print) -> str:
-    """One task's variants on the same folds, with the bound → ``<out>/<task>.json``."""
+def read_bound(bound_path: Path, frame: pd.DataFrame) -> tuple[pd.DataFrame | None, str | None]:
+    """(the oracle's answers aligned with ``frame``'s rows, or None; why there are none)."""
+    answers = pd.read_parquet(bound_path)
+    if "unavailable" in answers.attrs:
+        return None, str(answers.attrs["unavailable"])
+    oracle = frame[["session", "trial", "sample"]].merge(
+        answers, on=["session", "trial", "sample"], how="left", validate="one_to_one")
+    if oracle["stretch"].isna().any():
+        raise ValueError(f"{bound_path}: does not cover every sample of the scene; "
+                         "rerun `dvc repro bench/dvc.yaml`")
+    return oracle, None
+
+
+def bench(params: Mapping[str, Any], scene: str, task_name: str, features_path: Path,
+          bound_path: Path, out_dir: Path, *, log=print) -> str:
+    """One task's variants on one scene's folds, with the bound → ``<out>/<task>.json``.
+
+    A task the scene's data cannot support is written as skipped, with the reason."""
     import json
 
     from eskin.config import section
     from eskin.data.schema import read_dataset, read_metadata
-    from eskin.tasks import get_task
 
     settings = section(params, "bench")
     cv = section(params, "cv")
     meta = read_metadata(features_path)
     frame = read_dataset(features_path)
     task = get_task(meta["kind"], task_name)
-    answers = pd.read_parquet(bound_path)
-    oracle = frame[["session", "trial", "sample"]].merge(
-        answers, on=["session", "trial", "sample"], how="left", validate="one_to_one")
-    if oracle["stretch"].isna().any():
-        raise ValueError(f"{bound_path}: does not cover every sample of {features_path}; "
-                         "rerun `dvc repro bench/dvc.yaml:bound`")
+    header = {"scene": scene, "kind": meta["kind"], "task": task_name,
+              "dataset_md5": meta["dataset"]["md5"]}
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    out_path = out_dir / f"{task_name}.json"
+    reason = task.unsupported(frame)
+    if reason is not None:
+        out_path.write_text(json.dumps({**header, "status": "skipped", "reason": reason},
+                                       indent=2, sort_keys=True) + "\n")
+        return f"{scene}/{task_name}: skipped — {reason}"
+    oracle, no_bound = read_bound(bound_path, frame)
     with parallel_backend(settings.get("backend", "loky")):
         doc = benchmark_task(task, frame, meta["kind"],
                              section(params, f"bench.tasks.{task_name}"),
                              schemes=list(settings["schemes"]), folds=int(cv["folds"]),
                              seed=int(cv["seed"]), evaluate_folds=int(settings["evaluate_folds"]),
                              oracle=oracle, n_jobs=int(settings.get("n_jobs", 1)), log=log)
-    doc.update(scene=meta.get("scene", "single_force"), dataset_md5=meta["dataset"]["md5"])
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / f"{task_name}.json").write_text(
-        json.dumps(doc, indent=2, sort_keys=True, allow_nan=True) + "\n")
-    return "\n".join(f"{task_name}: {scheme} Pareto front {', '.join(entry['pareto_front'])}"
+    doc.update(header)
+    if no_bound is not None:
+        doc["bayes_bound_unavailable"] = no_bound
+    out_path.write_text(json.dumps(doc, indent=2, sort_keys=True, allow_nan=True) + "\n")
+    return "\n".join(f"{scene}/{task_name}: {scheme} Pareto front "
+                     f"{', '.join(entry['pareto_front'])}"
                      for scheme, entry in doc["schemes"].items())
 
 
-def default_variant(params: Mapping[str, Any], task_name: str,
+def default_variant(params: Mapping[str, Any], kind: str, task_name: str,
                     variants: Mapping[str, Mapping]) -> str:
-    """The bench variant whose model and hyperparameters the training stage uses by default."""
+    """The bench variant whose model and hyperparameters the training stage uses by default
+    for a scene of ``kind``."""
     from eskin.config import section
     from eskin.models import model_settings
 
     model, hyper = model_settings(section(params, f"train.{task_name}"),
-                                  section(params, "train.configuration"))
+                                  section(params, "train.configuration"), kind)
     for name, spec in variants.items():
         if variant_settings(spec) == (model, hyper, False):
             return name
-    raise ValueError(f"the default {task_name} model {model} {hyper} is not among the benchmark's "
-                     f"variants (bench.tasks.{task_name}); add it there")
+    raise ValueError(f"the default {task_name} model of {kind} scenes, {model} {hyper}, is not "
+                     f"among the benchmark's variants (bench.tasks.{task_name}); add it there")
 
 
-def summarise(params: Mapping[str, Any], bench_dir: Path, features_path: Path, *,
+def summarise(params: Mapping[str, Any], scene: str, bench_dir: Path, features_path: Path, *,
               log=print) -> str:
-    """Targets (as ratios measured in the bench runs), tables and a plot per task."""
+    """One scene's targets (as ratios measured in its bench runs), tables, a plot per task."""
     import json
 
+    from eskin.catalog import TASK_NAMES
     from eskin.config import section
     from eskin.data.schema import read_dataset, read_metadata
-    from eskin.tasks import get_task
 
     settings = section(params, "bench")
     bench_dir = Path(bench_dir)
-    docs = {task: json.loads((bench_dir / f"{task}.json").read_text()) for task in HEADLINE}
-    summary: dict[str, Any] = {"defaults": {}, "targets": {}}
+    docs = {task: json.loads((bench_dir / f"{task}.json").read_text()) for task in TASK_NAMES}
+    summary: dict[str, Any] = {"scene": scene, "defaults": {}, "targets": {},
+                               "skipped": {t: d["reason"] for t, d in docs.items()
+                                           if d.get("status") == "skipped"}}
+    meta = read_metadata(features_path)
+    figures = bench_dir / "figures"
+    figures.mkdir(exist_ok=True)
+    for stale in figures.glob("*.png"):
+        stale.unlink()
     for task_name, doc in docs.items():
+        if doc.get("status") == "skipped":
+            continue
         variants = section(params, f"bench.tasks.{task_name}")
-        doc["default"] = default_variant(params, task_name, variants)
+        doc["default"] = default_variant(params, meta["kind"], task_name, variants)
         summary["defaults"][task_name] = doc["default"]
         summary["targets"].update(targets(doc))
         figure = benchmark_figure(doc)
-        figure.savefig(bench_dir / f"{task_name}.png", dpi=150, metadata={"Software": None})
-    # Cost on doubling: the default force model refitted at ½, 1 and 2× a training fold.
-    meta = read_metadata(features_path)
-    task = get_task(meta["kind"], "force")
-    frame = read_dataset(features_path)
-    default = summary["defaults"]["force"]
-    estimator, _ = variant_estimator("force", section(params, f"bench.tasks.force.{default}"))
-    log(f"scaling: {default} at {settings['scaling_fractions']} × the data …")
-    grown = scaling(task, frame[task.rows(frame)].reset_index(drop=True), estimator,
-                    list(settings["scaling_fractions"]), seed=int(settings["seed"]))
-    worst = max(grown["growth_per_doubling"])
-    summary["targets"]["cost_on_doubling"] = {
-        **grown, "met": bool(worst <= 2.3),
-        "text": f"force default ({default}) fit time grows "
-                f"{' then '.join(f'{g:.2f}×' for g in grown['growth_per_doubling'])} per "
-                "doubling of the data (target ≤ 2.3×)"}
+        figure.suptitle(f"{scene}: {task_name}", fontsize=9)
+        figure.savefig(figures / f"{task_name}.png", dpi=150, metadata={"Software": None})
+    if "force" in summary["defaults"]:
+        # Cost on doubling: the default force model refitted at ½, 1 and 2× the data.
+        task = get_task(meta["kind"], "force")
+        frame = read_dataset(features_path)
+        default = summary["defaults"]["force"]
+        estimator, _ = variant_estimator("force",
+                                         section(params, f"bench.tasks.force.{default}"))
+        log(f"{scene} scaling: {default} at {settings['scaling_fractions']} × the data …")
+        grown = scaling(task, frame[task.rows(frame)].reset_index(drop=True), estimator,
+                        list(settings["scaling_fractions"]), seed=int(settings["seed"]))
+        worst = max(grown["growth_per_doubling"])
+        summary["targets"]["cost_on_doubling"] = {
+            **grown, "met": bool(worst <= 2.3),
+            "text": f"force default ({default}) fit time grows "
+                    f"{' then '.join(f'{g:.2f}×' for g in grown['growth_per_doubling'])} per "
+                    "doubling of the data (target ≤ 2.3×)"}
     (bench_dir / "summary.json").write_text(
         json.dumps(summary, indent=2, sort_keys=True, allow_nan=True) + "\n")
-    (bench_dir / "summary.md").write_text(summary_markdown(docs, summary))
-    return "\n".join(f"target {'met ' if t['met'] else 'MISSED'}: {t['text']}"
-                     for t in summary["targets"].values())
+    (bench_dir / "summary.md").write_text(summary_markdown(scene, docs, summary))
+    return "\n".join([f"{scene} target {'met ' if t['met'] else 'MISSED'}: {t['text']}"
+                      for t in summary["targets"].values()]
+                     + [f"{scene} skipped {t}: {why}" for t, why in summary["skipped"].items()])
 
 
 def targets(doc: Mapping[str, Any]) -> dict[str, Any]:
     """The issue's targets for one task, as ratios of numbers measured in one bench run."""
     out: dict[str, Any] = {}
     default = doc["default"]
+    task = doc_task(doc)
     for scheme, entry in doc["schemes"].items():
         results = entry["variants"]
         if doc["task"] == "force" and "exact_gp" in results:
             ref, fast = results["exact_gp"], results[default]
             speedup = ref["seconds_per_fold"] / fast["seconds_per_fold"]
-            r2_gap = ref["scores"]["force"]["r2"] - fast["scores"]["force"]["r2"]
+            r2_gap = task.headline(ref["scores"]) - task.headline(fast["scores"])
             out[f"force_speed_vs_exact_gp_{scheme}"] = {
                 "speedup": speedup, "r2_below_reference": r2_gap,
                 "met": bool(speedup >= 20 and r2_gap <= 0.01),
@@ -357,15 +396,22 @@ def targets(doc: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
-def summary_markdown(docs: Mapping[str, Mapping], summary: Mapping[str, Any]) -> str:
+def summary_markdown(scene: str, docs: Mapping[str, Mapping],
+                     summary: Mapping[str, Any]) -> str:
     """Per task and scheme: each variant's time, memory, error, gap closed; front marked."""
-    lines = ["# Benchmark", "",
+    lines = [f"# Benchmark: {scene}", "",
              "Seconds and peak memory per fold (fit + predict), error = 1 − the task's headline "
              "score, on the same folds for every variant. ★ default, ◆ on the Pareto front.", ""]
     for task_name, doc in docs.items():
+        if doc.get("status") == "skipped":
+            lines += [f"## {task_name}: skipped", "", doc["reason"], ""]
+            continue
+        task = doc_task(doc)
         for scheme, entry in doc["schemes"].items():
-            bound = entry.get("bayes_bound", {}).get("error", float("nan"))
-            lines += [f"## {task_name} — {scheme} CV (Bayes bound error {bound:.4f})", "",
+            bound = ("no Bayes bound: " + doc["bayes_bound_unavailable"]
+                     if "bayes_bound_unavailable" in doc else
+                     f"Bayes bound error {entry['bayes_bound']['error']:.4f}")
+            lines += [f"## {task_name} — {scheme} CV ({bound})", "",
                       "| variant | s/fold | peak MiB | error | gap closed |",
                       "|---|---|---|---|---|"]
             for name, result in sorted(entry["variants"].items(),
@@ -375,7 +421,7 @@ def summary_markdown(docs: Mapping[str, Mapping], summary: Mapping[str, Any]) ->
                 gap = entry.get("gap_closed", {}).get(name, float("nan"))
                 memory = result.get("peak_memory_mb") or float("nan")
                 lines.append(f"| {name} {mark} | {result['seconds_per_fold']:.3g} | "
-                             f"{memory:,.0f} | {headline_error(task_name, result['scores']):.4f} "
+                             f"{memory:,.0f} | {headline_error(task, result['scores']):.4f} "
                              f"| {gap:.0%} |")
             lines.append("")
     lines += ["## Targets", ""] + [f"- {'met' if t['met'] else '**missed**'}: {t['text']}"
@@ -390,6 +436,7 @@ def benchmark_figure(doc: Mapping[str, Any]):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    task = doc_task(doc)
     schemes = list(doc["schemes"])
     figure, axes = plt.subplots(1, len(schemes), figsize=(4.2 * len(schemes), 3.6),
                                 sharey=True, squeeze=False, layout="constrained")
@@ -397,7 +444,7 @@ def benchmark_figure(doc: Mapping[str, Any]):
         entry = doc["schemes"][scheme]
         for name, result in entry["variants"].items():
             seconds = result["seconds_per_fold"]
-            error = headline_error(doc["task"], result["scores"])
+            error = headline_error(task, result["scores"])
             memory = result.get("peak_memory_mb") or 0.0
             marker = "*" if name == doc["default"] else ("s" if name == "paper" else "o")
             ax.scatter(seconds, error, marker=marker, s=80 if marker == "*" else 30, zorder=3)
@@ -405,7 +452,7 @@ def benchmark_figure(doc: Mapping[str, Any]):
                         xytext=(4, 2), textcoords="offset points")
         front = entry["pareto_front"]
         ax.plot([entry["variants"][n]["seconds_per_fold"] for n in front],
-                [headline_error(doc["task"], entry["variants"][n]["scores"]) for n in front],
+                [headline_error(task, entry["variants"][n]["scores"]) for n in front],
                 color="grey", lw=1, ls="-", zorder=1, label="Pareto front")
         if "bayes_bound" in entry:
             ax.axhline(entry["bayes_bound"]["error"], color="black", ls="--", lw=1,
@@ -414,5 +461,6 @@ def benchmark_figure(doc: Mapping[str, Any]):
         ax.set_xlabel("fit + predict, seconds per fold")
         ax.set_title(f"{doc['task']} — {scheme} CV")
         ax.legend(fontsize=7, loc="upper right")
-    axes[0][0].set_ylabel("error (1 − " + " / ".join(s for _, s in HEADLINE[doc["task"]]) + ")")
+    axes[0][0].set_ylabel(f"error (1 − mean {task.headline_metric} of "
+                          f"{', '.join(task.targets)})")
     return figure

@@ -120,7 +120,7 @@ def compare(reference: pd.DataFrame, frame: pd.DataFrame, kind: str) -> dict[str
 
 
 def run_soak(params: dict[str, Any], settings: dict[str, Any], workdir: Path,
-             reference: pd.DataFrame, *, scene: str = "single_force",
+             reference: pd.DataFrame, *, scene: str,
              kill_at: Sequence[float] = (1 / 3, 2 / 3), run_timeout_s: float = 3600.0,
              say=print) -> SoakResult:
     """Acquire ``scene`` under ``settings``' faults in ``workdir``, SIGKILL it at each

@@ -30,11 +30,14 @@ import numpy as np
 import pandas as pd
 
 from eskin.data.schema import CHANNELS
+from eskin.tasks import Task
 
 # Invariance tolerances of a `same` case: regression predictions within this share of
 # the target's standard deviation; classifications within this share of rows; scores.
 TOLERANCE = {"regression_prediction": 1e-6, "labels_changed": 0.0, "score": 1e-6}
 WARNING_FLOOD = 5  # distinct warnings, or this many of any one, in a run is a flood
+# The kind of scene the cases are written for (node labels, one contact's force).
+KIND = "single_force"
 
 
 def _channels(transform: Callable[[np.ndarray], np.ndarray]):
@@ -145,7 +148,7 @@ def models_under_test(params: Mapping[str, Any]) -> list[tuple[str, str, dict[st
     for task in TASK_NAMES:
         section = params["train"][task]
         for configuration in ("tuned", "paper"):
-            name, hyper = model_settings(section, configuration)
+            name, hyper = model_settings(section, configuration, KIND)
             if (task, name, hyper) not in out:
                 out.append((task, name, hyper))
     return out
@@ -161,12 +164,13 @@ def fit_case(frame: pd.DataFrame, task_name: str, model: str, hyper: Mapping[str
     from eskin.models import build_model
     from eskin.tasks import get_task
 
-    task = get_task("single_force", task_name)
+    # The cases are written for one contact (config checks stress.scene is single-force).
+    task = get_task(KIND, task_name)
     start = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
-            fold_of = assign_folds(frame, "single_force", "grouped", folds, seed)
+            fold_of = assign_folds(frame, KIND, "grouped", folds, seed)
             result = cross_validate(task, frame, fold_of, build_model(task.role, model, hyper),
                                     "grouped", n_jobs=1)
         except Exception as err:  # every error is an outcome here, judged by the case
@@ -189,7 +193,7 @@ def _count(caught) -> dict[str, int]:
 
 
 def judge(case: Case, outcome: Mapping[str, Any], reference: Mapping[str, Any] | None,
-          scorer: str) -> dict[str, Any]:
+          task: Task) -> dict[str, Any]:
     """The verdict on one case × model: pass, clear error, or FAIL with the reason."""
     row: dict[str, Any] = {"seconds": round(outcome["seconds"], 2),
                            "warnings": sum(outcome["warnings"].values()),
@@ -204,7 +208,7 @@ def judge(case: Case, outcome: Mapping[str, Any], reference: Mapping[str, Any] |
         row["outcome"] = "clear error" if clear else "FAIL: error"
         return row
     predictions = outcome["predictions"]
-    row["score"] = _headline(outcome["scores"])
+    row["score"] = task.headline(outcome["scores"])
     if not np.all(np.isfinite(predictions)):
         row["outcome"] = "FAIL: non-finite predictions"
         return row
@@ -212,9 +216,9 @@ def judge(case: Case, outcome: Mapping[str, Any], reference: Mapping[str, Any] |
         row["outcome"] = "FAIL: warning flood"
         return row
     if reference is not None and "error" not in reference:
-        row["score_delta"] = row["score"] - _headline(reference["scores"])
+        row["score_delta"] = row["score"] - task.headline(reference["scores"])
         if case.expect == "same":
-            same, detail = _same(predictions, reference, scorer)
+            same, detail = _same(predictions, reference, task.scorer)
             row.update(detail)
             if not same:
                 row["outcome"] = "FAIL: predictions changed"
@@ -237,11 +241,6 @@ def _same(predictions: np.ndarray, reference: Mapping[str, Any], scorer: str
         return change <= TOLERANCE["regression_prediction"], {"prediction_change": change}
     changed = float(np.mean(predictions != before))
     return changed <= TOLERANCE["labels_changed"], {"labels_changed": changed}
-
-
-def _headline(scores: Mapping[str, Mapping[str, float]]) -> float:
-    values = [s["r2"] if "r2" in s else s["accuracy"] for s in scores.values()]
-    return float(np.mean(values))
 
 
 def run_suite(frames: Mapping[str, pd.DataFrame], params: Mapping[str, Any], *,
@@ -277,7 +276,7 @@ def run_suite(frames: Mapping[str, pd.DataFrame], params: Mapping[str, Any], *,
             if case.name == "counts":
                 references[key] = outcome
             verdict = judge(case, outcome, references.get(key) if case.dataset == "default"
-                            else None, get_task("single_force", task).scorer)
+                            else None, get_task(KIND, task))
             rows.append({"case": case.name, "what": case.what, "expect": case.expect,
                          "task": task, "model": model, **verdict})
             log(f"  {case.name:<18} {task:<9} {model:<23} {verdict['outcome']}"
@@ -293,7 +292,7 @@ def large_factorisation(frame: pd.DataFrame, rows: int, seed: int) -> dict[str, 
     from eskin.gp import FixedKernelGaussianProcess
     from eskin.tasks import get_task
 
-    task = get_task("single_force", "force")
+    task = get_task(KIND, "force")
     y = task.target_values(frame)["force"]
     X = frame[CHANNELS].to_numpy(dtype=np.float64)
     order = np.random.default_rng(seed).permutation(len(frame))
@@ -309,10 +308,12 @@ def large_factorisation(frame: pd.DataFrame, rows: int, seed: int) -> dict[str, 
             "seconds": round(time.perf_counter() - start, 1), "warnings": 0}
 
 
-def stress(params: Mapping[str, Any], features_path, out_json, out_md, out_html, *,
-           scratch, log=print) -> str:
-    """The DVC stage: the suite on the scene's features (subsampled by trial), noise
-    datasets acquired from the simulated skin, and the large factorisation."""
+def stress(params: Mapping[str, Any], scene: str, features_path, out_dir, *, scratch,
+           log=print) -> str:
+    """The DVC stage: the suite on a scene's features (subsampled by trial), noise
+    datasets acquired from the simulated skin (a simulated scene only), and the large
+    factorisation → ``<out_dir>/<scene>.{json,md,html}``. A scene of another kind is
+    written as skipped, with the reason."""
     import copy
     import json
     from pathlib import Path
@@ -320,26 +321,42 @@ def stress(params: Mapping[str, Any], features_path, out_json, out_md, out_html,
     from eskin import steps
     from eskin.config import section
     from eskin.data import build
-    from eskin.data.schema import read_dataset
+    from eskin.data.schema import describe_source, read_dataset, read_metadata
     from eskin.features import featurize_scene
 
     settings = section(params, "stress")
+    meta = read_metadata(features_path)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    out_json, out_md, out_html = (out_dir / f"{scene}.{ext}" for ext in ("json", "md", "html"))
+    if meta["kind"] != KIND:
+        reason = f"the stress cases are written for {KIND} scenes; {scene} is {meta['kind']}"
+        out_json.write_text(json.dumps({"scene": scene, "status": "skipped", "reason": reason},
+                                       indent=2) + "\n")
+        out_md.write_text(f"Skipped: {reason}.\n")
+        out_html.write_text(f"<!doctype html><meta charset='utf-8'><title>eskin stress</title>"
+                            f"<p>{scene}: skipped: {reason}.</p>\n")
+        return f"stress {scene}: skipped — {reason}"
     features = read_dataset(features_path)
     trials = features["trial"].drop_duplicates().sample(
         n=min(int(settings["trials"]), features["trial"].nunique()),
         random_state=int(settings["seed"]))
     frames = {"default": features[features["trial"].isin(trials)].reset_index(drop=True)}
-    for name, factor in (("noise_zero", 0.0), ("noise_x10", 10.0)):
+    simulated = meta.get("source", {}).get("kind") == "simulated"
+    noise_note = ("run" if simulated else "skipped: they simulate the skin again, and this "
+                  f"data is {describe_source(meta)}")
+    if not simulated:
+        log(f"stress {scene}: noise cases {noise_note}")
+    for name, factor in (("noise_zero", 0.0), ("noise_x10", 10.0)) if simulated else ():
         noisy = copy.deepcopy(dict(params))
         for knob in ("noise_pf", "drift_offset_pf", "drift_step_pf"):
             noisy["sim"][knob] = params["sim"][knob] * factor
-        noisy["scenes"]["single_force"].update(settings["noise_scene"])
+        noisy["scenes"][scene].update(settings["noise_scene"])
         root = Path(scratch) / name
-        steps.acquire(noisy, "single_force", root / "raw", progress=False)
-        build.ingest(noisy, "single_force", root / "raw", root / "processed")
-        featurize_scene(noisy, "single_force", root / "processed", root / "features",
-                        root / "models")
-        frames[name] = read_dataset(root / "features" / "single_force.parquet")
+        steps.acquire(noisy, scene, root / "raw", progress=False)
+        build.ingest(noisy, scene, root / "raw", root / "processed")
+        featurize_scene(noisy, scene, root / "processed", root / "features", root / "models")
+        frames[name] = read_dataset(root / "features" / f"{scene}.parquet")
     log(f"stress: {len(frames['default']):,} samples of {len(trials)} trials, "
         f"{int(settings['folds'])}-fold grouped CV")
     rows = run_suite(frames, params, folds=int(settings["folds"]), seed=int(settings["seed"]),
@@ -350,14 +367,15 @@ def stress(params: Mapping[str, Any], features_path, out_json, out_md, out_html,
                                         int(settings["seed"])))
         log(f"  large_exact_gp     force     exact_gp                {rows[-1]['outcome']} "
             f"({rows[-1]['seconds']} s, R² {rows[-1]['score']:.3f})")
-    doc = {"tolerance": TOLERANCE, "warning_flood": WARNING_FLOOD, "rows": rows,
+    doc = {"scene": scene, "source": describe_source(meta), "noise_cases": noise_note,
+           "tolerance": TOLERANCE,
+           "warning_flood": WARNING_FLOOD, "rows": rows,
            "samples": len(frames["default"]), "folds": int(settings["folds"]),
            "failed": sum(r["outcome"].startswith("FAIL") for r in rows)}
-    Path(out_json).parent.mkdir(parents=True, exist_ok=True)
-    Path(out_json).write_text(json.dumps(doc, indent=2, sort_keys=True) + "\n")
-    Path(out_md).write_text(stress_markdown(rows))
-    Path(out_html).write_text(stress_html(rows, doc))
-    return (f"stress: {len(rows)} case × model runs, {doc['failed']} failed "
+    out_json.write_text(json.dumps(doc, indent=2, sort_keys=True) + "\n")
+    out_md.write_text(stress_markdown(rows))
+    out_html.write_text(stress_html(rows, doc))
+    return (f"stress {scene}: {len(rows)} case × model runs, {doc['failed']} failed "
             f"→ {out_json}, {out_md}, {out_html}")
 
 
@@ -372,7 +390,8 @@ def stress_html(rows: list[Mapping[str, Any]], doc: Mapping[str, Any]) -> str:
     return ("<!doctype html><html><head><meta charset='utf-8'><title>eskin stress</title>"
             "<style>body{font-family:sans-serif;margin:2em}table{border-collapse:collapse}"
             "td,th{border:1px solid #ccc;padding:2px 6px;font-size:90%}</style></head><body>"
-            f"<h1>Numerical stress</h1><p>{doc['samples']:,} samples, {doc['folds']}-fold "
+            f"<h1>Numerical stress: {doc['scene']}</h1><p>{doc['samples']:,} samples of "
+            f"{doc['source']}, {doc['folds']}-fold "
             f"grouped CV per case and model; tolerances {doc['tolerance']}; "
             f"{doc['failed']} failed.</p>"
             + pd.DataFrame(body, columns=head).to_html(index=False, escape=True)

@@ -1,23 +1,26 @@
-"""DVC stages of `make bench`: the Bayes bound, and one task's variants timed against error."""
+"""DVC stages of `make bench`, per scene: the Bayes bound, one task's variants timed
+against error, and the summary."""
 
 import sys
 
-from eskin.catalog import FEATURES_DIR, PROCESSED_DIR
+from eskin.catalog import bench_dir, features_path, processed_path
 from eskin.config import load_params
 from eskin.errors import run_friendly
 from harness import benchmark
 
-BENCH_DIR = "reports/benchmark"
+
+def main(what: str, scene: str, task: str | None = None) -> str:
+    params = load_params()
+    out = bench_dir(scene)
+    if what == "bound":
+        return benchmark.bayes_bound(params, scene, processed_path(scene),
+                                     out / "bayes_bound.parquet")
+    if what == "summary":
+        return benchmark.summarise(params, scene, out, features_path(scene))
+    return benchmark.bench(params, scene, task, features_path(scene),
+                           out / "bayes_bound.parquet", out)
+
 
 if __name__ == "__main__":
-    what = sys.argv[1]
-    if what == "bound":
-        sys.exit(run_friendly(lambda: print(benchmark.bayes_bound(
-            load_params(), PROCESSED_DIR / "single_force.parquet",
-            f"{BENCH_DIR}/bayes_bound.parquet"))))
-    if what == "summary":
-        sys.exit(run_friendly(lambda: print(benchmark.summarise(
-            load_params(), BENCH_DIR, FEATURES_DIR / "single_force.parquet"))))
-    sys.exit(run_friendly(lambda: print(benchmark.bench(
-        load_params(), what, FEATURES_DIR / "single_force.parquet",
-        f"{BENCH_DIR}/bayes_bound.parquet", BENCH_DIR))))
+    # python -m stages.bench bound <scene> | bench <scene> <task> | summary <scene>
+    sys.exit(run_friendly(lambda: print(main(*sys.argv[1:]))))

@@ -1,15 +1,20 @@
-"""DVC stage of `make stress`: the numerical stress suite (harness/stress.py)."""
+"""DVC stage of `make stress`: the numerical stress suite (harness/stress.py) on one
+scene (skipped, with the reason, where the cases do not apply)."""
 
 import sys
 import tempfile
 
-from eskin.catalog import FEATURES_DIR
+from eskin.catalog import STRESS_DIR, features_path
 from eskin.config import load_params
 from eskin.errors import run_friendly
 from harness import stress
 
-if __name__ == "__main__":
+
+def main(scene: str) -> str:
+    params = load_params()
     with tempfile.TemporaryDirectory(prefix="eskin-stress-") as scratch:
-        sys.exit(run_friendly(lambda: print(stress.stress(
-            load_params(), FEATURES_DIR / "single_force.parquet", "reports/stress.json",
-            "reports/stress.md", "reports/stress.html", scratch=scratch))))
+        return stress.stress(params, scene, features_path(scene), STRESS_DIR, scratch=scratch)
+
+
+if __name__ == "__main__":
+    sys.exit(run_friendly(lambda: print(main(sys.argv[1]))))

@@ -38,8 +38,8 @@ def write_params(directory: Path, params: dict) -> Path:
     return path
 
 
-PROJECT_FILES = ["eskin", "stages", "dvc.yaml", ".dvcignore", ".gitignore", "pyproject.toml",
-                 "README.md"]
+PROJECT_FILES = ["eskin", "stages", "harness", "dvc.yaml", "bench", "stress", ".dvcignore",
+                 ".gitignore", "pyproject.toml", "README.md"]
 
 
 def run_checked(args, cwd, env, *, ok=True) -> subprocess.CompletedProcess:
@@ -51,6 +51,11 @@ def run_checked(args, cwd, env, *, ok=True) -> subprocess.CompletedProcess:
     return done
 
 
+def params_trace_dir(root: Path) -> Path:
+    """Where a scratch project's processes note the params keys they read."""
+    return root.parent / f"{root.name}-params-read"
+
+
 def scratch_project(root: Path, params: dict, tracking_uri: str) -> dict:
     """A scratch copy of the project at ``root`` (code, dvc.yaml, README) with ``params``,
     committed in a fresh git and DVC repository; returns the environment its commands run
@@ -60,7 +65,8 @@ def scratch_project(root: Path, params: dict, tracking_uri: str) -> dict:
     for name in PROJECT_FILES:
         source = ROOT / name
         if source.is_dir():
-            shutil.copytree(source, root / name, ignore=shutil.ignore_patterns("__pycache__"))
+            shutil.copytree(source, root / name,
+                            ignore=shutil.ignore_patterns("__pycache__", "dvc.lock"))
         else:
             shutil.copy2(source, root / name)
     write_params(root, params)
@@ -68,6 +74,8 @@ def scratch_project(root: Path, params: dict, tracking_uri: str) -> dict:
     env = {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ.get('PATH', '')}",
            "DVC_NO_ANALYTICS": "1", "MLFLOW_ENABLE_TELEMETRY": "false",
            "MLFLOW_TRACKING_URI": tracking_uri,
+           # each stage notes the params it reads (tests/test_stage_deps.params_mismatches)
+           "ESKIN_PARAMS_TRACE": str(params_trace_dir(root)),
            "GIT_AUTHOR_NAME": "t", "GIT_AUTHOR_EMAIL": "t@t", "GIT_COMMITTER_NAME": "t",
            "GIT_COMMITTER_EMAIL": "t@t"}
     env.pop("DVC_ROOT", None)

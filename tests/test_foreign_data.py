@@ -11,8 +11,9 @@ One scratch project with three scenes declared in params.yaml only:
   stretch level (so its stretch task is skipped, with the reason).
 
 `dvc repro` runs through to the report; `eskin compare`, `eskin audit` and
-`eskin reproduce` work on the result; removing a scene from params removes its
-stages.
+`eskin reproduce` work on the result; `make bench`'s stages run per scene and say
+where there is no Bayes bound; every stage that ran read exactly the params it
+declares; removing a scene from params removes its stages.
 """
 
 from __future__ import annotations
@@ -26,9 +27,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from conftest import params_trace_dir, scratch_project
 from conftest import run_checked as run
-from conftest import scratch_project
 from hostile_board import HostileBoard, Served
+from test_stage_deps import params_mismatches
 
 NODES = (1, 5, 10)
 SAMPLES = 4
@@ -107,6 +109,13 @@ def project(tmp_path_factory, repo_params, mlflow_server):
                                 plots_scheme="grouped")
         params["train"]["localise"]["paper"]["n_estimators"] = 20
         params["train"]["force"]["paper"]["subsample"] = 200
+        # make bench, small: every candidate the train section names, one grouped fold.
+        params["bench"].update(schemes=["grouped"], evaluate_folds=1,
+                               scaling_fractions=[0.5, 1.0], tasks={
+                                   task: {name: {"model": name, **hyper}
+                                          for name, hyper in settings.items() if name != "model"}
+                                   for task, settings in params["train"].items()
+                                   if task != "configuration"})
         env = scratch_project(root, params, mlflow_server)
         repro = run(["dvc", "repro"], root, env).stdout
     run(["git", "add", "-A"], root, env)
@@ -213,3 +222,38 @@ def test_removing_a_scene_from_params_removes_its_stages(project, tmp_path):
     finally:
         (tmp_path / "params.yaml").replace(root / "params.yaml")
     assert not [s for s in listed if "board_day1" in s] and "train@lab_single-force" in listed
+
+
+@pytest.fixture(scope="module")
+def benched(project):
+    """`make bench`'s per-scene stages on the imported scenes (bench/dvc.yaml)."""
+    root, env, *_ = project
+    run(["dvc", "repro", "bench/dvc.yaml:summary@lab_single",
+         "bench/dvc.yaml:summary@lab_pairs"], root, env)
+    return root
+
+
+def test_the_benchmark_runs_per_scene_and_says_where_there_is_no_bayes_bound(benched):
+    bench = benched / "reports/benchmark"
+    single = (bench / "lab_single/summary.md").read_text()
+    assert single.startswith("# Benchmark: lab_single")
+    assert "no Bayes bound: no simulator made this data (source: import)" in single
+    summary = json.loads((bench / "lab_single/summary.json").read_text())
+    assert summary["defaults"] == {"stretch": "paper", "force": "hist_gradient_boosting",
+                                   "detect": "hist_gradient_boosting", "localise": "logistic"}
+    assert 0 < summary["targets"]["cost_on_doubling"]["growth_per_doubling"][0]
+    force = json.loads((bench / "lab_pairs/force.json").read_text())
+    assert set(force["schemes"]["grouped"]["variants"]["paper"]["scores"]) == {"force1",
+                                                                               "force2"}
+    pairs = json.loads((bench / "lab_pairs/summary.json").read_text())
+    assert pairs["defaults"]["localise"] == "paper"  # the two-force default (train.localise)
+    assert "two or more stretch levels" in pairs["skipped"]["stretch"]
+    assert "contact and no-contact samples" in pairs["skipped"]["detect"]
+    assert sorted(p.name for p in (bench / "lab_pairs/figures").iterdir()) == \
+        ["force.png", "localise.png"]
+    assert len(list((bench / "lab_single/figures").glob("*.png"))) == 4
+
+
+def test_each_stage_reads_exactly_the_params_it_declares(benched):
+    """The pipeline's stages and the bench stages, on data no simulator made."""
+    assert params_mismatches(benched, params_trace_dir(benched)) == []

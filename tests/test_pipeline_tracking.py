@@ -15,7 +15,8 @@ import time
 import pandas as pd
 import pytest
 import yaml
-from conftest import run_checked, scratch_project, small_scenes
+from conftest import params_trace_dir, run_checked, scratch_project, small_scenes
+from test_stage_deps import params_mismatches
 
 from eskin.data.schema import CHANNELS, md5_file
 
@@ -37,6 +38,11 @@ def scratch(tmp_path_factory, repo_params, mlflow_server):
     run(["git", "add", "-A"], root, env)
     run(["git", "commit", "-qm", "repro"], root, env)
     return root, env
+
+
+def test_each_stage_reads_exactly_the_params_it_declares(scratch):
+    root, _ = scratch
+    assert params_mismatches(root, params_trace_dir(root)) == []
 
 
 def test_dvc_metrics_show_lists_the_headline_metrics(scratch):

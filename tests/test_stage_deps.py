@@ -165,3 +165,64 @@ def test_dvc_yaml_trains_every_task_of_the_catalog():
 
     pipeline = yaml.safe_load((ROOT / "dvc.yaml").read_text())
     assert tuple(pipeline["stages"]["train"]["matrix"]["task"]) == TASK_NAMES
+
+
+# ------------------------------------------------------------------ params: declared = read
+
+def params_mismatches(project: Path, trace_dir: Path) -> list[str]:
+    """Each stage run in ``project`` with ``ESKIN_PARAMS_TRACE=trace_dir`` (the pipeline
+    tests' scratch projects), against the params its dvc.yaml entry declares: a key read
+    but not declared (changing it would not rerun the stage), or declared but never read
+    (changing it reruns the stage for nothing). A declared section covers every key in
+    it; a section read whole (iterated, copied) covers every declared key in it.
+
+    "Declared but never read" is judged over every run of a stage's template (``train``
+    over its scenes and tasks, names replaced by placeholders): a task one scene skips
+    reads less than the same task where it trains."""
+    import json
+
+    from dvc.repo import Repo
+
+    def within(key: str, section: str) -> bool:
+        return key == section or key.startswith(section + ".") or section == "*"
+
+    def template(key: str, args: tuple[str, ...]) -> str:
+        return ".".join(f"{{{args.index(part)}}}" if part in args else part
+                        for part in key.split("."))
+
+    reads: dict[tuple[str, ...], set[str]] = {}
+    for path in Path(trace_dir).glob("params-read-*.json"):
+        trace = json.loads(path.read_text())
+        script = Path(trace["argv"][0])  # python -m stages.X: argv[0] is …/stages/X.py
+        if script.parent.name == "stages":
+            reads.setdefault((f"stages.{script.stem}", *trace["argv"][1:]),
+                             set()).update(trace["reads"])
+    assert reads, f"no params traces in {trace_dir}"
+    problems = []
+    groups: dict[tuple[str, int], tuple[list[str], set[str], set[str]]] = {}
+    with Repo(str(project)) as repo:
+        for stage in repo.index.stages:
+            words = shlex.split(stage.cmd if isinstance(stage.cmd, str) else stage.cmd[0])
+            command, args = (words[2], *words[3:]), tuple(words[3:])
+            if command not in reads:
+                continue  # not run by this test
+            keys = [key for dep in stage.deps if type(dep).__name__ == "ParamsDependency"
+                    for key in dep.params]
+            read = reads[command]
+            missing = sorted(r for r in read if not any(within(r, k) for k in keys))
+            if missing:
+                problems.append(f"{stage.addressing}: reads {missing}, which it does not "
+                                "declare")
+            addresses, declared, group_reads = groups.setdefault(
+                (words[2], len(args)), ([], set(), set()))
+            addresses.append(stage.addressing)
+            declared.update(template(k, args) for k in keys)
+            group_reads.update(template(r, args) for r in read)
+    assert groups, f"no traced process ran a stage of {project}"
+    for addresses, declared, group_reads in groups.values():
+        unused = sorted(k for k in declared
+                        if not any(within(r, k) or within(k, r) for r in group_reads))
+        if unused:
+            problems.append(f"{', '.join(addresses)}: declare {unused}, which none of them "
+                            "reads")
+    return problems

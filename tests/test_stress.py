@@ -74,24 +74,27 @@ def test_tiny_data_is_refused_with_the_dataset_numbers(suite):
     assert all("cannot split this dataset (40 samples, 40 trials" in r["error"] for r in tiny)
 
 
+FORCE = get_task("single_force", "force")
+
+
 def test_the_verdict_fails_what_it_should():
     case = stress.Case("x", "x", "same")
     reference = {"predictions": np.zeros((4, 1)), "truth": {"force": np.arange(4.0)},
                  "scores": {"force": {"r2": 0.5}}, "warnings": {}, "seconds": 1.0}
     moved = {**reference, "predictions": np.full((4, 1), 0.1)}
-    assert stress.judge(case, moved, reference, "regression")["outcome"] == \
+    assert stress.judge(case, moved, reference, FORCE)["outcome"] == \
         "FAIL: predictions changed"
     nan = {**reference, "predictions": np.full((4, 1), np.nan)}
-    assert stress.judge(case, nan, reference, "regression")["outcome"] == \
+    assert stress.judge(case, nan, reference, FORCE)["outcome"] == \
         "FAIL: non-finite predictions"
     flood = {**reference, "warnings": {"UserWarning: again": 50}}
-    assert stress.judge(case, flood, reference, "regression")["outcome"] == \
+    assert stress.judge(case, flood, reference, FORCE)["outcome"] == \
         "FAIL: warning flood"
     crash = {"error": "LinAlgError: not positive definite", "warnings": {}, "seconds": 0.0}
     for expect in ("same", "clear error"):
-        verdict = stress.judge(stress.Case("x", "x", expect), crash, None, "regression")
+        verdict = stress.judge(stress.Case("x", "x", expect), crash, None, FORCE)
         assert verdict["outcome"] == "FAIL: error"
-    assert stress.judge(case, reference, reference, "regression")["outcome"] == "pass"
+    assert stress.judge(case, reference, reference, FORCE)["outcome"] == "pass"
 
 
 def test_the_exact_gp_factorises_a_large_matrix_of_repeated_samples(small):

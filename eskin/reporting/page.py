@@ -205,6 +205,10 @@ def render_page(scenes: Scenes, figures: Mapping[str, list[tuple[str, str, bytes
     no other file."""
     sections = "".join(_scene_section(scene, kind, metrics, figures.get(scene, []))
                        for scene, kind, metrics in scenes)
+
+    def beside(pattern: str) -> str:  # links, relative to this page in reports/, per scene
+        return ", ".join(f'<a href="{html.escape(pattern.format(scene))}">'
+                         f"{html.escape(scene)}</a>" for scene, _, _ in scenes)
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>eskin report</title>
 <style>{CSS}</style></head><body>
@@ -219,8 +223,8 @@ Mean ± std over the folds of each cross-validation scheme: <em>stratified</em> 
 <code>eskin.model_md5</code>
 (<code>mlflow.search_runs(filter_string="tags.`eskin.model_md5` = '…'")</code>).</p>
 {_table(["scene/task", "model", "model md5"], models(scenes))}
-<p>Beside this page, from their own pipelines: <a href="benchmark/summary.md">the benchmark</a>
-(<code>make bench</code>) and <a href="stress.html">numerical stress</a>
-(<code>make stress</code>).</p>
+<p>Beside this page, from their own pipelines (each scene's, where they have run):
+the benchmark (<code>make bench</code>) of {beside("benchmark/{}/summary.md")} and
+numerical stress (<code>make stress</code>) of {beside("stress/{}.html")}.</p>
 </body></html>
 """
