@@ -422,7 +422,7 @@ def summary_markdown(scene: str, docs: Mapping[str, Mapping],
                 memory = result.get("peak_memory_mb") or float("nan")
                 lines.append(f"| {name} {mark} | {result['seconds_per_fold']:.3g} | "
                              f"{memory:,.0f} | {headline_error(task, result['scores']):.4f} "
-                             f"| {gap:.0%} |")
+                             f"| {'—' if np.isnan(gap) else f'{gap:.0%}'} |")
             lines.append("")
     lines += ["## Targets", ""] + [f"- {'met' if t['met'] else '**missed**'}: {t['text']}"
                                    for t in summary["targets"].values()]

@@ -255,5 +255,7 @@ def test_the_benchmark_runs_per_scene_and_says_where_there_is_no_bayes_bound(ben
 
 
 def test_each_stage_reads_exactly_the_params_it_declares(benched):
-    """The pipeline's stages and the bench stages, on data no simulator made."""
-    assert params_mismatches(benched, params_trace_dir(benched)) == []
+    """The pipeline's stages and the bench stages, on data no simulator made (so the
+    Bayes bound's stages here all take the short path: no simulator settings to read)."""
+    assert params_mismatches(benched, params_trace_dir(benched),
+                             partly_run={"bench/dvc.yaml:bound"}) == []
