@@ -330,7 +330,7 @@ def stress(params: Mapping[str, Any], scene: str, features_path, out_dir, *, scr
     out_dir.mkdir(parents=True, exist_ok=True)
     out_json, out_md, out_html = (out_dir / f"{scene}.{ext}" for ext in ("json", "md", "html"))
     if meta["kind"] != KIND:
-        reason = f"the stress cases are written for {KIND} scenes; {scene} is {meta['kind']}"
+        reason = f"the stress cases are written for {KIND} scenes; this one is {meta['kind']}"
         out_json.write_text(json.dumps({"scene": scene, "status": "skipped", "reason": reason},
                                        indent=2) + "\n")
         out_md.write_text(f"Skipped: {reason}.\n")

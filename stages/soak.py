@@ -21,7 +21,7 @@ def main(scene: str) -> int:
     source = section(params, f"scenes.{scene}.source")
     if source != "simulated":
         # The soak compares with a clean run of the same seed: only the simulator has one.
-        reason = f"a soak needs the simulated board; {scene} is recorded from {source}"
+        reason = f"a soak needs the simulated board; this scene's data comes from {source}"
         json_path.write_text(json.dumps({"scene": scene, "status": "skipped",
                                          "reason": reason}, indent=2) + "\n")
         md_path.write_text(f"# Soak: {scene}\n\nSkipped: {reason}.\n")
