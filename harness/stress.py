@@ -164,7 +164,7 @@ def fit_case(frame: pd.DataFrame, task_name: str, model: str, hyper: Mapping[str
     from eskin.models import build_model
     from eskin.tasks import get_task
 
-    # The cases are written for one contact (config checks stress.scene is single-force).
+    # The cases are written for one contact (stress() skips scenes of another kind).
     task = get_task(KIND, task_name)
     start = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
