@@ -179,7 +179,7 @@ def test_soak_every_fault_kind_and_two_sigkills_lose_and_duplicate_nothing(clean
     settings = {**repo_params["soak"], "corrupt_fraction": 0.01, "timeout_s": 0.25}
     settings["faults"] = {**settings["faults"], "stall_s": 0.3, **dict.fromkeys(
         ["drop", "garbage", "reset", "stall", "vanish"], 0.01)}
-    result = run_soak(params, settings, tmp_path, clean, scene=settings["scene"],
+    result = run_soak(params, settings, tmp_path, clean, scene="single_force",
                       say=lambda message: None)
     assert result.kills == 2 and all(n > 0 for n in result.faults.values()), result.markdown()
     assert (result.lost, result.duplicated, result.extra, result.differing) == (0, 0, 0, 0)
