@@ -8,6 +8,10 @@ in an argument list, or the imports of ``"-c", <code>``). A package's ``__init__
 imported by name (``from eskin import __version__``); the others hold no code
 (checked below). The test fails when dvc.yaml, bench/dvc.yaml or stress/dvc.yaml
 misses a file of the closure or lists one the stage does not run, and says which.
+
+The params half, :func:`params_mismatches`, is called by the tests that reproduce a
+scratch project (test_pipeline_tracking, test_foreign_data): each stage process there
+notes the params keys it reads (``ESKIN_PARAMS_TRACE``), compared with its declared params.
 """
 
 from __future__ import annotations
