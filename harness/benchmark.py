@@ -16,6 +16,7 @@ share of the paper configuration's gap it closes.
 
 from __future__ import annotations
 
+import json
 import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -198,6 +199,9 @@ def benchmark_task(task: Task, frame: pd.DataFrame, kind: str, variants: Mapping
 
 # ---------------------------------------------------------------- pipeline steps
 
+CONVERGENCE_ROWS = 200  # samples on which the bound stage doubles its grid
+
+
 def bayes_bound(params: Mapping[str, Any], scene: str, dataset_path: Path, out_path: Path, *,
                 log=print) -> str:
     """The oracle's answers for every sample of a scene's dataset → Parquet.
@@ -207,7 +211,7 @@ def bayes_bound(params: Mapping[str, Any], scene: str, dataset_path: Path, out_p
     so the bench tables show "no bound" and the reason instead of stopping."""
     from eskin.config import section, skin_params
     from eskin.data.schema import read_dataset, read_metadata
-    from harness.oracle import posterior_predictions
+    from harness.oracle import CONVERGED, convergence, posterior_predictions
 
     meta = read_metadata(dataset_path)
     frame = read_dataset(dataset_path)
@@ -233,20 +237,32 @@ def bayes_bound(params: Mapping[str, Any], scene: str, dataset_path: Path, out_p
             last[0] = time.perf_counter()
             log(f"  {scene} Bayes bound: {done:,}/{total:,} samples")
 
-    answers = posterior_predictions(frame, skin_params(params), settings["stretches"],
-                                    settings["forces"], progress=progress)
+    sim = skin_params(params)
+    answers = posterior_predictions(frame, sim, settings["stretches"], settings["forces"],
+                                    progress=progress)
     answers = pd.concat([keys, answers.reset_index(drop=True)], axis=1)
+    log(f"  {scene} Bayes bound: doubling the integration grid on {CONVERGENCE_ROWS} samples")
+    moves = convergence(frame, sim, settings["stretches"], settings["forces"],
+                        rows=CONVERGENCE_ROWS)
+    answers.attrs["convergence"] = json.dumps(moves, sort_keys=True)
     answers.to_parquet(out_path, index=False)
-    return f"{scene} Bayes bound: {len(answers):,} samples → {out_path}"
+    worst = max(moves, key=moves.get)
+    verdict = ("converged" if moves[worst] < CONVERGED else "NOT converged")
+    return (f"{scene} Bayes bound: {len(answers):,} samples → {out_path}; {verdict}: doubling "
+            f"the grid moves {worst} by {moves[worst]:.4f}")
 
 
 def read_bound(bound_path: Path, frame: pd.DataFrame) -> tuple[pd.DataFrame | None, str | None]:
-    """(the oracle's answers aligned with ``frame``'s rows, or None; why there are none)."""
+    """(the oracle's answers aligned with ``frame``'s rows, or None; why there are none).
+
+    The answers' ``attrs["convergence"]`` holds how far doubling the grid moved each score."""
     answers = pd.read_parquet(bound_path)
     if "unavailable" in answers.attrs:
         return None, str(answers.attrs["unavailable"])
+    moves = json.loads(answers.attrs.get("convergence", "{}"))
     oracle = frame[["session", "trial", "sample"]].merge(
         answers, on=["session", "trial", "sample"], how="left", validate="one_to_one")
+    oracle.attrs = {"convergence": moves}
     if oracle["stretch"].isna().any():
         raise ValueError(f"{bound_path}: does not cover every sample of the scene; "
                          "rerun `dvc repro bench/dvc.yaml`")
@@ -288,6 +304,8 @@ def bench(params: Mapping[str, Any], scene: str, task_name: str, features_path: 
     doc.update(header)
     if no_bound is not None:
         doc["bayes_bound_unavailable"] = no_bound
+    else:
+        doc["bayes_bound_convergence"] = oracle.attrs.get("convergence", {})
     out_path.write_text(json.dumps(doc, indent=2, sort_keys=True, allow_nan=True) + "\n")
     return "\n".join(f"{scene}/{task_name}: {scheme} Pareto front "
                      f"{', '.join(entry['pareto_front'])}"
@@ -396,6 +414,18 @@ def targets(doc: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
+def unconverged(moves: Mapping[str, float]) -> str:
+    """'' for a converged bound; else what doubling its integration grid moved."""
+    from harness.oracle import CONVERGED
+
+    if not moves:
+        return ", convergence not checked"
+    worst = max(moves, key=moves.get)
+    if moves[worst] < CONVERGED:
+        return ""
+    return f", NOT converged: doubling the grid moves {worst} by {moves[worst]:.3f}"
+
+
 def summary_markdown(scene: str, docs: Mapping[str, Mapping],
                      summary: Mapping[str, Any]) -> str:
     """Per task and scheme: each variant's time, memory, error, gap closed; front marked."""
@@ -410,7 +440,8 @@ def summary_markdown(scene: str, docs: Mapping[str, Mapping],
         for scheme, entry in doc["schemes"].items():
             bound = ("no Bayes bound: " + doc["bayes_bound_unavailable"]
                      if "bayes_bound_unavailable" in doc else
-                     f"Bayes bound error {entry['bayes_bound']['error']:.4f}")
+                     f"Bayes bound error {entry['bayes_bound']['error']:.4f}"
+                     + unconverged(doc.get("bayes_bound_convergence", {})))
             lines += [f"## {task_name} — {scheme} CV ({bound})", "",
                       "| variant | s/fold | peak MiB | error | gap closed |",
                       "|---|---|---|---|---|"]

@@ -83,3 +83,14 @@ def test_score_pairs_joins_localise_and_force_per_scheme_and_fold():
     assert scores["grouped"]["pair_accuracy_ordered"] == pytest.approx(0.0)
     with pytest.raises(ValueError, match="do not cover the same samples"):
         score_pairs(loc, force.iloc[:3])
+
+
+def test_a_ghost_pair_is_counted_as_a_ghost_and_a_plain_error_is_not():
+    truth = ((1, 1), (6, 10))
+    ghost = outcomes(sample(truth, ((1, 10), (6, 1))))       # same rows and columns, re-paired
+    other = outcomes(sample(truth, ((1, 1), (6, 6))))        # one contact wrong
+    same_row = outcomes(sample(((1, 1), (1, 10)), ((1, 10), (1, 1))))  # no ghost exists
+    assert ghost["ghost"].all() and pair_scores(ghost)["ghost_share"] == 1.0
+    assert pair_scores(ghost)["pair_accuracy"] == 0.0
+    assert not other["ghost"].any() and pair_scores(other)["ghost_share"] == 0.0
+    assert not same_row["has_ghost"].any()

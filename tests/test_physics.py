@@ -36,6 +36,33 @@ def test_force_response_is_monotone_and_saturating(skin):
     assert response[-1] < ceiling and ceiling < np.inf
 
 
+def test_light_weights_read_less_repeatably_than_seated_heavy_ones():
+    """Fig. 6 of the paper, from the seating mechanism: a light weight bears on a part of
+    its footprint that varies with its tilt; a weight past its seating load on all of it."""
+    tilted = SkinModel(dataclasses.replace(PARAMS, seating_force_n=3.0, seating_variation=0.5))
+    rest = tilted.capacitance(1.0)[4]
+
+    def relative_spread(newtons):
+        change = np.array([tilted.capacitance(1.0, [Trial(tilted, [n]).place(5, 5, newtons)])[4]
+                           for n in range(300)]) - rest
+        return change.std() / change.mean()
+
+    light, heavy = relative_spread(1.2936), relative_spread(5.2136)
+    assert light > 0.2 and heavy < light / 2, (light, heavy)
+
+
+def test_each_node_of_a_hand_made_skin_has_its_own_sensitivity():
+    even = SkinModel(PARAMS)
+    uneven = SkinModel(dataclasses.replace(PARAMS, node_sensitivity_spread=0.2))
+    assert np.all(even.node_sensitivity == 1.0)
+    spread = np.log(uneven.node_sensitivity).std()
+    assert 0.15 < spread < 0.25
+    # the same skin every time: drawn from the seed, not per trial
+    assert np.array_equal(uneven.node_sensitivity,
+                          SkinModel(dataclasses.replace(PARAMS, node_sensitivity_spread=0.2))
+                          .node_sensitivity)
+
+
 def test_stretch_stiffens_the_indentation_response(skin):
     strain = [skin.peak_strain(3.0, s) for s in (1.0, 1.07921, 1.15842)]
     assert strain[0] > strain[1] > strain[2] > 0

@@ -5,17 +5,29 @@ Every number comes from :class:`SkinParams` (``sim:`` in params.yaml).
 * **Stretch.** An incompressible dielectric stretched by λ along the skin
   grows its electrode area by √λ and thins by 1/√λ, so C ∝ λ: capacitance
   is linear in stretch, with a per-terminal sensitivity near 1.
-* **Indentation.** A weight of F newtons compresses the dielectric under the
-  indenter by a strain that rises and saturates (Hill curve; Ecoflex 00-50 is
-  soft and hyperelastic); a stretched skin is stiffer, so the half-strain
-  force grows as λ^k (stretch–indentation coupling). The strain spreads over
-  neighbouring nodes with a compact kernel that reaches ``reach_nodes`` nodes
+* **Indentation.** A weight of F newtons compresses the dielectric under its
+  footprint by a strain that rises linearly and saturates as the Ecoflex 00-50
+  compacts (ε_max·r/(1 + r), r = (F/F½)^h, h = ``force_hill``); a stretched
+  skin is stiffer, so F½ grows as λ^k (stretch–indentation coupling). A
+  hand-placed rigid weight does not bear on its whole footprint at once: it
+  rests on the skin's texture and on the low side of its tilt, and its
+  contact area grows with the load (Hertz: a ∝ F^⅔) until the load that
+  seats it fully, F_seat (``seating_force_n``). The share of the footprint
+  pressing is min(1, (F/F_seat)^⅔), so light loads give less signal, and
+  F_seat varies from trial to trial with the tilt (lognormal, SD
+  ``seating_variation``): light weights read imprecisely, seated heavy ones
+  precisely (the paper's Fig. 6). The strain spreads over neighbouring nodes
+  with a compact kernel that reaches ``reach_nodes`` nodes
   each way and no further. A node's capacitance grows as 1/(1 − ε); a
   terminal strip sums its ten nodes.
+* **A hand-made skin.** The four 0.5 mm Ecoflex layers are cast, and the
+  carbon-grease terminals brushed through a stencil, by hand: each node's
+  dielectric thickness and overlap differ, so each node compresses by its own
+  factor (lognormal, SD ``node_sensitivity_spread``, drawn once per skin).
 * **Read-out.** Each terminal has its own baseline and CAV424 gain. Per trial,
-  the indenter lands off-centre (placement variation) and passes on more or
-  less of its weight (seating, tilt and creep of the soft skin: a lognormal
-  load factor, ``load_variation``), and the baseline
+  the indenter lands off-centre (placement variation) and seats differently
+  (its F_seat; a dead weight always passes its whole weight to the rigid-backed
+  skin, so the load itself does not vary); and the baseline
   wanders (slow drift: an offset per trial and a random walk within it).
   Every reading has white noise. The CAV424 maps relative capacitance to
   volts, clipped to its supply, and the Arduino's ADC quantises to 10 bits.
@@ -48,7 +60,9 @@ class SkinParams:
     reach_nodes: int = 2
     placement_sd_nodes: float = 0.15
     placement_max_nodes: float = 0.45
-    load_variation: float = 0.0
+    node_sensitivity_spread: float = 0.0
+    seating_force_n: float = 0.0
+    seating_variation: float = 0.0
     noise_pf: float = 0.03
     drift_offset_pf: float = 0.1
     drift_step_pf: float = 0.005
@@ -81,7 +95,7 @@ class SkinParams:
             if getattr(self, name) <= 0:
                 raise ValueError(f"sim.{name} must be positive, got {getattr(self, name)}")
         for name in ("noise_pf", "drift_offset_pf", "drift_step_pf", "placement_sd_nodes",
-                     "load_variation",
+                     "seating_variation", "seating_force_n", "node_sensitivity_spread",
                      "baseline_spread", "stretch_sensitivity_spread", "cav424_gain_spread"):
             if getattr(self, name) < 0:
                 raise ValueError(f"sim.{name} must not be negative, got {getattr(self, name)}")
@@ -94,12 +108,14 @@ class SkinParams:
 
 @dataclass(frozen=True)
 class Indenter:
-    """A weight on node (x, y), both 1..10; ``offset`` is its placement error in node pitches."""
+    """A weight on node (x, y), both 1..10; ``offset`` is its placement error in node pitches,
+    ``seating`` the factor its tilt puts on the load that seats it fully."""
 
     x: int
     y: int
     newtons: float
     offset: tuple[float, float] = (0.0, 0.0)
+    seating: float = 1.0
 
 
 def spread_kernel(distance: np.ndarray, reach_nodes: int) -> np.ndarray:
@@ -130,31 +146,38 @@ class SkinModel:
         self.stretch_sensitivity = 1 + params.stretch_sensitivity_spread * rng.standard_normal(n)
         self.cav424_gain_v = params.cav424_gain_v * (
             1 + params.cav424_gain_spread * rng.standard_normal(n))
+        # Drawn after the others, so that adding it left this skin's other draws alone.
+        self.node_sensitivity = np.exp(
+            params.node_sensitivity_spread * rng.standard_normal((GRID, GRID)))
 
     # ----------------------------------------------------------- physics
 
-    def peak_strain(self, newtons: float, stretch: float) -> float:
-        """Dielectric compression under the indenter: monotone in force, saturating."""
+    def peak_strain(self, newtons: float, stretch: float, seating: float = 1.0) -> float:
+        """Mean compression over the indenter's footprint: monotone in force, saturating.
+
+        ``seating`` scales this trial's full-seating load (``seating_force_n``)."""
         p = self.params
         if newtons <= 0:
             return 0.0
         half = p.force_half_n * stretch ** p.stretch_stiffening
         ratio = (newtons / half) ** p.force_hill
-        return p.strain_max * ratio / (1 + ratio)
+        seat_n = p.seating_force_n * seating
+        pressing = min(1.0, (newtons / seat_n) ** (2 / 3)) if seat_n > 0 else 1.0
+        return p.strain_max * pressing * ratio / (1 + ratio)
 
     def strain_field(self, indenters: Sequence[Indenter], stretch: float) -> np.ndarray:
         """Strain at each of the 10×10 nodes, shape (10, 10) indexed [x-1, y-1]."""
         p = self.params
         field = np.zeros((GRID, GRID))
         for ind in indenters:
-            peak = self.peak_strain(ind.newtons, stretch)
+            peak = self.peak_strain(ind.newtons, stretch, ind.seating)
             if peak == 0.0:
                 continue
             wx = spread_kernel(NODES - (ind.x + ind.offset[0]), p.reach_nodes)
             wy = spread_kernel(NODES - (ind.y + ind.offset[1]), p.reach_nodes)
             field += peak * np.outer(wx, wy)
         # Two indenters cannot squeeze the dielectric past what one can.
-        return np.minimum(field, p.strain_max)
+        return np.minimum(field * self.node_sensitivity, p.strain_max)
 
     def capacitance(self, stretch: float, indenters: Sequence[Indenter] = ()) -> np.ndarray:
         """Noise-free terminal capacitances in pF: x1..x10 then y1..y10."""
@@ -195,10 +218,10 @@ class Trial:
         self._drift = p.drift_offset_pf * self.rng.standard_normal(2 * GRID)
 
     def place(self, x: int, y: int, newtons: float) -> Indenter:
-        """The indenter as it lands: off-centre, and passing on more or less of its load."""
+        """The indenter as it lands: off-centre, and more or less squarely seated."""
         offset = self.model.placement_offset(self.rng)
-        load = float(np.exp(self.model.params.load_variation * self.rng.standard_normal()))
-        return Indenter(x, y, newtons * load, offset)
+        seating = float(np.exp(self.model.params.seating_variation * self.rng.standard_normal()))
+        return Indenter(x, y, newtons, offset, seating)
 
     def sample_pf(self, n: int, stretch: float, indenters: Sequence[Indenter]) -> np.ndarray:
         """n noisy capacitance readings in pF, shape (n, 20)."""

@@ -8,8 +8,11 @@ failed. Per sample, predicted contacts are assigned to true ones by
 first minimises the number of wrong contacts, then how far off they are.
 
 Scores per sample: wrong contacts (0, 1 or 2 — a wrong contact costs exactly
-one), pair right (both contacts right as a set), and the force error of each
-contact against the force predicted for the contact matched to it.
+one), pair right (both contacts right as a set), ghost (the predicted pair is
+the truth's ghost: {(xa, yb), (xb, ya)} for {(xa, ya), (xb, yb)} — the pair a
+row/column read-out cannot tell from the truth except by amplitude), and the
+force error of each contact against the force predicted for the contact
+matched to it.
 """
 
 from __future__ import annotations
@@ -62,19 +65,25 @@ def pair_outcomes(frame: pd.DataFrame) -> pd.DataFrame:
     matched_nodes = np.take_along_axis(predicted_nodes, assignment[:, :, None], axis=1)
     wrong_matched = np.any(matched_nodes != true_nodes, axis=-1).sum(axis=1)
     wrong_ordered = np.any(predicted_nodes != true_nodes, axis=-1).sum(axis=1)
+    ghost_nodes = np.stack([true_nodes[:, [0, 1], 0], true_nodes[:, [1, 0], 1]], axis=-1)
+    has_ghost = np.all(true_nodes[:, 0] != true_nodes[:, 1], axis=-1)  # row and column differ
+    ghost_assignment = match_contacts(ghost_nodes, predicted_nodes)
+    ghost_matched = np.take_along_axis(predicted_nodes, ghost_assignment[:, :, None], axis=1)
+    ghost = has_ghost & np.all(ghost_matched == ghost_nodes, axis=(1, 2))
     forces_true = frame[[f"force{i}_true" for i in CONTACTS]].to_numpy(dtype=float)
     forces_pred = frame[[f"force{i}_pred" for i in CONTACTS]].to_numpy(dtype=float)
     matched_forces = np.take_along_axis(forces_pred, assignment, axis=1)
     return pd.DataFrame({
         "wrong_contacts": wrong_matched, "wrong_contacts_ordered": wrong_ordered,
-        "swapped": (assignment[:, 0] == 1),
+        "swapped": (assignment[:, 0] == 1), "ghost": ghost, "has_ghost": has_ghost,
         **{f"force{i}_true": forces_true[:, k] for k, i in enumerate(CONTACTS)},
         **{f"force{i}_matched": matched_forces[:, k] for k, i in enumerate(CONTACTS)}},
         index=frame.index)
 
 
 def pair_scores(outcomes: pd.DataFrame) -> dict[str, float]:
-    """Pair accuracy (set and ordered), per-contact accuracy, matched force error."""
+    """Pair accuracy (set and ordered), per-contact accuracy, the ghost share (of the pairs
+    that have a ghost, the share predicted as it), matched force error."""
     wrong = outcomes["wrong_contacts"].to_numpy()
     ordered = outcomes["wrong_contacts_ordered"].to_numpy()
     forces_true = outcomes[[f"force{i}_true" for i in CONTACTS]].to_numpy().ravel()
@@ -85,6 +94,8 @@ def pair_scores(outcomes: pd.DataFrame) -> dict[str, float]:
             "contact_accuracy": float(1 - np.mean(wrong) / len(CONTACTS)),
             "contact_accuracy_ordered": float(1 - np.mean(ordered) / len(CONTACTS)),
             "swapped_share": float(outcomes["swapped"].mean()),
+            "ghost_share": (float(outcomes["ghost"].sum() / outcomes["has_ghost"].sum())
+                            if outcomes["has_ghost"].any() else float("nan")),
             **{f"force_{name}": value for name, value in force.items()}}
 
 

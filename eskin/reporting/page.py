@@ -63,6 +63,8 @@ HEADLINES = (
              "pair_accuracy_ordered"),
     Headline("two forces: contact accuracy, order-free", "two_force", "pairs", None,
              "contact_accuracy"),
+    Headline("two forces: ghost pairs (the other pairing of the same rows and columns)",
+             "two_force", "pairs", None, "ghost_share"),
     Headline("two forces: force R², order-free", "two_force", "pairs", None, "force_r2"),
 )
 
