@@ -22,7 +22,7 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
-from sklearn.base import BaseEstimator, RegressorMixin, clone
+from sklearn.base import BaseEstimator, RegressorMixin, TransformerMixin, clone
 from sklearn.ensemble import (
     ExtraTreesClassifier,
     HistGradientBoostingClassifier,
@@ -100,6 +100,55 @@ class SubsampledGaussianProcess(RegressorMixin, BaseEstimator):
         return self.model_.predict(X)
 
 
+class ActiveTerminals(TransformerMixin, BaseEstimator):
+    """The read-out's own view of two contacts: which terminals are pressed, and how hard.
+
+    A row/column (self-capacitance) read-out sees, per axis, the terminals a contact
+    lights and by how much; two contacts {(xa, ya), (xb, yb)} and their ghost
+    {(xa, yb), (xb, ya)} light the same terminals, and only the amplitudes tell which x
+    goes with which y — the harder press is larger on both axes. Per row this adds, per
+    axis, the two strongest local peaks of the change from rest (lower terminal first),
+    their amplitudes, the log ratio of the two, and whether the two axes' ratios agree
+    in sign (the pairing the amplitudes vote for), after the 20 changes themselves.
+
+    The rest reading is each channel's ``rest_quantile`` over the training rows: in a
+    two-contact scene a terminal is unpressed in most of them.
+    """
+
+    def __init__(self, rest_quantile: float = 0.05) -> None:
+        self.rest_quantile = rest_quantile
+
+    def fit(self, X, y=None):  # noqa: N803 - scikit-learn's name
+        X = validate_data(self, X, dtype=np.float64)
+        self.rest_ = np.quantile(X, self.rest_quantile, axis=0)
+        # One unit for every channel, so that amplitudes compare across terminals, and
+        # the units cancel (counts or farads).
+        spread = float(np.median(X.std(axis=0)))
+        self.unit_ = spread if spread > 0 else 1.0
+        return self
+
+    def transform(self, X):  # noqa: N803
+        check_is_fitted(self)
+        X = validate_data(self, X, dtype=np.float64, reset=False)
+        # rounded as _scaled does: ADC steps tie neighbours exactly, and a tie must break
+        # the same way in counts as in farads
+        change = np.round((X - self.rest_) / self.unit_, 6)
+        half = change.shape[1] // 2
+        columns, ratios = [change], []
+        for axis in (change[:, :half], change[:, half:]):
+            padded = np.pad(axis, ((0, 0), (1, 1)), constant_values=-np.inf)
+            peak = (axis >= padded[:, :-2]) & (axis >= padded[:, 2:])
+            ranked = np.argsort(np.where(peak, axis, -np.inf), axis=1, kind="stable")
+            top = np.sort(ranked[:, -2:], axis=1)                # (n, 2) lower terminal first
+            amplitude = np.take_along_axis(axis, top, axis=1)
+            ratio = np.log(np.clip(amplitude[:, 0], 1e-3, None)
+                           / np.clip(amplitude[:, 1], 1e-3, None))
+            ratios.append(ratio)
+            columns += [top.astype(float), amplitude, ratio[:, None]]
+        columns.append((np.sign(ratios[0]) == np.sign(ratios[1])).astype(float)[:, None])
+        return np.hstack(columns)
+
+
 def _scaled(estimator: BaseEstimator) -> Pipeline:
     """Every model sees standardised channels, rounded to 1e-6, whatever their units.
 
@@ -165,6 +214,10 @@ REGISTRY: dict[str, dict[str, Factory]] = {
         "knn": lambda n_neighbors=5: _scaled(KNeighborsClassifier(n_neighbors)),
         "logistic": lambda C=1.0: _scaled(LogisticRegression(C=C, max_iter=1000)),
         "linear_svm": lambda C=1.0: _scaled(LinearSVC(C=C)),
+        # Two contacts: find the pressed terminals, pair them by amplitude (ActiveTerminals).
+        "active_terminals": lambda max_iter=200, seed=0: make_pipeline(
+            ActiveTerminals(), FunctionTransformer(np.round, kw_args={"decimals": 6}),
+            HistGradientBoostingClassifier(max_iter=max_iter, random_state=seed)),
     },
 }
 

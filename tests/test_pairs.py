@@ -94,3 +94,23 @@ def test_a_ghost_pair_is_counted_as_a_ghost_and_a_plain_error_is_not():
     assert pair_scores(ghost)["pair_accuracy"] == 0.0
     assert not other["ghost"].any() and pair_scores(other)["ghost_share"] == 0.0
     assert not same_row["has_ghost"].any()
+
+
+def test_active_terminals_find_the_pressed_rows_and_columns_in_any_units(repo_params):
+    from eskin.acquisition.plan import two_force_plan
+    from eskin.data.schema import CHANNELS
+    from eskin.device.physics import SkinParams
+    from eskin.models import ActiveTerminals
+    from harness.calibrate import simulate_plan
+
+    sim = SkinParams.from_mapping(repo_params["sim"])
+    frame = simulate_plan(sim, two_force_plan("t", [1.0], [1.2936, 5.2136], [1, 6, 10],
+                                              [1, 6, 10], samples=2), seed=3)
+    X = frame[CHANNELS].to_numpy(float)
+    features = ActiveTerminals().fit_transform(X)
+    peaks_x = features[:, 20:22]                      # the two x peaks, lower first
+    distinct = (frame["x1"] != frame["x2"]).to_numpy()
+    truth = np.sort(frame[["x1", "x2"]].to_numpy(), axis=1) - 1
+    assert np.mean(np.all(peaks_x[distinct] == truth[distinct], axis=1)) > 0.9
+    in_farads = ActiveTerminals().fit_transform(X * 1e-12)
+    assert np.allclose(in_farads, features, atol=1e-6)
