@@ -246,7 +246,7 @@ def test_the_benchmark_runs_per_scene_and_says_where_there_is_no_bayes_bound(ben
     assert set(force["schemes"]["grouped"]["variants"]["paper"]["scores"]) == {"force1",
                                                                                "force2"}
     pairs = json.loads((bench / "lab_pairs/summary.json").read_text())
-    assert pairs["defaults"]["localise"] == "paper"  # the two-force default (train.localise)
+    assert pairs["defaults"]["localise"] == "active_terminals"  # two-force default (train.localise)
     assert "two or more stretch levels" in pairs["skipped"]["stretch"]
     assert "contact and no-contact samples" in pairs["skipped"]["detect"]
     assert sorted(p.name for p in (bench / "lab_pairs/figures").iterdir()) == \
