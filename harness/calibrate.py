@@ -48,7 +48,7 @@ TARGETS = {  # name: (paper value, tolerance, fitted?)
     "two_force force2 r2": (0.771, 0.15, False),
 }
 FITTED = ("force_half_n", "drift_offset_pf")
-GRID = {"force_half_n": [2.0, 3.0, 4.0], "drift_offset_pf": [0.02, 0.05]}
+SEARCH_GRID = {"force_half_n": [2.0, 3.0, 4.0], "drift_offset_pf": [0.02, 0.05]}
 FIT_FOLDS = 5  # the search: half the folds, as the GP fits a 2,000-sample subsample either way
 
 
@@ -170,7 +170,7 @@ def fit(base: SkinParams, scenes: Mapping[str, Mapping], log=print) -> SkinParam
     """The grid point whose stratified force R² and contact accuracy are nearest the paper's
     (each in units of its tolerance)."""
     best, best_cost = base, float("inf")
-    for values in itertools.product(*(GRID[name] for name in FITTED)):
+    for values in itertools.product(*(SEARCH_GRID[name] for name in FITTED)):
         candidate = dataclasses.replace(base, **dict(zip(FITTED, values, strict=True)))
         start = time.perf_counter()
         got = scores(candidate, scenes, full=False, folds=FIT_FOLDS)

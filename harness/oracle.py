@@ -241,19 +241,19 @@ def oracle_scores(answers: pd.DataFrame, frame: pd.DataFrame) -> dict[str, float
     from eskin.tasks import get_task
 
     force = get_task("single_force", "force").target_values(frame)["force"]
+    stretch = frame["stretch"].to_numpy()
     touching = contact_mask(frame)
-    out = {"force_mse": float(np.mean((force - answers["force"].to_numpy()) ** 2)),
-           "stretch_mse": float(np.mean((frame["stretch"].to_numpy()
-                                         - answers["stretch"].to_numpy()) ** 2)),
-           "contact_accuracy": float(np.mean(answers["contact"].to_numpy() == touching))}
+    out = {}
+    # MSE over the target's spread, so that a move reads as a move in R²
+    for name, truth in (("force", force), ("stretch", stretch)):
+        spread = float(np.var(truth))
+        out[f"{name}_mse"] = (float(np.mean((truth - answers[name].to_numpy()) ** 2)) / spread
+                              if spread > 0 else 0.0)
+    out["contact_accuracy"] = float(np.mean(answers["contact"].to_numpy() == touching))
     for axis in ("x", "y"):
         out[f"{axis}_accuracy"] = (float(np.mean(answers[axis].to_numpy()[touching]
                                                  == frame[axis].to_numpy()[touching]))
                                    if touching.any() else float("nan"))
-    # MSE relative to the target's spread, so that the tolerance reads as R²
-    for name in ("force", "stretch"):
-        spread = float(np.var(force if name == "force" else frame["stretch"].to_numpy()))
-        out[f"{name}_mse"] = out[f"{name}_mse"] / spread if spread > 0 else 0.0
     return out
 
 
