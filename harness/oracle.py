@@ -6,11 +6,13 @@ posterior over conditions (stretch, force, node) from that one reading:
 
 * the reading's mean given a condition depends on per-trial latents the
   oracle cannot see — the indenter's placement offset (x and y) and its
-  seating (the load that seats it fully) — which are integrated out on
-  grids fine enough that doubling them moves no score by 0.001
-  (``tests/test_bench.py``); to keep that affordable, a coarse pass first
-  drops, per sample, the conditions whose posterior is below e^-25 of the
-  best one's, and the fine pass integrates the rest;
+  seating (the load that seats it fully) — which are integrated out: a
+  coarse grid drops, per sample, the conditions whose posterior is below
+  e^-25 of the best one's; a fine grid shared by all samples integrates the
+  rest and finds where each one's likelihood lives; each sample's leading
+  conditions are integrated again on a grid around that place. The bound
+  stage doubles every grid on a sample of rows and reports what moved (a
+  converged bound moves no score by 0.001);
 * given the mean, a reading (in pF) is Gaussian per channel: white noise,
   the trial's baseline offset, the random walk up to this sample's index,
   and the ADC's quantisation step (as uniform noise);
@@ -63,24 +65,74 @@ def _normal_grid(points: int, sd: float, limit: float = 6.0) -> tuple[np.ndarray
 
 @dataclass(frozen=True)
 class Grid:
-    """How finely the latents are integrated: points per offset axis, and for the seating."""
+    """How finely the latents are integrated: points per offset axis and for the seating on
+    the grid every condition shares, and cells per axis of each sample's own box."""
 
-    offset_points: int = 9
+    offset_points: int = 5
     seating_points: int = 81
+    local_cells: int = 12
 
     def doubled(self) -> Grid:
-        return Grid(2 * self.offset_points - 1, 2 * self.seating_points - 1)
+        return Grid(2 * self.offset_points - 1, 2 * self.seating_points - 1,
+                    2 * self.local_cells)
 
 
-# Light weights read through their seating, and with little noise its likelihood is
-# narrow (about 0.1 SD of the seating wide): FINE's seating step is 0.11 SD. Heavy weights
-# pin the placement offset down as narrowly, and no fixed grid is fine enough for every
-# skin: `convergence` measures, per run, what doubling FINE moves. The coarse pass only
-# ranks conditions; a half-step miss costs it a few log units, far within PRUNE_LOG.
+# The shared grids rank conditions and find, per sample and condition, where its likelihood
+# lives. Light weights read through their seating, and with little noise its likelihood is
+# narrow (about 0.1 SD of the seating wide: FINE's seating step is 0.11 SD); heavy weights
+# pin the placement offset down to about 0.2 SD, far below FINE's offset step (1.5 SD). So
+# each sample's leading conditions (within e^-REFINE_LOG of its best; FINE misjudges a
+# condition by a few log units at most) are integrated again on their own box: the FINE
+# points within e^-BOX_LOG of the best, one step more each side, cut in `local_cells` even
+# cells per offset axis (0.25 SD where the box is narrowest) and at least FINE's step for
+# the seating. `convergence` measures, per run, what doubling every grid moves. The coarse
+# pass only ranks conditions; a half-step miss costs it a few log units, far within
+# PRUNE_LOG.
 COARSE = Grid(3, 25)
 FINE = Grid()
 PRUNE_LOG = 25.0  # conditions this far (in log posterior) below a sample's best are dropped
+REFINE_LOG = 12.0  # conditions this close to a sample's best are integrated on their boxes
+BOX_LOG = 20.0    # a sample's box holds the FINE points this close to its best
 SEATING_LIMIT = 4.5  # SDs: the seatings beyond carry 7e-6 of the mass
+
+
+def _box_rule(z: np.ndarray, lo: int, hi: int, cells: int, sd: float
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """Latent values and their probability masses over grid points z[lo]..z[hi] (in SDs):
+    ``cells`` even cells at their midpoints, plus, where the box reaches the grid's end, the
+    mass beyond it on the end point (the simulator clips there)."""
+    if len(z) == 1:
+        return np.zeros(1), np.ones(1)
+    edges = np.linspace(z[lo], z[hi], cells + 1)
+    values = [(edges[:-1] + edges[1:]) / 2]
+    masses = [np.diff(ndtr(edges))]
+    if lo == 0:
+        values.insert(0, z[:1])
+        masses.insert(0, ndtr(z[:1]))
+    if hi == len(z) - 1:
+        values.append(z[-1:])
+        masses.append(ndtr(-z[-1:]))
+    return np.concatenate(values) * sd, np.concatenate(masses)
+
+
+def _pressed_means(model: SkinModel, stretch: float, newtons: float, x: int, ys: np.ndarray,
+                   offsets_x: np.ndarray, offsets_y: np.ndarray, seatings: np.ndarray
+                   ) -> np.ndarray:
+    """Mean readings of a weight on (x, y) for each y of ``ys`` and every combination of the
+    latents: (len(ys), offsets_x × offsets_y × seatings, 20), latents in that order."""
+    p = model.params
+    stretched = model.baseline_pf * (1 + model.stretch_sensitivity * (stretch - 1))
+    peaks = np.array([model.peak_strain(newtons, stretch, s) for s in seatings])
+    wx = spread_kernel(NODES[None, :] - (x + offsets_x[:, None]), p.reach_nodes)  # (ox, 10)
+    wy = spread_kernel(NODES[None, None, :] - (np.asarray(ys, dtype=float)[:, None, None]
+                                               + offsets_y[None, :, None]), p.reach_nodes)
+    field = (wx[None, :, None, None, :, None] * wy[:, None, :, None, None, :]
+             * peaks[None, None, None, :, None, None])
+    # axes: (y, ox, oy, seating, i, j) → strain at node (i, j)
+    field = np.minimum(field * model.node_sensitivity, p.strain_max)
+    gain = 1.0 / (1.0 - field) - 1.0
+    indentation = np.concatenate([gain.mean(axis=5), gain.mean(axis=4)], axis=-1)
+    return (stretched * (1 + indentation)).reshape(len(ys), -1, 2 * GRID)
 
 
 class _Latents:
@@ -89,17 +141,20 @@ class _Latents:
 
     def __init__(self, model: SkinModel, grid: Grid) -> None:
         p = model.params
-        self.model = model
+        self.model, self.grid = model, grid
         limit = p.placement_max_nodes / p.placement_sd_nodes if p.placement_sd_nodes else 0.0
         offsets, offset_w = _normal_grid(grid.offset_points, p.placement_sd_nodes, limit)
         seatings, seating_w = _normal_grid(grid.seating_points, p.seating_variation,
                                            SEATING_LIMIT)
-        self.seatings = np.exp(seatings)
-        self.n = len(offsets) ** 2 * len(seatings)
+        self.offsets, self.seatings = offsets, np.exp(seatings)
+        # Each axis in SDs and its SD: (offset x, offset y, seating)
+        self.axes = [(offsets / p.placement_sd_nodes if p.placement_sd_nodes else offsets,
+                      p.placement_sd_nodes)] * 2 + [
+            (seatings / p.seating_variation if p.seating_variation else seatings,
+             p.seating_variation)]
+        self.shape = (len(offsets), len(offsets), len(seatings))
+        self.n = int(np.prod(self.shape))
         self.log_weights = np.log(np.einsum("i,j,k->ijk", offset_w, offset_w, seating_w).ravel())
-        # Spread of an indenter on node n with offset o, for every node/offset: (node, offset, 10)
-        self.spread = spread_kernel(
-            NODES[None, None, :] - (NODES[:, None, None] + offsets[None, :, None]), p.reach_nodes)
         self._cache: dict[tuple[float, float, int], np.ndarray] = {}
 
     def free(self, stretch: float) -> np.ndarray:
@@ -113,18 +168,8 @@ class _Latents:
         order."""
         key = (stretch, newtons, x)
         if key not in self._cache:
-            m, p = self.model, self.model.params
-            stretched = m.baseline_pf * (1 + m.stretch_sensitivity * (stretch - 1))
-            peaks = np.array([m.peak_strain(newtons, stretch, s) for s in self.seatings])
-            wx = self.spread[x - 1]                                   # (ox, 10)
-            field = (wx[:, None, None, None, :, None] * self.spread[None, :, :, None, None, :]
-                     * peaks[None, None, None, :, None, None])
-            # axes: (ox, y, oy, seating, i, j) → strain at node (i, j)
-            field = np.minimum(field * m.node_sensitivity, p.strain_max)
-            gain = 1.0 / (1.0 - field) - 1.0
-            indentation = np.concatenate([gain.mean(axis=5), gain.mean(axis=4)], axis=-1)
-            cap = stretched * (1 + indentation)                      # (ox, y, oy, seating, 20)
-            self._cache[key] = np.moveaxis(cap, 1, 0).reshape(GRID, self.n, 2 * GRID)
+            self._cache[key] = _pressed_means(self.model, stretch, newtons, x, NODES,
+                                              self.offsets, self.offsets, self.seatings)
         return self._cache[key]
 
     def means(self, conditions: Conditions, which: np.ndarray) -> np.ndarray:
@@ -134,6 +179,28 @@ class _Latents:
             self.pressed(conditions.stretch[i], conditions.force[i], conditions.x[i])[
                 conditions.y[i] - 1]
             for i in which])
+
+    def refined(self, conditions: Conditions, i: int, reading: np.ndarray,
+                inverse_variance: np.ndarray) -> float:
+        """log p(reading | pressed condition i), integrated on the reading's own box."""
+        stretch, newtons, x = conditions.stretch[i], conditions.force[i], conditions.x[i]
+        y = conditions.y[i]
+        means = self.pressed(stretch, newtons, x)[y - 1]
+        loglik = (-0.5 * (((reading - means) ** 2) @ inverse_variance)
+                  + self.log_weights).reshape(self.shape)
+        near = loglik >= loglik.max() - BOX_LOG
+        rules = []
+        for axis, ((z, sd), points) in enumerate(zip(self.axes, self.shape, strict=True)):
+            held = np.flatnonzero(near.any(axis=tuple(a for a in range(3) if a != axis)))
+            lo, hi = max(held[0] - 1, 0), min(held[-1] + 1, points - 1)
+            cells = self.grid.local_cells if axis < 2 else max(self.grid.local_cells, hi - lo)
+            rules.append(_box_rule(z, lo, hi, cells, sd))
+        (ox, wx), (oy, wy), (seating, ws) = rules
+        local = _pressed_means(self.model, stretch, newtons, x, np.array([y]), ox, oy,
+                               np.exp(seating))[0]
+        log_weights = np.log(np.einsum("i,j,k->ijk", wx, wy, ws).ravel())
+        return float(logsumexp(-0.5 * (((reading - local) ** 2) @ inverse_variance)
+                               + log_weights))
 
 
 def plan_conditions(params: SkinParams, stretches, forces) -> Conditions:
@@ -217,8 +284,14 @@ def posterior_predictions(frame: pd.DataFrame, params: SkinParams, stretches, fo
         log_post[np.ix_(rows, candidates)] = _log_marginal(
             readings[rows], inverse[rows], fine.means(cond, candidates),
             fine.log_weights) + cond.log_prior[candidates]
-        if progress is not None:
-            progress(min(start + chunk, len(frame)), len(frame))
+    # Each sample's surviving pressed conditions again, on their own boxes.
+    for done, row in enumerate(range(len(frame)), start=1):
+        near = np.flatnonzero((log_post[row] >= log_post[row].max() - REFINE_LOG) & contact)
+        for i in near:
+            log_post[row, i] = (fine.refined(cond, i, readings[row], inverse[row])
+                                + cond.log_prior[i])
+        if progress is not None and (done % chunk == 0 or done == len(frame)):
+            progress(done, len(frame))
     log_post -= logsumexp(log_post, axis=1, keepdims=True)
     post = np.exp(log_post)
     out = {"stretch": post @ cond.stretch, "force": post @ cond.force,

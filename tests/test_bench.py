@@ -21,6 +21,7 @@ from harness.oracle import (
     Grid,
     _Latents,
     convergence,
+    oracle_scores,
     plan_conditions,
     posterior_predictions,
 )
@@ -90,7 +91,7 @@ def test_oracle_conditions_cover_the_plan(repo_params):
     # per stretch: one contact-free condition and 100 nodes × 2 pressing forces
     assert cond.x.shape == (2 * (1 + 200),)
     assert np.isclose(np.exp(cond.log_prior).sum(), 1.0)
-    latents = _Latents(SkinModel(sim), Grid(3, 5))
+    latents = _Latents(SkinModel(sim), Grid(3, 5, 2))
     assert latents.means(cond, np.arange(len(cond.x))).shape == (2 * (1 + 200), 45, 20)
     assert np.isclose(np.exp(latents.log_weights).sum(), 1.0)
 
@@ -131,13 +132,13 @@ def test_oracle_bound_drops_when_the_simulator_is_noisier(small_dataset):
     params, frame = small_dataset
     scene = params["scenes"]["single_force"]
     sim = SkinParams.from_mapping(params["sim"])
-    noisy = SkinParams.from_mapping({**params["sim"], "noise_pf": 1.0})
-    rows = frame.iloc[::7].reset_index(drop=True)
-    touching = contact_mask(rows)
-    exact = posterior_predictions(rows, sim, scene["stretches"], scene["forces"])
-    blurred = posterior_predictions(rows, noisy, scene["stretches"], scene["forces"])
-    accuracy = [(a["x"][touching] == rows["x"][touching]).mean() for a in (exact, blurred)]
-    assert accuracy[1] < accuracy[0]
+    # 15× the noise: every condition within reach stays a candidate, which costs time
+    noisy = SkinParams.from_mapping({**params["sim"], "noise_pf": 0.3})
+    rows = frame.iloc[::40].reset_index(drop=True)
+    errors = [oracle_scores(posterior_predictions(rows, skin, scene["stretches"],
+                                                  scene["forces"]), rows)["force_mse"]
+              for skin in (sim, noisy)]
+    assert errors[1] > errors[0], errors
 
 
 def test_bound_scores_use_the_task_metrics(small_dataset):
@@ -214,16 +215,15 @@ def light_and_heavy(repo_params):
 
 
 def test_doubling_the_grid_catches_a_bound_that_has_not_converged(light_and_heavy):
-    """The bound stage doubles its grid on a sample and reports what moved: Gauss–Hermite's
+    """The bound stage doubles its grids on a sample and reports what moved: Gauss–Hermite's
     7 load points left the old bound 0.09 in R² from its 21-point value (the audit of issue
-    23). A coarse grid must be caught; the
-    default grid moves less (its number on the repo's skin is in the bench output)."""
+    23). Grids too coarse (one cell per box) must be caught; the default grids converge."""
     sim, frame, _ = light_and_heavy
     forces = [0.0, 1.2936, 3.2536, 5.2136]
-    coarse = convergence(frame, sim, [1.0], forces, grid=Grid(3, 9), rows=60)
-    fine = convergence(frame, sim, [1.0], forces, grid=Grid(5, 41), rows=60)
+    coarse = convergence(frame, sim, [1.0], forces, grid=Grid(3, 9, 1), rows=60)
+    fine = convergence(frame, sim, [1.0], forces, rows=60)
     assert max(coarse.values()) >= CONVERGED, coarse
-    assert max(fine.values()) < max(coarse.values()), (fine, coarse)
+    assert max(fine.values()) < CONVERGED, fine
     assert set(coarse) == {"force_mse", "stretch_mse", "contact_accuracy", "x_accuracy",
                            "y_accuracy"}
 
