@@ -149,6 +149,61 @@ class ActiveTerminals(TransformerMixin, BaseEstimator):
         return np.hstack(columns)
 
 
+class ForceProfile(TransformerMixin, BaseEstimator):
+    """What the physics says a force reading is made of.
+
+    Stretch scales every terminal (C ∝ λ); a press adds to the few terminals under it
+    (at most five per axis). So, per row: each terminal in units of its spread at rest
+    (mean and SD over the training rows whose target is 0, i.e. without contact: there,
+    stretch and drift make the spread); a stretch estimate, the mean of the ``quiet``
+    lowest terminals per axis, which a press leaves alone; each terminal's change from
+    that rest reading; and per axis the largest change, the sum of the positive changes,
+    the sum over the largest and its two neighbours, and where the largest is. A press
+    raises the capacitance, so a model may be made monotone in the peaks and sums
+    (:attr:`MONOTONE`); a stretched skin is stiffer, which the stretch estimate carries.
+    Per-channel units and offsets cancel (counts, volts, farads).
+    """
+
+    CHANNELS = 20
+    # +1: force rises with it; 0: no constraint. Order as transform's columns.
+    MONOTONE = [0] * CHANNELS + [0] + [1, 1, 1, 0] * 2
+
+    def __init__(self, quiet: int = 3) -> None:
+        self.quiet = quiet
+
+    def fit(self, X, y=None):  # noqa: N803 - scikit-learn's name
+        X = validate_data(self, X, dtype=np.float64)
+        if X.shape[1] != self.CHANNELS:
+            raise ValueError(f"ForceProfile expects {self.CHANNELS} channels, got {X.shape[1]}")
+        rest = X if y is None else X[np.asarray(y, dtype=float) == 0]
+        if len(rest) < 2 * self.CHANNELS:  # too few contact-free rows: every row is rest
+            rest = X
+        self.rest_mean_ = rest.mean(axis=0)
+        spread = rest.std(axis=0)
+        self.rest_sd_ = np.where(spread > 0, spread, 1.0)
+        return self
+
+    def transform(self, X):  # noqa: N803
+        check_is_fitted(self)
+        X = validate_data(self, X, dtype=np.float64, reset=False)
+        # rounded as _scaled does, so that units and offsets leave no last-bit differences
+        level = np.round((X - self.rest_mean_) / self.rest_sd_, 6)
+        half = self.CHANNELS // 2
+        axes = (level[:, :half], level[:, half:])
+        stretch = np.mean([np.sort(a, axis=1)[:, :self.quiet].mean(axis=1) for a in axes],
+                          axis=0)
+        change = level - stretch[:, None]
+        columns = [change, stretch[:, None]]
+        for axis in (change[:, :half], change[:, half:]):
+            top = np.argmax(axis, axis=1)
+            padded = np.pad(axis, ((0, 0), (1, 1)))
+            rows = np.arange(len(axis))
+            around = padded[rows, top] + padded[rows, top + 1] + padded[rows, top + 2]
+            columns.append(np.column_stack([axis[rows, top], np.clip(axis, 0, None).sum(1),
+                                            around, top.astype(float)]))
+        return np.hstack(columns)
+
+
 def _scaled(estimator: BaseEstimator) -> Pipeline:
     """Every model sees standardised channels, rounded to 1e-6, whatever their units.
 
@@ -188,6 +243,12 @@ REGISTRY: dict[str, dict[str, Factory]] = {
             seed=0: SparseGaussianProcess(n_inducing, hyper_subsample, ard, hyperparameters, seed),
         "exact_gp": lambda hyper_subsample=2000, ard=False, seed=0:
             FixedKernelGaussianProcess(hyper_subsample, ard, seed),
+        # The reading as the physics composes it (ForceProfile), force monotone in the press.
+        "physics_profile": lambda max_iter=200, learning_rate=0.1, quiet=3, monotone=True,
+            seed=0: make_pipeline(
+                ForceProfile(quiet), HistGradientBoostingRegressor(
+                    max_iter=max_iter, learning_rate=learning_rate, random_state=seed,
+                    monotonic_cst=ForceProfile.MONOTONE if monotone else None)),
     },
     "detect": {
         "paper": lambda C=1.0, gamma="scale", class_weight="balanced":

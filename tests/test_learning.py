@@ -278,3 +278,31 @@ def test_an_unavailable_cluster_backend_is_a_clear_error():
     with pytest.raises(ValueError, match="pip install ray"):
         with parallel_backend("ray"):
             pass
+
+
+def test_force_profile_reads_stretch_and_press_in_any_units(repo_params):
+    """The physics features: a stretch estimate that follows the stretch whatever the press,
+    a press peak that rises with the force, and the same features (and predictions) in
+    counts as in farads or offset by a constant."""
+    from eskin.acquisition.plan import single_force_plan
+    from eskin.device.physics import SkinParams
+    from eskin.models import ForceProfile
+    from harness.calibrate import simulate_plan
+
+    sim = SkinParams.from_mapping(repo_params["sim"])
+    plan = single_force_plan("t", [1.0, 1.15842], [0.0, 1.2936, 5.2136], samples=2)
+    frame = simulate_plan(sim, plan, seed=3)
+    force = get_task("single_force", "force").target_values(frame)["force"]
+    X = frame[CHANNELS].to_numpy(float)
+    features = ForceProfile().fit(X, force).transform(X)
+    stretch, peak_x = features[:, 20], features[:, 21]
+    assert np.corrcoef(stretch, frame["stretch"])[0, 1] > 0.95
+    at_rest = frame["stretch"].to_numpy() == 1.0
+    means = [peak_x[at_rest & (force == f)].mean() for f in (0.0, 1.2936, 5.2136)]
+    assert means[0] < means[1] < means[2], means
+    for other_units in (X * 1e-12, X + 1e6):  # farads; an offset
+        assert np.allclose(ForceProfile().fit(other_units, force).transform(other_units),
+                           features, atol=1e-5)
+        predictions = [build_model("force", "physics_profile", {"max_iter": 20})
+                       .fit(data, force).predict(data) for data in (X, other_units)]
+        assert np.allclose(*predictions, atol=1e-9 * np.ptp(force))
