@@ -13,7 +13,7 @@ export DVC_NO_ANALYTICS := 1
 export MLFLOW_ENABLE_TELEMETRY := false
 export DO_NOT_TRACK := 1
 
-.PHONY: setup browser repro bench stress test lint clean
+.PHONY: setup browser avr firmware repro bench stress test lint clean
 
 setup: $(VENV)/.installed
 
@@ -24,6 +24,23 @@ browser:
 	  echo "installing Debian's chromium for the report test"; \
 	  $(SUDO) apt-get update -qq && \
 	  $(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends chromium; }
+
+# The board's firmware (firmware/eskin, issue 19) with Debian's AVR toolchain and Arduino
+# core; simavr runs it. Installed where missing, as chromium is.
+AVR_PACKAGES := gcc-avr avr-libc arduino-core-avr arduino-mk simavr libsimavr-dev
+avr:
+	@command -v avr-gcc >/dev/null && command -v simavr >/dev/null && \
+	  [ -f /usr/share/arduino/Arduino.mk ] && [ -f /usr/include/simavr/sim_avr.h ] || { \
+	  echo "installing Debian's AVR toolchain and simavr for the firmware"; \
+	  $(SUDO) apt-get update -qq && \
+	  $(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends \
+	    $(AVR_PACKAGES); }
+
+# firmware/eskin/build/eskin.{hex,elf}, and the flash and RAM used in size.txt.
+firmware: avr
+	$(MAKE) -C firmware/eskin --no-print-directory
+	avr-size -C --mcu=atmega328p firmware/eskin/build/eskin.elf \
+	  | tee firmware/eskin/build/size.txt
 
 # Rebuilt whenever the package list or the pinned versions change.
 $(VENV)/.installed: pyproject.toml constraints.txt
