@@ -36,9 +36,11 @@ avr:
 	  $(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends \
 	    $(AVR_PACKAGES); }
 
-# firmware/eskin/build/eskin.{hex,elf}, and the flash and RAM used in size.txt.
+# firmware/eskin/build/eskin.{hex,elf}, the flash and RAM used in size.txt, and the
+# emulation harness that runs it under simavr (firmware/emulator/build/eskin_emulator).
 firmware: avr
 	$(MAKE) -C firmware/eskin --no-print-directory
+	$(MAKE) -C firmware/emulator --no-print-directory
 	avr-size -C --mcu=atmega328p firmware/eskin/build/eskin.elf \
 	  | tee firmware/eskin/build/size.txt
 
