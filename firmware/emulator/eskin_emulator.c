@@ -11,7 +11,7 @@
 //
 //   → PTY <path>                the firmware's serial port, once, at start
 //   → FRAME <steps>             a scan begins (x1 selected); the clamp's position in steps
-//   ← VOLTS <v1> ... <v20>      that scan's 20 voltages, in units of 10 µV
+//   ← VOLTS <v1> ... <v20>      that scan's 20 voltages, in units of 5 V / 65535
 //   ← RESET                     (any time the harness is waiting) reset the board
 //
 // The harness waits for the answer before the emulation goes on, so emulated time does
@@ -35,9 +35,9 @@
 #define S0_BIT 4     // PD4..PD7: the select lines
 #define X_EN_BIT 0   // PB0
 #define Y_EN_BIT 1   // PB1
-// Units of the voltages simavr's ADC is given: 10 µV, so that 5 V is 500,000 and the
-// ADC's value × 1023 stays inside 32 bits.
-#define SUPPLY 500000
+// Units of the voltages simavr's ADC is given: it keeps them in 16 bits, so 5 V (the
+// supply, AVcc) is 65535 units of 76.3 µV.
+#define SUPPLY 65535
 
 static avr_t *avr;
 static FILE *python;           // the protocol's output (stdout before it was redirected)
@@ -46,6 +46,7 @@ static int terminal = -1;      // the terminal that reaches the CAV424, -1 for n
 static int select_bits = 0, x_enabled = 0, y_enabled = 0, extending = 0;
 static long position_steps = 0;
 static int reset_asked = 0;
+static int frame_due = 0;      // x1 was selected: its conversion starts the next scan
 
 static void fail(const char *what) {
   fprintf(stderr, "eskin_emulator: %s\n", what);
@@ -68,7 +69,7 @@ static void next_frame(void) {
   for (int i = 0; i < TERMINALS; i++) {
     char *end;
     unsigned long v = strtoul(at, &end, 10);
-    if (end == at || v > SUPPLY) fail("VOLTS needs 20 numbers in 0..500000 (10 µV)");
+    if (end == at || v > SUPPLY) fail("VOLTS needs 20 numbers in 0..65535 (5 V / 65535)");
     volts[i] = (uint32_t)v;
     at = end;
   }
@@ -78,7 +79,7 @@ static void update_terminal(void) {
   int now = -1;
   if (x_enabled && !y_enabled && select_bits < 10) now = select_bits;
   if (y_enabled && !x_enabled && select_bits < 10) now = 10 + select_bits;
-  if (now == 0 && terminal != 0) next_frame();
+  if (now == 0 && terminal != 0) frame_due = 1;
   terminal = now;
 }
 
@@ -105,6 +106,10 @@ static void port_b(struct avr_irq_t *irq, uint32_t value, void *param) {
 
 static void conversion(struct avr_irq_t *irq, uint32_t value, void *param) {
   (void)irq; (void)value; (void)param;
+  if (frame_due && terminal == 0) {  // a scan reads x1 first
+    frame_due = 0;
+    next_frame();
+  }
   // The CAV424 is on ADC0; simavr takes the value now and converts.
   avr_raise_irq(avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_ADC0),
                 terminal >= 0 ? volts[terminal] : 0);
@@ -147,6 +152,7 @@ int main(int argc, char **argv) {
       reset_asked = 0;
       avr_reset(avr);
       terminal = -1;
+      frame_due = 0;
       select_bits = x_enabled = y_enabled = 0;
       // The clamp stays where it is; the firmware counts from 0 again (board.h: no home).
     }

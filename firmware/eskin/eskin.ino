@@ -267,14 +267,15 @@ void setup() {
   pinMode(PIN_MUX_S1, OUTPUT);
   pinMode(PIN_MUX_S2, OUTPUT);
   pinMode(PIN_MUX_S3, OUTPUT);
-  pinMode(PIN_MUX_X_EN, OUTPUT);
-  pinMode(PIN_MUX_Y_EN, OUTPUT);
+  // High before they become outputs: no multiplexer or driver is enabled for an instant.
   digitalWrite(PIN_MUX_X_EN, HIGH);
   digitalWrite(PIN_MUX_Y_EN, HIGH);
+  digitalWrite(PIN_STEPPER_EN, HIGH);
+  pinMode(PIN_MUX_X_EN, OUTPUT);
+  pinMode(PIN_MUX_Y_EN, OUTPUT);
+  pinMode(PIN_STEPPER_EN, OUTPUT);
   pinMode(PIN_STEP, OUTPUT);
   pinMode(PIN_DIR, OUTPUT);
-  pinMode(PIN_STEPPER_EN, OUTPUT);
-  digitalWrite(PIN_STEPPER_EN, HIGH);
   load_id();
   Serial.begin(ESKIN_BAUD);
   hello();
