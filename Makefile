@@ -66,7 +66,7 @@ stress: setup
 	dvc repro dvc.yaml stress/dvc.yaml
 	@cat reports/stress/*.md
 
-test: setup browser
+test: setup browser firmware
 	pytest -q
 
 lint: setup

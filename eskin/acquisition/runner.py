@@ -91,6 +91,21 @@ class SimulatedPlacer:
                 link.command(f"SIM PRESS {contact.x} {contact.y} {contact.force!r}")
 
 
+class EmulatedPlacer:
+    """Places the weights on the emulated rig (:mod:`eskin.device.emulated`), as a person
+    does on a bench: the firmware knows nothing of them. Each condition's trial is the one
+    the Python board draws for it (its key on that board), so that an emulated and a
+    simulated acquisition of the same plan compare sample by sample."""
+
+    def __init__(self, rig, simulated_id: str, simulated_firmware: str) -> None:
+        self.rig = rig
+        self.simulated = (simulated_id, simulated_firmware)
+
+    def place(self, link: SerialLink, condition: Condition, key: str, repeat: bool) -> None:
+        self.rig.place(trial_seed(condition.key(*self.simulated)),
+                       [(c.x, c.y, c.force) for c in condition.contacts if c.touches])
+
+
 class OperatorPlacer:
     """Asks a person to place the weights, only when what lies on the skin changes."""
 

@@ -2,7 +2,9 @@
 
 ``simulated`` starts the simulated board (``python -m eskin.device.simulate``) in its
 own process on a pseudo-terminal and talks to it through pyserial, exactly as to a
-board on ``/dev/ttyACM0``; ``serial`` opens the given port and prompts the operator.
+board on ``/dev/ttyACM0``; ``emulated`` does the same with the board's own firmware
+under simavr (:mod:`eskin.device.emulated`); ``serial`` opens the given port and prompts
+the operator.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from eskin.acquisition.rawlog import LOG_NAME, LogContents, RawLogWriter, read_l
 from eskin.acquisition.runner import (
     AcquisitionError,
     AcquisitionReport,
+    EmulatedPlacer,
     OperatorPlacer,
     Placer,
     SimulatedPlacer,
@@ -117,6 +120,8 @@ def run_session(plan: ScenePlan, raw_dir: Path, *, port: str, placer: Placer,
                 max_attempts: int = 5, reconnect_s: float = 30.0,
                 max_jump_counts: float = 40.0, progress: bool = True) -> AcquisitionReport:
     """Connect to the board on ``port`` and acquire what the raw log still lacks."""
+    source = ("emulated" if simulator and simulator.get("emulated") else
+              "simulated" if simulator else "serial")
     log_path = Path(raw_dir) / LOG_NAME
     contents = read_log_if_any(log_path)
     with SerialLink(port, timeout_s=timeout_s) as link:
@@ -124,9 +129,9 @@ def run_session(plan: ScenePlan, raw_dir: Path, *, port: str, placer: Placer,
         session = {
             "session": session_id(contents, plan, hello),
             "scene": plan.name, "plan": plan.as_dict(), "eskin": __version__,
-            "source": "simulated" if simulator else "serial",
+            "source": source,
             # The simulator's pty name changes from run to run; a real port is provenance.
-            "port": "simulated board (pty)" if simulator else port,
+            "port": f"{source} board (pty)" if simulator else port,
             "device": {"id": hello.device_id, "firmware": hello.firmware,
                        "terminals": hello.terminals, "adc_bits": hello.adc_bits},
             "simulator": simulator, "rest_length_mm": rest_length_mm,
@@ -170,9 +175,20 @@ def acquire_scene(plan: ScenePlan, raw_dir: Path, *, source: str, sim: SkinParam
             return run_session(plan, raw_dir, port=board.port, placer=SimulatedPlacer(),
                                simulator={"params": sim.as_dict(), "seed": sim.seed},
                                **options)
+    if source == "emulated":
+        # The board's firmware under simavr (make firmware), the skin model around it.
+        from eskin.device.board import FIRMWARE, simulator_identity
+        from eskin.device.emulated import emulated_board
+
+        with emulated_board(sim, rest_length_mm=rest_length_mm, samples=plan.samples) as (
+                emulated_port, rig):
+            placer = EmulatedPlacer(rig, simulator_identity(sim, rest_length_mm), FIRMWARE)
+            return run_session(plan, raw_dir, port=emulated_port, placer=placer,
+                               simulator={"params": sim.as_dict(), "seed": sim.seed,
+                                          "emulated": True}, **options)
     if source == "serial":
         if not port:
             raise ValueError("source is 'serial' but no port is set (scenes.<scene>.port)")
         placer = SimulatedPlacer() if indenters == "board" else OperatorPlacer(ask)
         return run_session(plan, raw_dir, port=port, placer=placer, simulator=None, **options)
-    raise ValueError(f"source must be 'simulated' or 'serial' here, got {source!r}")
+    raise ValueError(f"source must be 'simulated', 'emulated' or 'serial' here, got {source!r}")

@@ -1,0 +1,150 @@
+"""The board's own firmware (firmware/eskin) under simavr, against the Python board.
+
+The firmware does not share a line of code with the Python board (eskin.device.board),
+nor the harness with the skin model beyond the voltages it is handed: their answers to
+the same commands, and their readings of the same trials, are checked against each other.
+`make test` builds both first (`make firmware`).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+import serial
+
+from eskin.acquisition.plan import two_force_plan
+from eskin.acquisition.rawlog import LOG_NAME, read_log
+from eskin.acquisition.session import acquire_scene
+from eskin.device.board import FIRMWARE, SimulatedBoard, simulator_identity
+from eskin.device.emulated import FIRMWARE_ELF, HARNESS, cav424_volts, emulated_board
+from eskin.device.physics import SkinModel, SkinParams
+from eskin.device.protocol import Frame, parse_line
+
+REST_MM = 101.0
+
+
+@pytest.fixture(scope="module")
+def sim(repo_params):
+    for built in (FIRMWARE_ELF, HARNESS):
+        assert built.exists(), f"{built} is missing: `make test` builds it (make firmware)"
+    return SkinParams.from_mapping(repo_params["sim"])
+
+
+@pytest.fixture
+def board(sim):
+    with emulated_board(sim, rest_length_mm=REST_MM, samples=5) as (port, rig):
+        link = serial.Serial(port, 115200, timeout=10)
+        assert link.readline().startswith(b"#HELLO eskin fw-")
+        yield link, rig
+        link.close()
+
+
+def ask(link, line: bytes) -> bytes:
+    link.write(line + b"\n")
+    return link.readline()
+
+
+def test_the_harness_voltage_is_the_models_before_its_adc(sim):
+    model = SkinModel(sim)
+    capacitance = np.linspace(10.0, 40.0, 20)
+    p = sim
+    counts = np.rint(np.clip(cav424_volts(model, capacitance), 0, p.supply_v) / p.supply_v
+                     * (2**p.adc_bits - 1))
+    assert np.array_equal(counts, model.to_counts(capacitance))
+
+
+def test_the_firmware_answers_bad_commands_as_the_python_board(board, sim):
+    link, _ = board
+    python = SimulatedBoard(sim)
+    lines = [b"BOGUS", b"SAMPLE 0", b"SAMPLE 100001", b"SAMPLE x", b"STRETCH 41",
+             b"STRETCH abc", b"STREAM MAYBE", b"STRETCH 2.5", b"x" * 300]
+    for line in lines:
+        assert ask(link, line) == python.handle(line), line
+    # SIM belongs to the simulated board: here a person places the weights
+    assert ask(link, b"SIM PRESS 1 1 1").startswith(b"#ERR SIM ")
+
+
+def test_streaming_goes_on_while_commands_are_answered(board):
+    link, _ = board
+    link.write(b"STREAM ON\n")
+    assert link.readline() == b"#OK STREAM ON\n"
+    link.write(b"HELLO\n")
+    seen, frames = [], 0
+    deadline = time.monotonic() + 20
+    while time.monotonic() < deadline and not (seen and frames >= 6):
+        event = parse_line(link.readline().rstrip(b"\n"))
+        if isinstance(event, Frame):
+            frames += 1
+        else:
+            seen.append(event)
+    assert frames >= 6 and any(type(e).__name__ == "Hello" for e in seen), (frames, seen)
+    link.write(b"STREAM OFF\n")
+    while (line := link.readline()) != b"#OK STREAM OFF\n":
+        assert line.startswith(b"D,"), line  # frames already on their way, then the #OK
+    link.timeout = 0.5
+    assert link.readline() == b""  # and no more
+
+
+def emulated_and_python_frames(link, rig, sim, conditions, samples):
+    """Each (mm, trial, contacts) on both boards: their frames' counts, (frames, 20) each."""
+    python = SimulatedBoard(sim)
+    ours, theirs = [], []
+    for mm, trial, contacts in conditions:
+        for command in (f"STRETCH {mm}", "SIM CLEAR", f"SIM TRIAL {trial}",
+                        *(f"SIM PRESS {x} {y} {n!r}" for x, y, n in contacts)):
+            python.handle(command.encode())
+        answer = python.handle(b"SAMPLE %d" % samples)
+        theirs += [parse_line(line).counts for line in answer.splitlines()
+                   if line.startswith(b"D,")]
+        assert ask(link, f"STRETCH {mm}".encode()) == f"#OK STRETCH {mm}\n".encode()
+        rig.place(trial, contacts)
+        link.write(b"SAMPLE %d\n" % samples)
+        seqs = []
+        while isinstance(event := parse_line(link.readline().rstrip(b"\n")), Frame):
+            ours.append(event.counts)
+            seqs.append(event.seq)
+        assert event.line == b"#OK SAMPLE %d" % samples, event
+        assert seqs == list(range(seqs[0], seqs[0] + samples))  # CRC-checked, in order
+    return np.array(ours), np.array(theirs)
+
+
+def test_the_firmware_reads_what_the_python_board_sends_for_the_same_trials(board, sim):
+    link, rig = board
+    conditions = [("0.000", 9, []), ("7.999", 5, [(3, 4, 3.2536)]),
+                  ("15.998", 11, [(10, 1, 5.2136), (1, 10, 1.2936)]),
+                  ("0.000", 12, [(6, 6, 1.2936)])]
+    ours, theirs = emulated_and_python_frames(link, rig, sim, conditions, samples=5)
+    assert ours.shape == theirs.shape == (20, 20)
+    differ = ours != theirs
+    # A voltage reaches simavr in 1/64 of an ADC step: within that of a transition a
+    # reading may round the other way (module docstring of eskin.device.emulated).
+    assert np.abs(ours - theirs).max() <= 1
+    assert differ.mean() < 0.03, differ.mean()
+
+
+def test_a_scene_acquired_from_the_firmware_matches_the_python_boards(sim, tmp_path):
+    """The unchanged host code (run_session) on both boards, a small two-force plan."""
+    plan = two_force_plan("pairs", [1.0], [1.2936, 5.2136], [1, 10], [1, 10], samples=4)
+    logs = {}
+    for source in ("emulated", "simulated"):
+        report = acquire_scene(plan, tmp_path / source, source=source, sim=sim,
+                               rest_length_mm=REST_MM, progress=False)
+        assert report.frames_rejected == 0
+        logs[source] = read_log(tmp_path / source / LOG_NAME)
+    emulated, simulated = logs["emulated"], logs["simulated"]
+    device = emulated.sessions[0]["device"]
+    assert emulated.sessions[0]["source"] == "emulated"
+    assert device["firmware"].startswith("fw-") and device["id"] == "unset"
+    sim_id = simulator_identity(sim, REST_MM)
+    differ = []
+    for condition in plan.conditions:
+        ours = emulated.completed[condition.key(device["id"], device["firmware"])].frames
+        theirs = simulated.completed[condition.key(sim_id, FIRMWARE)].frames
+        a = np.array([f.counts for f in ours])
+        b = np.array([f.counts for f in theirs])
+        assert a.shape == b.shape == (plan.samples, 20)
+        assert np.abs(a - b).max() <= 1, condition
+        differ.append((a != b).mean())
+    assert np.mean(differ) < 0.03
