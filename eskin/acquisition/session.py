@@ -15,7 +15,7 @@ import selectors
 import subprocess
 import sys
 import tempfile
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -157,13 +157,14 @@ def acquire_scene(plan: ScenePlan, raw_dir: Path, *, source: str, sim: SkinParam
                   faults: LinkFaults | None = None, frame_period_ms: int = 12,
                   timeout_s: float = 5.0, max_attempts: int = 5, reconnect_s: float = 30.0,
                   max_jump_counts: float = 40.0, ask: Callable[[str], object] = input,
-                  indenters: str = "person", progress: bool = True
-                  ) -> AcquisitionReport:
+                  indenters: str = "person", progress: bool = True,
+                  resets_at_frames: Sequence[int] = ()) -> AcquisitionReport:
     """Acquire a scene from the simulated board or from a board on ``port``.
 
     ``indenters``: on a board on a port, who places the weights — a ``person``
     prompted at the terminal (a real rig), or the ``board`` itself through ``SIM``
-    commands (a simulated or emulated board served on a port).
+    commands (a simulated board served on a port). ``resets_at_frames``: the emulated
+    board resets as these scans begin (counted from 1), a fault to survive.
     """
     options = {"rest_length_mm": rest_length_mm, "timeout_s": timeout_s,
                "max_attempts": max_attempts, "reconnect_s": reconnect_s,
@@ -180,8 +181,8 @@ def acquire_scene(plan: ScenePlan, raw_dir: Path, *, source: str, sim: SkinParam
         from eskin.device.board import FIRMWARE, simulator_identity
         from eskin.device.emulated import emulated_board
 
-        with emulated_board(sim, rest_length_mm=rest_length_mm, samples=plan.samples) as (
-                emulated_port, rig):
+        with emulated_board(sim, rest_length_mm=rest_length_mm, samples=plan.samples,
+                            resets_at_frames=resets_at_frames) as (emulated_port, rig):
             placer = EmulatedPlacer(rig, simulator_identity(sim, rest_length_mm), FIRMWARE)
             return run_session(plan, raw_dir, port=emulated_port, placer=placer,
                                simulator={"params": sim.as_dict(), "seed": sim.seed,

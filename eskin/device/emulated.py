@@ -58,10 +58,15 @@ class EmulatedRig:
     Use :func:`emulated_board`, which starts and stops it.
     """
 
-    def __init__(self, params: SkinParams, *, rest_length_mm: float, samples: int) -> None:
+    def __init__(self, params: SkinParams, *, rest_length_mm: float, samples: int,
+                 resets_at_frames: Sequence[int] = ()) -> None:
         if samples < 1:
             raise ValueError(f"samples must be ≥ 1, got {samples}")
         self.model = SkinModel(params)
+        # A fault to survive: the board resets as its n-th scan (counted from 1) begins.
+        self.resets_at_frames = set(resets_at_frames)
+        self.resets = 0
+        self._scans = 0
         self.rest_length_mm = rest_length_mm
         self.samples = samples
         self.frames_served = 0
@@ -100,7 +105,12 @@ class EmulatedRig:
         for line in process.stdout:
             words = line.split()
             if words[:1] == ["FRAME"] and len(words) == 2:
-                answer = "VOLTS " + " ".join(map(str, self.volts(int(words[1])))) + "\n"
+                self._scans += 1
+                if self._scans in self.resets_at_frames:
+                    self.resets += 1
+                    answer = "RESET\n"
+                else:
+                    answer = "VOLTS " + " ".join(map(str, self.volts(int(words[1])))) + "\n"
                 try:
                     process.stdin.write(answer)
                     process.stdin.flush()
@@ -110,12 +120,14 @@ class EmulatedRig:
 
 @contextlib.contextmanager
 def emulated_board(params: SkinParams, *, rest_length_mm: float, samples: int,
-                   start_timeout_s: float = 30.0) -> Iterator[tuple[str, EmulatedRig]]:
+                   resets_at_frames: Sequence[int] = (), start_timeout_s: float = 30.0
+                   ) -> Iterator[tuple[str, EmulatedRig]]:
     """Run the firmware under simavr; yield its pty and the rig that places the weights."""
     for built in (FIRMWARE_ELF, HARNESS):
         if not built.exists():
             raise LinkError(f"{built} is missing: run `make firmware` first")
-    rig = EmulatedRig(params, rest_length_mm=rest_length_mm, samples=samples)
+    rig = EmulatedRig(params, rest_length_mm=rest_length_mm, samples=samples,
+                      resets_at_frames=resets_at_frames)
     scratch = tempfile.TemporaryDirectory(prefix="eskin-emulator-")
     errors = Path(scratch.name) / "emulator.err"
     with errors.open("w") as stderr:

@@ -18,7 +18,13 @@ static uint32_t seq = 0;            // frame counter: never repeats within a pow
 static uint32_t owed = 0;           // frames of the SAMPLE being answered
 static uint32_t asked = 0;          // its n, for the #OK
 static bool streaming = false;
-static int32_t position_steps = 0;  // the clamp, from rest
+// The clamp, in steps from rest. The Uno resets whenever the host opens its port, and the
+// clamp stays where it was: the position lives in RAM the C runtime leaves alone through a
+// reset, beside a check word. At power-up the check fails and the clamp must be at rest
+// (board.h: no home switch).
+static int32_t position_steps __attribute__((section(".noinit")));
+static uint32_t position_check __attribute__((section(".noinit")));
+#define POSITION_CHECK(steps) ((uint32_t)(steps) ^ 0xA5E5C1D2UL)
 
 static char line[LINE_MAX + 1];     // the command being received
 static uint16_t line_length = 0;
@@ -110,6 +116,7 @@ static void move_to(int32_t steps) {
     delayMicroseconds(2);  // the driver's minimum pulse is 1 µs
     digitalWrite(PIN_STEP, LOW);
     position_steps += steps > position_steps ? 1 : -1;
+    position_check = POSITION_CHECK(position_steps);
     delayMicroseconds(STEP_PERIOD_US - 2);
   }
 }
@@ -276,6 +283,10 @@ void setup() {
   pinMode(PIN_STEPPER_EN, OUTPUT);
   pinMode(PIN_STEP, OUTPUT);
   pinMode(PIN_DIR, OUTPUT);
+  if (position_check != POSITION_CHECK(position_steps)) {  // power-up: the clamp at rest
+    position_steps = 0;
+    position_check = POSITION_CHECK(0);
+  }
   load_id();
   Serial.begin(ESKIN_BAUD);
   hello();
