@@ -1,0 +1,76 @@
+"""Frames per second through the firmware at 115200 baud, against the line's limit.
+
+``python -m harness.firmware_throughput [frames]`` runs the firmware under simavr
+(``make firmware`` first), asks for ``frames`` frames in one ``SAMPLE``, and prints the
+rate in the board's own time (its ``t_ms``: the emulated clock, what a real Uno would
+do), the limit the serial line sets (bytes per frame × 10 bits per byte at 8N1 /
+115200 baud), their ratio, the emulator's speed against real time, and how long the
+paper's single-force scene takes to sample on a real bench.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import serial
+import yaml
+
+from eskin.acquisition.plan import plan_from_params
+from eskin.device.emulated import emulated_board
+from eskin.device.physics import SkinParams
+from eskin.device.protocol import Frame, parse_line
+
+BAUD = 115200
+BITS_PER_BYTE = 10  # 8N1: start, 8 data, stop
+
+
+def measure(sim: SkinParams, frames: int) -> dict[str, float]:
+    with emulated_board(sim, rest_length_mm=101.0, samples=frames) as (port, rig):
+        link = serial.Serial(port, BAUD, timeout=30)
+        link.readline()  # the greeting
+        rig.place(1, [(5, 5, 3.2536)])
+        started = time.monotonic()
+        link.write(b"SAMPLE %d\n" % frames)
+        received = []
+        while isinstance(event := parse_line((line := link.readline()).rstrip(b"\n")), Frame):
+            received.append((event.t_ms, len(line)))
+        wall = time.monotonic() - started
+    if len(received) != frames:
+        raise RuntimeError(f"asked for {frames} frames, got {len(received)}, then {event}")
+    board_s = (received[-1][0] - received[0][0]) / 1000
+    per_frame_bytes = sum(n for _, n in received) / frames
+    line_limit = BAUD / (per_frame_bytes * BITS_PER_BYTE)
+    rate = (frames - 1) / board_s
+    return {"frames": frames, "board_s": board_s, "frames_per_s": rate,
+            "bytes_per_frame": per_frame_bytes, "line_limit_per_s": line_limit,
+            "share_of_line": rate / line_limit, "wall_s": wall,
+            "emulation_speed": board_s / wall}
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = sys.argv[1:] if argv is None else argv
+    frames = int(args[0]) if args else 500
+    params = yaml.safe_load(open("params.yaml"))
+    sim = SkinParams.from_mapping(params["sim"])
+    m = measure(sim, frames)
+    print(f"{m['frames']} frames in {m['board_s']:.2f} s of board time: "
+          f"{m['frames_per_s']:.1f} frames/s")
+    print(f"line limit at {BAUD} baud: {m['bytes_per_frame']:.1f} bytes a frame → "
+          f"{m['line_limit_per_s']:.1f} frames/s; the firmware reaches "
+          f"{m['share_of_line']:.0%} of it")
+    print(f"emulation: {m['wall_s']:.2f} s wall for {m['board_s']:.2f} s of board time "
+          f"({m['emulation_speed']:.2f}× real time)")
+    for name, section in params["scenes"].items():
+        if section.get("source") != "simulated":
+            continue
+        plan = plan_from_params(name, section)
+        n = len(plan.conditions) * plan.samples
+        print(f"scene {name}: {len(plan.conditions):,} conditions × {plan.samples} samples = "
+              f"{n:,} frames: {n / m['frames_per_s'] / 60:.1f} min of sampling on a real "
+              "bench, plus placing the weights by hand")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
