@@ -239,7 +239,7 @@ def test_the_benchmark_runs_per_scene_and_says_where_there_is_no_bayes_bound(ben
     assert single.startswith("# Benchmark: lab_single")
     assert "no Bayes bound: no simulator made this data (source: import)" in single
     summary = json.loads((bench / "lab_single/summary.json").read_text())
-    assert summary["defaults"] == {"stretch": "paper", "force": "physics_profile_free",
+    assert summary["defaults"] == {"stretch": "paper", "force": "physics_profile",
                                    "detect": "hist_gradient_boosting", "localise": "logistic"}
     assert 0 < summary["targets"]["cost_on_doubling"]["growth_per_doubling"][0]
     force = json.loads((bench / "lab_pairs/force.json").read_text())
