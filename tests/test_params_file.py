@@ -13,7 +13,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.mark.parametrize("key, value", [
-    ("train.force.model", "random_forest"),
+    ("train.force.model.single_force", "random_forest"),
     ("sim.seed", 7),
     ("soak.faults.drop", 0.02),
     ("bench.tasks.force.sparse_gp.n_inducing", 250),

@@ -19,6 +19,7 @@ from conftest import params_trace_dir, run_checked, scratch_project, small_scene
 from test_stage_deps import params_mismatches
 
 from eskin.data.schema import CHANNELS, md5_file
+from eskin.models import model_settings
 
 
 def run(args, cwd, env):
@@ -67,7 +68,7 @@ def test_dvc_metrics_show_lists_the_headline_metrics(scratch):
 def test_a_second_force_model_is_a_second_mlflow_run_on_the_same_dataset(scratch, repo_params):
     root, env = scratch
     out = run(["dvc", "exp", "run", "-n", "force-rf", "-S",
-               "train.force.model=random_forest"], root, env)
+               "train.force.model.single_force=random_forest"], root, env)
     assert "train@single_force-force" in out
     assert "Running stage 'train@single_force-stretch'" not in out  # only what changed reruns
 
@@ -76,7 +77,7 @@ def test_a_second_force_model_is_a_second_mlflow_run_on_the_same_dataset(scratch
     runs = mlflow.search_runs(experiment_names=["eskin"],
                               filter_string="tags.`eskin.task` = 'force' and "
                                             "tags.`eskin.scene` = 'single_force'")
-    default = repo_params["train"]["force"]["model"]
+    default, _ = model_settings(repo_params["train"]["force"], "tuned", "single_force")
     assert sorted(runs["params.model"]) == sorted([default, "random_forest"])
     digest = md5_file(root / "data" / "processed" / "single_force.parquet")
     assert set(runs["tags.eskin.dataset_digest"]) == {digest}
@@ -186,7 +187,7 @@ def test_queued_experiments_run_two_at_a_time_and_compare_side_by_side(scratch):
     assert {"q-logistic", "q-ridge", "force-rf"} <= set(table.index)
     assert table.loc["q-logistic", "train.detect.model"] == "logistic"
     assert table.loc["q-ridge", "train.stretch.model"] == "ridge"
-    assert table.loc["force-rf", "train.force.model"] == "random_forest"
+    assert table.loc["force-rf", "train.force.model.single_force"] == "random_forest"
     assert table.loc["q-logistic", "runs"] == 1 and table.loc["q-logistic", "run time s"] > 0
     assert 0.5 < table.loc["q-logistic", "contact acc"] <= 1
     assert -1 < table.loc["force-rf", "force R²"] <= 1
