@@ -28,7 +28,11 @@ BITS_PER_BYTE = 10  # 8N1: start, 8 data, stop
 def measure(sim: SkinParams, frames: int) -> dict[str, float]:
     with emulated_board(sim, rest_length_mm=101.0, samples=frames) as (port, rig):
         link = serial.Serial(port, BAUD, timeout=30)
-        link.readline()  # the greeting
+        # the greeting: the boot one may be cut (sent before the port was open); the fence
+        # after HELLO says every greeting has arrived
+        link.write(b"HELLO\nSTREAM OFF\n")
+        while link.readline() not in (b"#OK STREAM OFF\n", b""):
+            pass
         rig.place(1, [(5, 5, 3.2536)])
         started = time.monotonic()
         link.write(b"SAMPLE %d\n" % frames)

@@ -36,9 +36,21 @@ def sim(repo_params):
 def board(sim):
     with emulated_board(sim, rest_length_mm=REST_MM, samples=5) as (port, rig):
         link = serial.Serial(port, 115200, timeout=10)
-        assert link.readline().startswith(b"#HELLO eskin fw-")
-        yield link, rig
+        yield greeted(link), rig
         link.close()
+
+
+def greeted(link):
+    """The link once the board has answered HELLO and the STREAM OFF fence after it, as
+    the host greets a board: the greeting sent at boot may be on the wire before the port
+    is open, and arrive cut or whole (as from a real Uno)."""
+    link.write(b"HELLO\nSTREAM OFF\n")
+    lines = []
+    while (line := link.readline()) != b"#OK STREAM OFF\n":
+        assert line and len(lines) < 3, lines
+        lines.append(line)
+    assert lines[-1].startswith(b"#HELLO eskin fw-"), lines
+    return link
 
 
 def ask(link, line: bytes) -> bytes:
