@@ -16,6 +16,9 @@ from pathlib import Path
 KINDS: tuple[str, ...] = ("single_force", "two_force")
 TASK_NAMES: tuple[str, ...] = ("stretch", "force", "detect", "localise")
 SCHEMES: tuple[str, ...] = ("stratified", "grouped")
+# Where a scene's readings come from: the Python board, the firmware under simavr, a
+# board on a port, or a file another lab wrote.
+SOURCES: tuple[str, ...] = ("simulated", "emulated", "serial", "import")
 # The pairs stage scores a two-force scene's localise and force predictions together.
 PAIRS = "pairs"
 SCORED_TASKS: tuple[str, ...] = (*TASK_NAMES, PAIRS)

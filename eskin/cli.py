@@ -15,6 +15,7 @@ from eskin.catalog import (
     MODELS_DIR,
     PROCESSED_DIR,
     RAW_DIR,
+    SOURCES,
     TASK_NAMES,
     task_outputs,
 )
@@ -77,7 +78,7 @@ def build_parser() -> argparse.ArgumentParser:
         sub.add_argument("scene", help="a scene of params.yaml, e.g. single_force")
         sub.add_argument("--params", type=Path, default=Path("params.yaml"))
         if name == "acquire":
-            sub.add_argument("--source", choices=["simulated", "serial", "import"],
+            sub.add_argument("--source", choices=SOURCES,
                              help="override scenes.<scene>.source")
             sub.add_argument("--port", help="override scenes.<scene>.port (serial source)")
             sub.add_argument("--no-progress", action="store_true")

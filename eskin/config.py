@@ -24,7 +24,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, create_model, model_validator
 
 from eskin.acquisition.plan import ScenePlan, plan_from_params
-from eskin.catalog import KINDS, SCHEMES, TASK_NAMES
+from eskin.catalog import KINDS, SCHEMES, SOURCES, TASK_NAMES
 from eskin.device.physics import SkinParams
 from eskin.errors import EskinError
 
@@ -104,7 +104,7 @@ class Fuzz(_Section):
     examples: Count
 
 
-Source = Literal["simulated", "serial", "import"]
+Source = Literal[SOURCES]  # type: ignore[valid-type]
 # A scene name becomes a DVC stage name (acquire@<scene>, train@<scene>-<task>), a
 # directory and an MLflow tag: letters, digits and underscores, starting with a letter.
 SCENE_NAME = r"^[A-Za-z][A-Za-z0-9_]*$"
@@ -112,7 +112,9 @@ SCENE_NAME = r"^[A-Za-z][A-Za-z0-9_]*$"
 
 class Scene(_Section):
     kind: Literal[KINDS]  # type: ignore[valid-type]
-    source: Source               # simulated (the built-in skin) | serial (a board) | import
+    # simulated (the Python board) | emulated (the firmware under simavr: make firmware)
+    # | serial (a board) | import
+    source: Source
     port: str | None = None      # serial: /dev/ttyACM0, socket://127.0.0.1:5000, ...
     import_path: str | None = None  # import: a CSV or Parquet file in the paper's layout
     stretches: Annotated[list[Annotated[float, Field(ge=1)]], Field(min_length=1)]

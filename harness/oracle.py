@@ -81,8 +81,9 @@ class Grid:
 # lives. Light weights read through their seating, and with little noise its likelihood is
 # narrow (about 0.1 SD of the seating wide: FINE's seating step is 0.11 SD); heavy weights
 # pin the placement offset down to about 0.2 SD, far below FINE's offset step (1.5 SD). So
-# each sample's leading conditions (within e^-REFINE_LOG of its best; FINE misjudges a
-# condition by a few log units at most) are integrated again on their own box: the FINE
+# each sample's leading conditions (within e^-REFINE_LOG of its best: FINE's coarse offsets
+# can misjudge a heavy weight's condition by several log units, and `convergence` shows
+# that the margin suffices) are integrated again on their own box: the FINE
 # points within e^-BOX_LOG of the best, one step more each side, cut in `local_cells` even
 # cells per offset axis (0.25 SD where the box is narrowest) and at least FINE's step for
 # the seating. `convergence` measures, per run, what doubling every grid moves. The coarse

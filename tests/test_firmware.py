@@ -8,9 +8,14 @@ the same commands, and their readings of the same trials, are checked against ea
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 import serial
 
@@ -18,11 +23,14 @@ from eskin.acquisition.plan import two_force_plan
 from eskin.acquisition.rawlog import LOG_NAME, read_log
 from eskin.acquisition.session import acquire_scene
 from eskin.device.board import FIRMWARE, SimulatedBoard, simulator_identity
-from eskin.device.emulated import FIRMWARE_ELF, HARNESS, cav424_volts, emulated_board
-from eskin.device.physics import SkinModel, SkinParams
+from eskin.device.emulated import FIRMWARE_ELF, HARNESS, emulated_board
+from eskin.device.faults import LinkFaults
+from eskin.device.link import LinkError
+from eskin.device.physics import SkinParams
 from eskin.device.protocol import Frame, parse_line
 
 REST_MM = 101.0
+ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
@@ -56,15 +64,6 @@ def greeted(link):
 def ask(link, line: bytes) -> bytes:
     link.write(line + b"\n")
     return link.readline()
-
-
-def test_the_harness_voltage_is_the_models_before_its_adc(sim):
-    model = SkinModel(sim)
-    capacitance = np.linspace(10.0, 40.0, 20)
-    p = sim
-    counts = np.rint(np.clip(cav424_volts(model, capacitance), 0, p.supply_v) / p.supply_v
-                     * (2**p.adc_bits - 1))
-    assert np.array_equal(counts, model.to_counts(capacitance))
 
 
 def test_the_firmware_answers_bad_commands_as_the_python_board(board, sim):
@@ -162,23 +161,71 @@ def test_a_scene_acquired_from_the_firmware_matches_the_python_boards(sim, tmp_p
     assert np.mean(differ) < 0.03
 
 
-def test_a_board_reset_mid_request_costs_nothing(sim, tmp_path):
+def test_link_faults_mid_request_cost_nothing(sim, tmp_path):
     """The firmware resets as scans 3 and 30 begin (the host opening the Uno's port does
-    that too): the host notices, asks again, and the dataset is the clean one.
-    Scan 30 is on the stretched skin (6 conditions × 4 scans unstretched first): the
-    clamp's position survives the reset (the firmware keeps it in .noinit RAM), so the
-    stretch the skin sees stays right."""
+    that too); then, in another run, the USB link vanishes there for 0.3 s and comes back
+    on a new pty, followed by the port's link. The host notices, reconnects, asks again,
+    and the dataset is the clean one. Scan 30 is on the stretched skin (6 conditions × 4
+    scans unstretched first): the clamp's position survives the reset (the firmware keeps
+    it in .noinit RAM), so the stretch the skin sees stays right."""
     plan = two_force_plan("pairs", [1.0, 1.07921], [5.2136], [1, 10], [1, 10], samples=4)
     frames = {}
-    for name, resets in (("clean", ()), ("reset", (3, 30))):
-        report = acquire_scene(plan, tmp_path / name, source="emulated", sim=sim,
-                               rest_length_mm=REST_MM, progress=False,
-                               resets_at_frames=resets)
-        # A reset cuts the line on the wire short, and the greeting after it is lost with
-        # it as often as not: then the host times out and reconnects instead.
-        assert report.resets + report.reconnects == len(resets), report
-        log = read_log(tmp_path / name / LOG_NAME)
+    for kind in ("clean", "reset", "vanish"):
+        faults = {} if kind == "clean" else {3: kind, 30: kind}
+        report = acquire_scene(plan, tmp_path / kind, source="emulated", sim=sim,
+                               rest_length_mm=REST_MM, progress=False, emulated_faults=faults,
+                               faults=LinkFaults(vanish_s=0.3))
+        if kind == "vanish":  # the port hangs up: the host reopens it at the same path
+            assert report.reconnects == len(faults), report
+        else:
+            # A reset cuts the line on the wire short, and the greeting after it is lost
+            # with it as often as not: then the host times out and reconnects instead.
+            assert report.resets + report.reconnects == len(faults), report
+        log = read_log(tmp_path / kind / LOG_NAME)
         assert len(log.completed) == len(plan.conditions)
-        frames[name] = {key: [f.counts for f in attempt.frames]
+        frames[kind] = {key: [f.counts for f in attempt.frames]
                         for key, attempt in log.completed.items()}
     assert frames["reset"] == frames["clean"]
+    assert frames["vanish"] == frames["clean"]
+
+
+def test_a_failing_rig_is_named_in_the_hosts_error(sim, tmp_path, monkeypatch):
+    """If the Python side of the harness fails, the host loses the board; its one-line
+    error says why, and the conditions already recorded are kept."""
+    from eskin.device.emulated import EmulatedRig
+
+    answer = EmulatedRig.answer
+
+    def failing(self, question):
+        if self._scans >= 9:  # two conditions of 4 scans in, the third's first scan fails
+            raise RuntimeError("the skin model broke")
+        return answer(self, question)
+
+    monkeypatch.setattr(EmulatedRig, "answer", failing)
+    plan = two_force_plan("pairs", [1.0], [5.2136], [1, 10], [1, 10], samples=4)
+    with pytest.raises(LinkError, match="The emulated rig had failed: RuntimeError: the "
+                       "skin model broke"):
+        acquire_scene(plan, tmp_path, source="emulated", sim=sim, rest_length_mm=REST_MM,
+                      progress=False, timeout_s=1.0, max_attempts=1, reconnect_s=1.0)
+    assert len(read_log(tmp_path / LOG_NAME).completed) == 2
+
+
+def test_a_scene_of_params_yaml_is_acquired_from_the_firmware(small_params, tmp_path):
+    """``source: emulated`` (here ``eskin acquire --source emulated``) acquires a scene from
+    the firmware through the unchanged host code, and ingest makes a dataset of it."""
+    from tests.conftest import write_params
+
+    small_params["scenes"]["two_force"].update(
+        forces=[5.2136], nodes_x=[1, 10], nodes_y=[1, 10], samples=4)
+    small_params["cv"]["folds"] = 2
+    write_params(tmp_path, small_params)
+    for command in (["acquire", "two_force", "--source", "emulated", "--no-progress"],
+                    ["ingest", "two_force"]):
+        done = subprocess.run([sys.executable, "-m", "eskin", *command], cwd=tmp_path,
+                              capture_output=True, text=True, timeout=300,
+                              env={**os.environ, "PYTHONPATH": str(ROOT)})
+        assert done.returncode == 0, done.stderr
+    log = read_log(tmp_path / "data/raw/two_force" / LOG_NAME)
+    assert log.sessions[-1]["simulator"]["emulated"] is True
+    rows = pd.read_parquet(tmp_path / "data/processed/two_force.parquet")
+    assert len(rows) == 6 * 4  # 6 pairs of the 4 corner nodes, 4 samples each

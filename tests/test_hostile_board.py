@@ -336,7 +336,8 @@ MISTAKES = {
                                       "a valid dictionary"),
     "a task missing": (("train", "detect"), None, "train.detect is missing (required)"),
     "source typo": (("scenes", "two_force", "source"), "serail", "scenes.two_force.source = "
-                    "'serail': Input should be 'simulated', 'serial' or 'import'"),
+                    "'serail': Input should be 'simulated', 'emulated', 'serial' or "
+                    "'import'"),
     "import with no file": (("scenes", "two_force", "source"), "import",
                             "scenes.two_force: source is 'import' but import_path is unset"),
     "serial with no port": (("scenes", "two_force", "source"), "serial",

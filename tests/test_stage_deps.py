@@ -144,6 +144,20 @@ def test_each_stage_lists_exactly_the_code_it_runs(address, module, deps):
         f"lists, but does not run, {unused or 'nothing'}")
 
 
+@pytest.mark.parametrize("address, module, deps", STAGES, ids=[s[0] for s in STAGES])
+def test_a_stage_that_can_run_the_firmware_lists_its_sources(address, module, deps):
+    """The emulated board is built from firmware/ (eskin.device.emulated rebuilds it
+    before a run): a stage that can run it lists those sources, and no other stage does."""
+    from eskin.device.emulated import FIRMWARE_SOURCES
+
+    runs_firmware = ROOT / "eskin/device/emulated.py" in closure(module)
+    listed = {ROOT / source for source in FIRMWARE_SOURCES} & set(deps)
+    expected = {ROOT / source for source in FIRMWARE_SOURCES} if runs_firmware else set()
+    assert listed == expected, (
+        f"{address}: {'misses' if runs_firmware else 'lists, but does not run,'} "
+        f"{sorted(str(p.relative_to(ROOT)) for p in listed ^ expected)}")
+
+
 def test_subpackage_init_files_hold_no_code():
     """So a stage that imports eskin.device.link need not list eskin/device/__init__.py."""
     for path in ROOT.glob("*/**/__init__.py"):

@@ -11,11 +11,10 @@ from __future__ import annotations
 
 import contextlib
 import json
-import selectors
 import subprocess
 import sys
 import tempfile
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -24,7 +23,6 @@ from eskin import __version__
 from eskin.acquisition.plan import ScenePlan
 from eskin.acquisition.rawlog import LOG_NAME, LogContents, RawLogWriter, read_log_if_any
 from eskin.acquisition.runner import (
-    AcquisitionError,
     AcquisitionReport,
     EmulatedPlacer,
     OperatorPlacer,
@@ -33,8 +31,9 @@ from eskin.acquisition.runner import (
     acquire,
 )
 from eskin.device.faults import LinkFaults
-from eskin.device.link import LinkError, SerialLink
+from eskin.device.link import SerialLink
 from eskin.device.physics import SkinParams
+from eskin.device.process import child_board
 from eskin.device.protocol import Hello
 
 
@@ -57,40 +56,14 @@ def simulated_board(sim: SkinParams, *, rest_length_mm: float, corrupt_fraction:
     config = {"sim": sim.as_dict(), "rest_length_mm": rest_length_mm,
               "corrupt_fraction": corrupt_fraction, "frame_period_ms": frame_period_ms,
               "faults": (faults or LinkFaults()).as_dict()}
-    scratch = tempfile.TemporaryDirectory(prefix="eskin-board-")
-    command = [sys.executable, "-m", "eskin.device.simulate", "--config-json", json.dumps(config)]
-    command += (["--socket", str(socket_port)] if socket_port is not None
-                else ["--link", str(Path(scratch.name) / "tty")])
-    # The board's stderr goes to a file, not a pipe nobody drains: a traceback is kept
-    # whole for the error message, and a chatty board can never block on a full pipe.
-    errors = Path(scratch.name) / "board.err"
-    with errors.open("w") as stderr:
-        process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=stderr,
-                                   stdin=subprocess.DEVNULL, text=True)
-    try:
-        with selectors.DefaultSelector() as selector:
-            selector.register(process.stdout, selectors.EVENT_READ)
-            if not selector.select(start_timeout_s):
-                raise LinkError(f"simulated board did not start within {start_timeout_s} s")
-        port = process.stdout.readline().strip()
-        if not port:
-            process.wait(timeout=5)
-            raise LinkError(f"simulated board exited: {errors.read_text().strip()}")
-        try:
-            yield RunningBoard(port, process)
-        except (LinkError, AcquisitionError) as err:
-            if process.poll() is not None:  # the board died: that is the news
-                raise LinkError(f"{err}\nThe simulated board had exited ({process.returncode}):"
-                                f" {errors.read_text().strip()[-2000:]}") from err
-            raise
-    finally:
-        process.terminate()
-        try:
-            process.wait(timeout=5)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait()
-        scratch.cleanup()
+    with tempfile.TemporaryDirectory(prefix="eskin-board-") as scratch:
+        command = [sys.executable, "-m", "eskin.device.simulate",
+                   "--config-json", json.dumps(config)]
+        command += (["--socket", str(socket_port)] if socket_port is not None
+                    else ["--link", str(Path(scratch) / "tty")])
+        with child_board(command, name="the simulated board", workdir=Path(scratch),
+                         start_timeout_s=start_timeout_s) as child:
+            yield RunningBoard(child.first_line, child.process)
 
 
 def session_id(contents: LogContents | None, plan: ScenePlan, hello: Hello) -> str:
@@ -158,13 +131,14 @@ def acquire_scene(plan: ScenePlan, raw_dir: Path, *, source: str, sim: SkinParam
                   timeout_s: float = 5.0, max_attempts: int = 5, reconnect_s: float = 30.0,
                   max_jump_counts: float = 40.0, ask: Callable[[str], object] = input,
                   indenters: str = "person", progress: bool = True,
-                  resets_at_frames: Sequence[int] = ()) -> AcquisitionReport:
+                  emulated_faults: Mapping[int, str] | None = None) -> AcquisitionReport:
     """Acquire a scene from the simulated board or from a board on ``port``.
 
     ``indenters``: on a board on a port, who places the weights — a ``person``
     prompted at the terminal (a real rig), or the ``board`` itself through ``SIM``
-    commands (a simulated board served on a port). ``resets_at_frames``: the emulated
-    board resets as these scans begin (counted from 1), a fault to survive.
+    commands (a simulated board served on a port). ``emulated_faults``: link faults the
+    emulated board is dealt as these scans begin (counted from 1), ``reset`` or ``vanish``
+    (for ``faults.vanish_s``); see :class:`~eskin.device.emulated.EmulatedRig`.
     """
     options = {"rest_length_mm": rest_length_mm, "timeout_s": timeout_s,
                "max_attempts": max_attempts, "reconnect_s": reconnect_s,
@@ -182,7 +156,8 @@ def acquire_scene(plan: ScenePlan, raw_dir: Path, *, source: str, sim: SkinParam
         from eskin.device.emulated import emulated_board
 
         with emulated_board(sim, rest_length_mm=rest_length_mm, samples=plan.samples,
-                            resets_at_frames=resets_at_frames) as (emulated_port, rig):
+                            faults=emulated_faults,
+                            vanish_s=(faults or LinkFaults()).vanish_s) as (emulated_port, rig):
             placer = EmulatedPlacer(rig, simulator_identity(sim, rest_length_mm), FIRMWARE)
             return run_session(plan, raw_dir, port=emulated_port, placer=placer,
                                simulator={"params": sim.as_dict(), "seed": sim.seed,

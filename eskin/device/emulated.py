@@ -25,57 +25,62 @@ trial, which is what the equivalence test checks:
 from __future__ import annotations
 
 import contextlib
-import selectors
 import subprocess
 import tempfile
 import threading
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
 
 from eskin.device.link import LinkError
 from eskin.device.physics import Indenter, SkinModel, SkinParams, Trial
+from eskin.device.process import child_board
+from eskin.errors import EskinError
 
 FIRMWARE_DIR = Path(__file__).resolve().parents[2] / "firmware"
 FIRMWARE_ELF = FIRMWARE_DIR / "eskin" / "build" / "eskin.elf"
 HARNESS = FIRMWARE_DIR / "emulator" / "build" / "eskin_emulator"
+# What the two are built from: the acquire stage lists these (a test checks), so editing
+# the firmware reacquires an emulated scene, and emulated_board rebuilds before it runs.
+FIRMWARE_SOURCES = tuple(Path("firmware") / name for name in (
+    "eskin/eskin.ino", "eskin/board.h", "eskin/Makefile",
+    "emulator/eskin_emulator.c", "emulator/Makefile"))
+BUILD_TIMEOUT_S = 600.0
+FAULTS = ("reset", "vanish")
 STEPS_PER_MM = 2560        # firmware/eskin/board.h
 UNITS = 65535              # the harness's full scale (the supply): simavr keeps 16 bits
-
-
-def cav424_volts(model: SkinModel, capacitance_pf: np.ndarray) -> np.ndarray:
-    """The CAV424's output voltage, before the ADC: the first half of
-    :meth:`SkinModel.to_counts` (``tests/test_firmware.py`` checks that they agree)."""
-    p = model.params
-    return p.cav424_offset_v + model.cav424_gain_v * (capacitance_pf - p.cav424_ref_pf) / (
-        p.cav424_ref_pf)
 
 
 class EmulatedRig:
     """The skin and clamp around the emulated firmware; the harness process runs both.
 
-    Use :func:`emulated_board`, which starts and stops it.
+    Use :func:`emulated_board`, which starts and stops it. ``faults`` maps a scan number
+    (counted from 1) to a fault dealt as that scan begins: ``reset`` (the board resets
+    mid-request) or ``vanish`` (the USB link drops for ``vanish_s`` and comes back on a new
+    pty, the board reset as an Uno is when its port is opened). ``dealt`` lists them.
     """
 
     def __init__(self, params: SkinParams, *, rest_length_mm: float, samples: int,
-                 resets_at_frames: Sequence[int] = ()) -> None:
+                 faults: Mapping[int, str] | None = None, vanish_s: float = 0.5) -> None:
         if samples < 1:
             raise ValueError(f"samples must be ≥ 1, got {samples}")
+        self.faults = dict(faults or {})
+        unknown = set(self.faults.values()) - set(FAULTS)
+        if unknown:
+            raise ValueError(f"emulated faults must be {' or '.join(FAULTS)}, got {unknown}")
+        self.vanish_ms = round(vanish_s * 1000)
+        self.dealt: list[tuple[int, str]] = []
+        self.failure: str | None = None  # why the rig stopped answering, if it did
         self.model = SkinModel(params)
-        # A fault to survive: the board resets as its n-th scan (counted from 1) begins.
-        self.resets_at_frames = set(resets_at_frames)
-        self.resets = 0
-        self._scans = 0
         self.rest_length_mm = rest_length_mm
         self.samples = samples
-        self.frames_served = 0
+        self._scans = 0
         self._lock = threading.Lock()
         self._trial = Trial(self.model, [0])
         self._indenters: list[Indenter] = []
         self._block: list[np.ndarray] = []
-        p = params
-        self._half_step = p.supply_v / (2**p.adc_bits - 1) / 2
+        self._half_step = params.supply_v / (2**params.adc_bits - 1) / 2
 
     # ------------------------------------------------------------ the bench's hands
 
@@ -95,61 +100,76 @@ class EmulatedRig:
                 stretch = 1.0 + steps / STEPS_PER_MM / self.rest_length_mm
                 self._block = list(self._trial.sample_pf(self.samples, stretch, self._indenters))
             capacitance = self._block.pop(0)
-            self.frames_served += 1
         supply = self.model.params.supply_v
-        volts = cav424_volts(self.model, capacitance) + self._half_step
+        volts = self.model.to_volts(capacitance) + self._half_step
         return [int(u) for u in np.clip(np.rint(volts / supply * UNITS), 0, UNITS)]
 
+    def answer(self, question: str) -> str:
+        """The harness's one question, ``FRAME <steps>``, answered."""
+        words = question.split()
+        if words[:1] != ["FRAME"] or len(words) != 2:
+            raise ValueError(f"the harness asked {question.strip()!r}, not FRAME <steps>")
+        self._scans += 1
+        fault = self.faults.get(self._scans)
+        if fault is not None:
+            self.dealt.append((self._scans, fault))
+            return "RESET\n" if fault == "reset" else f"VANISH {self.vanish_ms}\n"
+        return "VOLTS " + " ".join(map(str, self.volts(int(words[1])))) + "\n"
+
     def serve(self, process: subprocess.Popen) -> None:
-        """Answer the harness until it exits (a thread's body)."""
-        for line in process.stdout:
-            words = line.split()
-            if words[:1] == ["FRAME"] and len(words) == 2:
-                self._scans += 1
-                if self._scans in self.resets_at_frames:
-                    self.resets += 1
-                    answer = "RESET\n"
-                else:
-                    answer = "VOLTS " + " ".join(map(str, self.volts(int(words[1])))) + "\n"
-                try:
-                    process.stdin.write(answer)
-                    process.stdin.flush()
-                except (BrokenPipeError, ValueError):  # the harness is gone
-                    return
+        """Answer the harness until it exits (a thread's body). If the rig fails, it says
+        why in ``failure`` and closes the harness's stdin, which ends it: the host then
+        loses the port, and :func:`emulated_board` puts the failure in its error."""
+        try:
+            for line in process.stdout:
+                process.stdin.write(self.answer(line))
+                process.stdin.flush()
+        except Exception as err:  # noqa: BLE001 (a thread's end: kept for the host's error)
+            if process.poll() is None:  # not merely the harness gone at the end
+                self.failure = f"{type(err).__name__}: {err}"
+                with contextlib.suppress(OSError):
+                    process.stdin.close()
+
+
+def build_firmware(timeout_s: float = BUILD_TIMEOUT_S) -> None:
+    """Bring the firmware and the harness up to date with their sources (make; a no-op
+    when they are), so what is emulated is what the sources say."""
+    for directory in (FIRMWARE_DIR / "eskin", FIRMWARE_DIR / "emulator"):
+        try:
+            done = subprocess.run(["make", "-s", "-C", str(directory)], capture_output=True,
+                                  text=True, timeout=timeout_s, check=False)
+        except FileNotFoundError:
+            raise LinkError("building the firmware needs make (`make avr` installs the AVR "
+                            "toolchain and simavr)") from None
+        except subprocess.TimeoutExpired:
+            raise LinkError(f"building {directory} took over {timeout_s:g} s") from None
+        if done.returncode != 0:
+            said = (done.stderr or done.stdout).strip().splitlines()[-1:] or ["(no output)"]
+            raise LinkError(f"building {directory} failed (`make avr` installs the AVR "
+                            f"toolchain and simavr): {said[0]}")
 
 
 @contextlib.contextmanager
 def emulated_board(params: SkinParams, *, rest_length_mm: float, samples: int,
-                   resets_at_frames: Sequence[int] = (), start_timeout_s: float = 30.0
-                   ) -> Iterator[tuple[str, EmulatedRig]]:
-    """Run the firmware under simavr; yield its pty and the rig that places the weights."""
-    for built in (FIRMWARE_ELF, HARNESS):
-        if not built.exists():
-            raise LinkError(f"{built} is missing: run `make firmware` first")
-    rig = EmulatedRig(params, rest_length_mm=rest_length_mm, samples=samples,
-                      resets_at_frames=resets_at_frames)
-    scratch = tempfile.TemporaryDirectory(prefix="eskin-emulator-")
-    errors = Path(scratch.name) / "emulator.err"
-    with errors.open("w") as stderr:
-        process = subprocess.Popen([str(HARNESS), str(FIRMWARE_ELF)], stdin=subprocess.PIPE,
-                                   stdout=subprocess.PIPE, stderr=stderr, text=True, bufsize=1)
-    try:
-        with selectors.DefaultSelector() as selector:
-            selector.register(process.stdout, selectors.EVENT_READ)
-            if not selector.select(start_timeout_s):
-                raise LinkError(f"the emulator did not start within {start_timeout_s} s")
-        first = process.stdout.readline().split()
-        if first[:1] != ["PTY"] or len(first) != 2:
-            process.wait(timeout=5)
-            raise LinkError(f"the emulator exited: {errors.read_text().strip()[-2000:]}")
-        server = threading.Thread(target=rig.serve, args=(process,), daemon=True)
+                   faults: Mapping[int, str] | None = None, vanish_s: float = 0.5,
+                   start_timeout_s: float = 30.0) -> Iterator[tuple[str, EmulatedRig]]:
+    """Build and run the firmware under simavr; yield its port (a link that follows its
+    pty) and the rig that places the weights."""
+    rig = EmulatedRig(params, rest_length_mm=rest_length_mm, samples=samples, faults=faults,
+                      vanish_s=vanish_s)
+    build_firmware()
+    with tempfile.TemporaryDirectory(prefix="eskin-emulator-") as scratch, child_board(
+            [str(HARNESS), str(FIRMWARE_ELF), str(Path(scratch) / "tty")],
+            name="the emulated board", workdir=Path(scratch), stdin=subprocess.PIPE,
+            start_timeout_s=start_timeout_s) as child:
+        words = child.first_line.split()
+        if words[:1] != ["PTY"] or len(words) != 2:
+            raise LinkError(f"the emulated board began {child.first_line!r}, not PTY <path>")
+        server = threading.Thread(target=rig.serve, args=(child.process,), daemon=True)
         server.start()
-        yield first[1], rig
-    finally:
-        process.terminate()
         try:
-            process.wait(timeout=5)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait()
-        scratch.cleanup()
+            yield words[1], rig
+        except EskinError as err:
+            if rig.failure is not None:
+                raise LinkError(f"{err}\nThe emulated rig had failed: {rig.failure}") from err
+            raise

@@ -1,25 +1,35 @@
 // The eskin board under emulation: simavr runs the compiled firmware, its UART on a
 // pseudo-terminal (simavr's uart_pty part), and this harness plays the rig around it.
 //
-//   eskin_emulator <firmware.elf>
+//   eskin_emulator <firmware.elf> <link>
 //
+// <link> is a symlink that follows the firmware's pty, as udev's /dev/serial/by-id/ names
+// follow a board that is unplugged and plugged back.
 // It watches the pins of board.h: the multiplexers' select and enable lines (which terminal
 // reaches the CAV424) and the stepper's STEP and DIR (where the clamp is). Each ADC
 // conversion is answered with the voltage of the selected terminal. The voltages come
 // from the skin model, which lives in the Python process that started this one, over
 // stdin/stdout, one line each way:
 //
-//   → PTY <path>                the firmware's serial port, once, at start
+//   → PTY <link>                the firmware's serial port, once, at start
 //   → FRAME <steps>             a scan begins (x1 selected); the clamp's position in steps
 //   ← VOLTS <v1> ... <v20>      that scan's 20 voltages, in units of 5 V / 65535
-//   ← RESET                     (any time the harness is waiting) reset the board
+//   ← RESET                     (instead of VOLTS) reset the board
+//   ← VANISH <ms>               (instead of VOLTS) the USB link drops: the pty closes (the
+//                               host's open port hangs up) and <link> is gone; <ms> later
+//                               it comes back on a new pty that <link> points to, and the
+//                               board resets, as an Uno does when its port is opened (DTR).
+//                               The board keeps its own supply (the stepper needs one), so
+//                               the clamp's position survives in .noinit (board.h).
 //
 // The harness waits for the answer before the emulation goes on, so emulated time does
 // not depend on the Python side's speed. Diagnostics go to stderr.
 #include <errno.h>
+#include <pty.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <termios.h>
 #include <unistd.h>
 
 #include <simavr/avr_adc.h>
@@ -46,6 +56,9 @@ static int terminal = -1;      // the terminal that reaches the CAV424, -1 for n
 static int select_bits = 0, x_enabled = 0, y_enabled = 0, extending = 0;
 static long position_steps = 0;
 static int reset_asked = 0;
+static long vanish_ms = -1;    // VANISH asked: the milliseconds the link stays away
+static uart_pty_t pty;
+static const char *link_path;
 static int frame_due = 0;      // x1 was selected: its conversion starts the next scan
 
 static void fail(const char *what) {
@@ -60,6 +73,13 @@ static void next_frame(void) {
   fflush(python);
   if (!fgets(line, sizeof line, stdin)) exit(0);  // the Python side is gone: so are we
   if (strncmp(line, "RESET", 5) == 0) {
+    reset_asked = 1;
+    return;
+  }
+  if (strncmp(line, "VANISH ", 7) == 0) {
+    char *end;
+    vanish_ms = strtol(line + 7, &end, 10);
+    if (end == line + 7 || vanish_ms < 0) fail("VANISH needs the milliseconds to stay away");
     reset_asked = 1;
     return;
   }
@@ -115,8 +135,39 @@ static void conversion(struct avr_irq_t *irq, uint32_t value, void *param) {
                 terminal >= 0 ? volts[terminal] : 0);
 }
 
+// Point <link> at the current pty, atomically (a host opening it never finds it missing).
+static void follow_pty(void) {
+  char fresh[4096];
+  snprintf(fresh, sizeof fresh, "%s.new", link_path);
+  unlink(fresh);
+  if (symlink(pty.pty.slavename, fresh) != 0 || rename(fresh, link_path) != 0)
+    fail("cannot point the link at the pty");
+}
+
+// The link drops, and comes back `ms` later. A new pty's master replaces the old one
+// under the descriptor uart_pty's thread selects on (dup2 swaps them in one step, so the
+// thread never sees a closed descriptor): the old master closes and the host's port hangs
+// up. The new pty's slave stays open here, as uart_pty keeps the first one's, so what the
+// board says before the host opens the port waits in the pty.
+static void vanish(long ms) {
+  int master, slave;
+  char name[sizeof pty.pty.slavename];
+  if (openpty(&master, &slave, name, NULL, NULL) < 0) fail("cannot open a pty");
+  struct termios tio;
+  tcgetattr(master, &tio);
+  cfmakeraw(&tio);
+  tcsetattr(master, TCSANOW, &tio);
+  unlink(link_path);
+  if (dup2(master, pty.pty.s) < 0) fail("cannot replace the pty");
+  close(master);
+  memcpy(pty.pty.slavename, name, sizeof name);
+  usleep((useconds_t)ms * 1000);  // emulated time stands still meanwhile
+  follow_pty();
+}
+
 int main(int argc, char **argv) {
-  if (argc != 2) fail("usage: eskin_emulator <firmware.elf>");
+  if (argc != 3) fail("usage: eskin_emulator <firmware.elf> <link>");
+  link_path = argv[2];
   // uart_pty prints its notes on stdout: the protocol keeps the real stdout for itself.
   const int protocol_fd = dup(1);
   if (protocol_fd < 0 || dup2(2, 1) < 0) fail("cannot set up stdout");
@@ -139,10 +190,10 @@ int main(int argc, char **argv) {
   avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_OUT_TRIGGER),
                           conversion, NULL);
 
-  static uart_pty_t pty;
   uart_pty_init(avr, &pty);
   uart_pty_connect(&pty, '0');
-  fprintf(python, "PTY %s\n", pty.pty.slavename);
+  follow_pty();
+  fprintf(python, "PTY %s\n", link_path);
   fflush(python);
 
   for (;;) {
@@ -150,6 +201,8 @@ int main(int argc, char **argv) {
     if (state == cpu_Done || state == cpu_Crashed) fail("the firmware stopped");
     if (reset_asked) {
       reset_asked = 0;
+      if (vanish_ms >= 0) vanish(vanish_ms);
+      vanish_ms = -1;
       avr_reset(avr);
       terminal = -1;
       frame_due = 0;
