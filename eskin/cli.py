@@ -48,6 +48,14 @@ def _simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _set_id(args: argparse.Namespace) -> int:
+    from eskin.device.link import set_device_id
+
+    hello = set_device_id(args.port, args.id)
+    print(f"the board on {args.port} is now {hello.device_id} (firmware {hello.firmware})")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="eskin", description=__doc__)
     parser.add_argument("--version", action="version", version=f"eskin {__version__}")
@@ -71,6 +79,12 @@ def build_parser() -> argparse.ArgumentParser:
                           help="also a symlink at PATH that follows the pty (needed for "
                           "vanish faults: the pty is replaced when the link comes back)")
     simulate.set_defaults(run=_simulate)
+    set_id = device_commands.add_parser(
+        "set-id", help="give a board its device id, once (kept in its EEPROM; a board "
+        "without one is refused by acquisition)")
+    set_id.add_argument("port", help="e.g. /dev/ttyACM0 (eskin ports lists them)")
+    set_id.add_argument("id", help="up to 24 letters, digits, '-' or '_', e.g. lab2-skin1")
+    set_id.set_defaults(run=_set_id)
 
     for name, helptext in (("acquire", "acquire a scene into data/raw/<scene>/ (resumes)"),
                            ("ingest", "build data/processed/<scene>.parquet from the raw data")):

@@ -21,9 +21,10 @@ import serial
 
 from eskin.acquisition.plan import two_force_plan
 from eskin.acquisition.rawlog import LOG_NAME, read_log
+from eskin.acquisition.runner import AcquisitionError
 from eskin.acquisition.session import acquire_scene
 from eskin.device.board import FIRMWARE, SimulatedBoard, simulator_identity
-from eskin.device.emulated import FIRMWARE_ELF, HARNESS, emulated_board
+from eskin.device.emulated import EMULATED_ID, FIRMWARE_ELF, HARNESS, emulated_board
 from eskin.device.faults import LinkFaults
 from eskin.device.link import LinkError
 from eskin.device.physics import SkinParams
@@ -147,7 +148,7 @@ def test_a_scene_acquired_from_the_firmware_matches_the_python_boards(sim, tmp_p
     emulated, simulated = logs["emulated"], logs["simulated"]
     device = emulated.sessions[0]["device"]
     assert emulated.sessions[0]["source"] == "emulated"
-    assert device["firmware"].startswith("fw-") and device["id"] == "unset"
+    assert device["firmware"].startswith("fw-") and device["id"] == EMULATED_ID
     sim_id = simulator_identity(sim, REST_MM)
     differ = []
     for condition in plan.conditions:
@@ -229,3 +230,24 @@ def test_a_scene_of_params_yaml_is_acquired_from_the_firmware(small_params, tmp_
     assert log.sessions[-1]["simulator"]["emulated"] is True
     rows = pd.read_parquet(tmp_path / "data/processed/two_force.parquet")
     assert len(rows) == 6 * 4  # 6 pairs of the 4 corner nodes, 4 samples each
+
+
+def test_a_board_without_an_id_is_given_one_once_and_refused_before(sim, tmp_path):
+    """A new board says id=unset, which any other new board shares: acquisition from a
+    port refuses it, saying how to give it one; `eskin device set-id` does, once."""
+    plan = two_force_plan("pairs", [1.0], [5.2136], [1, 10], [1, 10], samples=4)
+    with emulated_board(sim, rest_length_mm=REST_MM, samples=4) as (port, _rig):
+        with pytest.raises(AcquisitionError, match=f"the board on {port} has no device id "
+                           f"\\(id=unset\\): give it one, once: eskin device set-id {port} <id>"):
+            acquire_scene(plan, tmp_path, source="serial", port=port, sim=sim,
+                          rest_length_mm=REST_MM, progress=False, indenters="board")
+        command = [sys.executable, "-m", "eskin", "device", "set-id", port, "lab2-skin1"]
+        env = {**os.environ, "PYTHONPATH": str(ROOT)}
+        done = subprocess.run(command, capture_output=True, text=True, timeout=60, env=env)
+        assert done.returncode == 0, done.stderr
+        assert done.stdout.startswith(f"the board on {port} is now lab2-skin1 (firmware fw-")
+        again = subprocess.run([*command[:-1], "lab2-skin2"], capture_output=True, text=True,
+                               timeout=60, env=env)
+        assert again.returncode == 1
+        assert again.stderr.strip().endswith(
+            f"the board on {port} already has the id 'lab2-skin1': an id is set once")

@@ -23,6 +23,7 @@ from eskin import __version__
 from eskin.acquisition.plan import ScenePlan
 from eskin.acquisition.rawlog import LOG_NAME, LogContents, RawLogWriter, read_log_if_any
 from eskin.acquisition.runner import (
+    AcquisitionError,
     AcquisitionReport,
     EmulatedPlacer,
     OperatorPlacer,
@@ -31,10 +32,10 @@ from eskin.acquisition.runner import (
     acquire,
 )
 from eskin.device.faults import LinkFaults
-from eskin.device.link import SerialLink
+from eskin.device.link import SerialLink, set_device_id
 from eskin.device.physics import SkinParams
 from eskin.device.process import child_board
-from eskin.device.protocol import Hello
+from eskin.device.protocol import UNSET_ID, Hello
 
 
 @dataclass(frozen=True)
@@ -99,6 +100,10 @@ def run_session(plan: ScenePlan, raw_dir: Path, *, port: str, placer: Placer,
     contents = read_log_if_any(log_path)
     with SerialLink(port, timeout_s=timeout_s) as link:
         hello = link.connect()
+        if hello.device_id == UNSET_ID and simulator is None:
+            # Its data would be filed under an id that any other new board shares.
+            raise AcquisitionError(f"the board on {port} has no device id (id={UNSET_ID}): "
+                                   f"give it one, once: eskin device set-id {port} <id>")
         session = {
             "session": session_id(contents, plan, hello),
             "scene": plan.name, "plan": plan.as_dict(), "eskin": __version__,
@@ -153,11 +158,13 @@ def acquire_scene(plan: ScenePlan, raw_dir: Path, *, source: str, sim: SkinParam
     if source == "emulated":
         # The board's firmware under simavr (make firmware), the skin model around it.
         from eskin.device.board import FIRMWARE, simulator_identity
-        from eskin.device.emulated import emulated_board
+        from eskin.device.emulated import EMULATED_ID, emulated_board
 
         with emulated_board(sim, rest_length_mm=rest_length_mm, samples=plan.samples,
                             faults=emulated_faults,
                             vanish_s=(faults or LinkFaults()).vanish_s) as (emulated_port, rig):
+            # Its EEPROM starts erased in every run: it is given its id, as a new board is.
+            set_device_id(emulated_port, EMULATED_ID, timeout_s=timeout_s)
             placer = EmulatedPlacer(rig, simulator_identity(sim, rest_length_mm), FIRMWARE)
             return run_session(plan, raw_dir, port=emulated_port, placer=placer,
                                simulator={"params": sim.as_dict(), "seed": sim.seed,

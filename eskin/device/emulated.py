@@ -48,6 +48,7 @@ FIRMWARE_SOURCES = tuple(Path("firmware") / name for name in (
     "emulator/eskin_emulator.c", "emulator/Makefile"))
 BUILD_TIMEOUT_S = 600.0
 FAULTS = ("reset", "vanish")
+EMULATED_ID = "emulated"  # the id acquisition gives the emulated board
 STEPS_PER_MM = 2560        # firmware/eskin/board.h
 UNITS = 65535              # the harness's full scale (the supply): simavr keeps 16 bits
 

@@ -34,7 +34,7 @@ from eskin.device.host import (
     SampleFrame,
     Violation,
 )
-from eskin.device.protocol import Frame, Hello, ParseError
+from eskin.device.protocol import UNSET_ID, Frame, Hello, ParseError
 from eskin.errors import EskinError
 
 BAUD = 115200
@@ -373,6 +373,19 @@ def jump_problem(batch: SampleBatch, max_jump_counts: float) -> str | None:
             f"{median[channel]:g}: fewer digits and {jump[sample, channel]:g} counts away "
             f"(limit {limit[channel]:g}: acquire.max_jump_counts or 10 sigma): digits lost in a "
             "frame whose CRC-8 matched by chance")
+
+
+def set_device_id(port: str, device_id: str, *, timeout_s: float = 5.0) -> Hello:
+    """Give the board on ``port`` its id, once (``ID <id>``, kept in its EEPROM); returns
+    its greeting after. A board that has an id, or refuses this one, is an error."""
+    with SerialLink(port, timeout_s=timeout_s) as link:
+        hello = link.connect()
+        if hello.device_id != UNSET_ID:
+            raise LinkError(f"the board on {port} already has the id {hello.device_id!r}: "
+                            "an id is set once")
+        link.command(f"ID {device_id}")
+    with SerialLink(port, timeout_s=timeout_s) as link:  # a new link: this board is new to it
+        return link.connect()
 
 
 def list_serial_ports() -> list[tuple[str, str, str]]:

@@ -75,6 +75,12 @@ class Frame:
     line: bytes = field(repr=False)
 
 
+# The id a board's firmware reports until it is given one (``ID <id>``, once, into its
+# EEPROM; firmware/eskin). Two such boards cannot be told apart, so a real acquisition
+# refuses it (eskin device set-id gives one).
+UNSET_ID = "unset"
+
+
 @dataclass(frozen=True)
 class Hello:
     """``#HELLO eskin <fw> terminals=20 adc_bits=10 id=<device-id>``."""
