@@ -56,6 +56,47 @@ def _set_id(args: argparse.Namespace) -> int:
     return 0
 
 
+def _live(args: argparse.Namespace) -> int:
+    import contextlib
+
+    from eskin.acquisition.session import simulated_board
+    from eskin.config import load_params, section, skin_params
+    from eskin.device.link import SerialLink
+    from eskin.live import SkinStack, json_line, live_estimates, stream_events
+
+    def note(message: str) -> None:
+        print(f"eskin live: {message}", file=sys.stderr, flush=True)
+
+    if args.tare_frames < 0 or args.frames < 0:
+        raise ValueError("--tare-frames and --frames count frames: 0 or more")
+    params = load_params(args.params)
+    settings = section(params, "acquire")
+    stack = SkinStack.from_workspace(args.scene)
+    with contextlib.ExitStack() as resources:
+        port = args.port
+        if args.simulated:
+            board = resources.enter_context(simulated_board(
+                skin_params(params), rest_length_mm=float(settings["rest_length_mm"]),
+                frame_period_ms=int(section(params, "sim_board.frame_period_ms"))))
+            port = board.port
+        link = resources.enter_context(SerialLink(port, timeout_s=float(settings["timeout_s"])))
+        hello = link.connect()
+        if not args.any_device:
+            stack.check_board(hello.device_id)
+        note(f"{args.scene} stack on {hello.device_id} ({port}); tare: keep the skin "
+             f"untouched for {args.tare_frames} frames")
+        events = resources.enter_context(contextlib.closing(stream_events(
+            link, reconnect_s=float(settings["reconnect_s"]), notify=note)))
+        estimates = 0
+        for record in live_estimates(stack, events, tare_frames=args.tare_frames,
+                                     notify=note):
+            print(json_line(record), flush=True)
+            estimates += "seq" in record
+            if args.frames and estimates >= args.frames:
+                break
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="eskin", description=__doc__)
     parser.add_argument("--version", action="version", version=f"eskin {__version__}")
@@ -97,6 +138,24 @@ def build_parser() -> argparse.ArgumentParser:
             sub.add_argument("--port", help="override scenes.<scene>.port (serial source)")
             sub.add_argument("--no-progress", action="store_true")
         sub.set_defaults(run=_pipeline_step)
+
+    live = commands.add_parser(
+        "live", help="run a scene's trained stack on a board's stream: one JSON line per "
+        "frame on stdout (seq, t_ms, stretch, contact, x, y, force)")
+    live.add_argument("scene", help="the scene whose trained models to use")
+    live.add_argument("--params", type=Path, default=Path("params.yaml"))
+    where = live.add_mutually_exclusive_group(required=True)
+    where.add_argument("--port", help="the board's port, e.g. /dev/ttyACM0")
+    where.add_argument("--simulated", action="store_true",
+                       help="start the simulated board (params.yaml's sim) and read it")
+    live.add_argument("--tare-frames", type=int, default=100, metavar="N",
+                      help="frames with nothing pressed, taken as the tare at start "
+                      "(default 100, about 1.2 s; 0: no tare)")
+    live.add_argument("--frames", type=int, default=0, metavar="N",
+                      help="stop after N estimates (default: run until Ctrl-C)")
+    live.add_argument("--any-device", action="store_true",
+                      help="use the stack on a board other than the one it was trained on")
+    live.set_defaults(run=_live)
 
     featurize = commands.add_parser("featurize", help="build data/features/<scene>.parquet "
                                     "and the fitted transform (featurize.method)")

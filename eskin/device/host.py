@@ -28,7 +28,11 @@ The accounting of frames to requests lives here and only here:
   would otherwise shift every later sample by one);
 * after a violation the next request should be preceded by a fence
   (``STREAM OFF``, answered in order): what the board sent before its
-  ``#OK`` belongs to no request (:attr:`HostProtocol.needs_fence`).
+  ``#OK`` belongs to no request (:attr:`HostProtocol.needs_fence`);
+* after ``#OK STREAM ON`` (:meth:`HostProtocol.send_stream`) frames outside a
+  ``SAMPLE`` are :class:`StreamFrame`, and a lost sequence number is a
+  :class:`StreamGap`, until the ``#OK`` of a ``STREAM OFF``, a greeting, or a
+  ``#HELLO`` (a restarted board has stopped streaming).
 """
 
 from __future__ import annotations
@@ -114,6 +118,21 @@ class Stray:
 
 
 @dataclass(frozen=True)
+class StreamFrame:
+    """A frame of the live stream (``STREAM ON``)."""
+
+    frame: Frame
+
+
+@dataclass(frozen=True)
+class StreamGap:
+    """Frames of the live stream were lost: ``got`` arrived where ``expected`` was due."""
+
+    expected: int
+    got: int
+
+
+@dataclass(frozen=True)
 class Junk:
     """A line that could not be trusted (bad CRC, torn, garbage)."""
 
@@ -121,7 +140,7 @@ class Junk:
 
 
 HostEvent = (Greeted | Answered | Refused | SampleFrame | SampleComplete | Violation
-             | Restarted | OtherBoard | Stray | Junk)
+             | Restarted | OtherBoard | Stray | StreamFrame | StreamGap | Junk)
 
 
 @dataclass
@@ -152,6 +171,7 @@ class HostProtocol:
         self.device_id = device_id
         self.hello: Hello | None = None
         self.needs_fence = False
+        self.streaming = False  # the board answered STREAM ON, and nothing stopped it since
         self.stray_frames = 0
         self.junk_lines = 0
         self._parser = FrameParser()
@@ -187,6 +207,11 @@ class HostProtocol:
         self._start("fence", "STREAM", "STREAM OFF")
         return b"STREAM OFF\n"
 
+    def send_stream(self) -> bytes:
+        """``STREAM ON``: once its ``#OK`` arrives, frames are :class:`StreamFrame`."""
+        self._start("command", "STREAM", "STREAM ON")
+        return b"STREAM ON\n"
+
     def send_sample(self, n: int) -> bytes:
         if n < 1:
             raise ProtocolStateError(f"SAMPLE asks for at least one frame, not {n}")
@@ -206,6 +231,7 @@ class HostProtocol:
         self._parser = FrameParser()
         self._open = None
         self._last_seq = self._owed_up_to = None
+        self.streaming = False
 
     def _start(self, kind: str, name: str, text: str) -> _Request:
         if self._open is not None:
@@ -231,7 +257,9 @@ class HostProtocol:
         elif isinstance(event, Frame):
             self._last_seq = event.seq
             owed = self._owed_up_to is not None and event.seq <= self._owed_up_to
-            if request is None or request.kind != "sample" or owed:
+            if self.streaming and (request is None or request.kind != "sample"):
+                events.append(StreamFrame(event))
+            elif request is None or request.kind != "sample" or owed:
                 # An owed frame answers the request whose #OK came too early: it is
                 # never credited to a later one, however continuous its seq.
                 self.stray_frames += 1
@@ -243,7 +271,9 @@ class HostProtocol:
                 events.append(SampleFrame(request.number, request.got, event))
                 request.got += 1
         elif isinstance(event, SequenceGap):
-            if request is not None and request.kind == "sample":
+            if self.streaming and (request is None or request.kind != "sample"):
+                events.append(StreamGap(event.expected, event.got))
+            elif request is not None and request.kind == "sample":
                 self._violate(events, f"frames lost: expected seq {event.expected}, "
                               f"got {event.got}")
         elif isinstance(event, ParseError):
@@ -260,6 +290,7 @@ class HostProtocol:
     def _hello(self, hello: Hello, events: list[HostEvent]) -> None:
         request = self._open
         self._last_seq = self._owed_up_to = None  # the board's sequence starts again
+        self.streaming = False  # and it has forgotten STREAM ON
         known = self.device_id
         if known is not None and hello.device_id != known:
             self._open = None
@@ -284,6 +315,7 @@ class HostProtocol:
             # A fence absorbs everything the board owed before it; only its own #OK ends it.
             if command == "STREAM" and reply.ok and reply.details.strip().upper() in ("", "OFF"):
                 self._open = None
+                self.streaming = False
                 if request.kind == "fence":
                     events.append(Answered(request.number, reply))
                 elif self._greet_hello is None:
@@ -305,6 +337,10 @@ class HostProtocol:
             events.append(Refused(request.number, reply))
             return
         if request.kind != "sample":
+            if request.text == "STREAM ON":
+                self.streaming = True
+            elif command == "STREAM":
+                self.streaming = False
             events.append(Answered(request.number, reply))
             return
         if reply.details.strip() != str(request.n):

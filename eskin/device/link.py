@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -32,6 +32,8 @@ from eskin.device.host import (
     Restarted,
     SampleComplete,
     SampleFrame,
+    StreamFrame,
+    StreamGap,
     Violation,
 )
 from eskin.device.protocol import UNSET_ID, Frame, Hello, ParseError
@@ -40,6 +42,7 @@ from eskin.errors import EskinError
 BAUD = 115200
 READ_CHUNK = 4096          # bytes per read: what a flood can put in memory at once
 MAX_EVIDENCE_LINES = 64    # rejected lines kept per attempt (the rest only counted)
+STREAM_BACKLOG = 4096      # stream events kept while a command is answered (~50 s of frames)
 
 
 class LinkError(EskinError, RuntimeError):
@@ -119,6 +122,10 @@ class SerialLink:
         self.timeout_s = timeout_s
         self.protocol = HostProtocol()
         self._pending: deque[HostEvent] = deque()
+        # Stream events that arrive while a command is answered, for stream() to yield;
+        # bounded: the oldest go first, counted in stream_dropped.
+        self._backlog: deque[HostEvent] = deque(maxlen=STREAM_BACKLOG)
+        self.stream_dropped = 0
         self._serial = self._open()
 
     @property
@@ -209,7 +216,18 @@ class SerialLink:
             self._read()
             waiting = max(0, waiting - READ_CHUNK)
         while self._pending:  # events left over from the last request's read count too
-            self._raise_for_board(self._pending.popleft(), "before a request")
+            event = self._pending.popleft()
+            if not self._kept_for_stream(event):
+                self._raise_for_board(event, "before a request")
+
+    def _kept_for_stream(self, event: HostEvent) -> bool:
+        """A stream event met while answering a command waits for stream()."""
+        if isinstance(event, StreamFrame | StreamGap):
+            if len(self._backlog) == self._backlog.maxlen:
+                self.stream_dropped += 1
+            self._backlog.append(event)
+            return True
+        return False
 
     def _exchange(self, request: bytes, what: str, on_event: Callable[[HostEvent], bool | None],
                   timeout_s: float | None = None) -> None:
@@ -232,6 +250,8 @@ class SerialLink:
                 if isinstance(event, Refused):  # #ERR: asking again will not help
                     raise BoardRefused(f"board on {self.port} refused {what!r}: "
                                        f"{event.reply.details}")
+                if self._kept_for_stream(event):
+                    continue
                 result = on_event(event)
                 if result is True:
                     return
@@ -313,6 +333,51 @@ class SerialLink:
             return None
 
         self._exchange(self.protocol.send_command(command), command, on_event)
+
+    def start_stream(self) -> None:
+        """``STREAM ON`` and its ``#OK``: the board sends frames until stopped."""
+        self._prepare()
+
+        def on_event(event: HostEvent) -> bool | None:
+            self._raise_for_board(event, "during STREAM ON")
+            if isinstance(event, Answered):
+                return True
+            if isinstance(event, Violation):
+                raise ProtocolViolation(f"board on {self.port} broke protocol during "
+                                        f"STREAM ON: {event.reason}")
+            return None
+
+        self._exchange(self.protocol.send_stream(), "STREAM ON", on_event)
+
+    def stop_stream(self) -> None:
+        """``STREAM OFF`` (the fence): nothing more is sent."""
+        self.fence()
+        self._backlog.clear()
+
+    def stream(self, *, timeout_s: float | None = None) -> Iterator[list[HostEvent]]:
+        """The live stream, as the events each read brought (so a consumer can handle
+        what has arrived at once): :class:`StreamFrame`, :class:`StreamGap` (frames lost)
+        and :class:`Junk` (a line that failed its check). LinkError when nothing arrives
+        for ``timeout_s`` (default: the link's), BoardReset or DeviceChanged as for a
+        request."""
+        timeout = self.timeout_s if timeout_s is None else timeout_s
+        deadline = time.monotonic() + timeout
+        while True:
+            arrived = list(self._backlog)
+            self._backlog.clear()
+            if not self._pending:
+                self._read()
+            while self._pending:
+                event = self._pending.popleft()
+                self._raise_for_board(event, "while streaming")
+                if isinstance(event, StreamFrame | StreamGap | Junk):
+                    arrived.append(event)
+            if arrived:
+                deadline = time.monotonic() + timeout
+                yield arrived
+            elif time.monotonic() > deadline:
+                raise LinkError(f"board on {self.port} sent nothing for {timeout:.2g} s "
+                                "while streaming")
 
     def sample(self, batch: SampleBatch) -> SampleBatch:
         """Request ``batch.requested`` frames and collect into ``batch`` those the

@@ -1,0 +1,311 @@
+"""Live: a scene's whole trained stack on a board's stream, frame by frame.
+
+:class:`SkinStack` is the one object a robot loop needs: the scene's featurizer and its
+task models (stretch, contact, location, force), loaded from the workspace with every
+file's md5 checked against dvc.lock, and ``predict(counts)`` from the 20 channels to
+the estimates. :func:`live_estimates` runs it on a :class:`~eskin.device.link.SerialLink`
+that streams (``STREAM ON``): a tare first (frames with nothing pressed, whose offset from
+the training data's rest reading is taken off every frame after), then one estimate per
+frame, carrying the board's ``seq`` and ``t_ms``; a lost frame or a damaged line is
+reported where it happened and never predicted.
+
+A single-force stack detects contact, and locates and weighs a contact only where it
+detects one (elsewhere x and y are NaN and the force 0); stretch is estimated on every
+frame. A two-force stack always has two contacts: x1, y1, x2, y2, force1, force2.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import yaml
+
+from eskin.catalog import TASK_NAMES, features_path, featurizer_path, model_path, processed_path
+from eskin.data.schema import CHANNELS, read_metadata
+from eskin.errors import EskinError
+from eskin.learn import load_models
+
+TARE_FRAMES = 100  # about 1.2 s of the stream at the board's 12 ms frame period
+
+
+class StackError(EskinError, ValueError):
+    """No stack to load, or a stack that does not fit the board."""
+
+
+@dataclass
+class SkinStack:
+    """A scene's trained models, as one estimator from the 20 channels to the estimates."""
+
+    scene: str
+    kind: str
+    featurizer: Any
+    models: dict[str, dict[str, Any]]          # task → target → fitted estimator
+    skipped: dict[str, str] = field(default_factory=dict)  # task → why it has no model
+    device: dict | None = None                 # the board the training data came from
+    rest: np.ndarray | None = None             # training rest reading (counts), for a tare
+
+    # ------------------------------------------------------------ loading
+
+    @classmethod
+    def from_workspace(cls, scene: str, root: Path = Path(".")) -> SkinStack:
+        """The stack ``dvc repro`` trained for ``scene``, each file checked against the md5
+        dvc.lock records for it (a model file is code: only the recorded one is loaded)."""
+        root = Path(root)
+        recorded = _locked_md5s(root)
+        features = root / features_path(scene)
+        if not features.exists():
+            raise StackError(f"no trained stack for scene {scene!r} ({features} is missing): "
+                             f"run `dvc repro` (or `eskin featurize {scene}` and "
+                             f"`eskin train {scene} <task>`)")
+        meta = read_metadata(features)
+
+        def checked(path: Path) -> Path:
+            if not (root / path).exists():
+                raise StackError(f"{path} is missing: run `dvc repro` (or `dvc checkout`)")
+            md5 = recorded.get(path.as_posix())
+            if md5 is None:
+                raise StackError(f"{path} is not in dvc.lock: run `dvc repro`")
+            return root / path
+
+        featurizer_file = checked(featurizer_path(scene))
+        featurizer = load_models(featurizer_file, recorded[featurizer_path(scene).as_posix()])
+        models, skipped = {}, {}
+        for task in TASK_NAMES:
+            relative = model_path(scene, task)
+            loaded = load_models(checked(relative), recorded[relative.as_posix()])
+            if "skipped" in loaded:
+                skipped[task] = loaded["skipped"]
+            else:
+                models[task] = loaded
+        rest = None
+        processed = root / processed_path(scene)
+        if processed.exists():
+            rest = rest_reading(pd.read_parquet(processed))
+        return cls(scene, meta["kind"], featurizer, models, skipped, meta.get("device"), rest)
+
+    # ------------------------------------------------------------ predicting
+
+    @property
+    def columns(self) -> list[str]:
+        if self.kind == "single_force":
+            return ["stretch", "contact", "contact_probability", "x", "y", "force"]
+        return ["stretch", "x1", "y1", "x2", "y2", "force1", "force2"]
+
+    def predict(self, counts) -> pd.DataFrame:
+        """Estimates for each row of ``counts`` (n × 20 channel readings, x1..x10 then
+        y1..y10, in the units the stack was trained on)."""
+        values = np.atleast_2d(np.asarray(counts, dtype=np.float64))
+        if values.shape[1] != len(CHANNELS):
+            raise ValueError(f"a frame has {len(CHANNELS)} channels, got {values.shape[1]}")
+        X = pd.DataFrame(values, columns=CHANNELS)
+        features = pd.DataFrame(np.asarray(self.featurizer.transform(X), dtype=np.float64),
+                                columns=CHANNELS)
+        n = len(features)
+        out = pd.DataFrame(index=range(n))
+        out["stretch"] = self._regress("stretch", "stretch", features)
+        if self.kind != "single_force":
+            located = self._each("localise", features)
+            weighed = self._each("force", features)
+            for name in ("x1", "y1", "x2", "y2"):
+                out[name] = located.get(name, np.full(n, np.nan))
+            for name in ("force1", "force2"):
+                out[name] = weighed.get(name, np.full(n, np.nan))
+            return out
+        contact, probability = self._detect(features)
+        out["contact"] = contact
+        out["contact_probability"] = probability
+        out["x"], out["y"] = np.full(n, np.nan), np.full(n, np.nan)
+        out["force"] = np.zeros(n)
+        if contact.any():
+            touched = features[contact]
+            located = self._each("localise", touched)
+            for name in ("x", "y"):
+                if name in located:
+                    out.loc[contact, name] = located[name]
+            out.loc[contact, "force"] = self._regress("force", "force", touched)
+        return out
+
+    def _each(self, task: str, features: pd.DataFrame) -> dict[str, np.ndarray]:
+        return {target: np.asarray(model.predict(features), dtype=np.float64)
+                for target, model in self.models.get(task, {}).items()}
+
+    def _regress(self, task: str, target: str, features: pd.DataFrame) -> np.ndarray:
+        model = self.models.get(task, {}).get(target)
+        if model is None:
+            return np.full(len(features), np.nan)
+        return np.asarray(model.predict(features), dtype=np.float64)
+
+    def _detect(self, features: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
+        model = self.models.get("detect", {}).get("contact")
+        n = len(features)
+        if model is None:  # no detector (a scene without contact-free samples): always
+            return np.ones(n, dtype=bool), np.full(n, np.nan)
+        contact = np.asarray(model.predict(features)).astype(bool)
+        if hasattr(model, "predict_proba"):
+            classes = list(model.classes_)
+            probability = model.predict_proba(features)[:, classes.index(True)]
+        else:  # the paper's SVM gives no probability
+            probability = np.full(n, np.nan)
+        return contact, probability
+
+    # ------------------------------------------------------------ fitting the board
+
+    def check_board(self, device_id: str) -> None:
+        """A stack trained on one board's data reads another's wrong (every terminal has
+        its own baseline and gain): refuse it, saying what to do."""
+        trained_on = (self.device or {}).get("id")
+        if trained_on is not None and trained_on != device_id:
+            raise StackError(f"the {self.scene} stack was trained on device {trained_on}, but "
+                             f"the board says it is {device_id}: acquire and train on this "
+                             "board (or pass --any-device to use it anyway)")
+
+
+def rest_reading(frame: pd.DataFrame) -> np.ndarray | None:
+    """The training data's reading with nothing pressed, at the lowest stretch: what a tare
+    takes a live board's offset from. None for a scene without such samples."""
+    from eskin.features import baseline_rows
+
+    rows = baseline_rows(frame)
+    if not rows.any():
+        return None
+    return frame.loc[rows, CHANNELS].to_numpy(dtype=np.float64).mean(axis=0)
+
+
+def _locked_md5s(root: Path) -> dict[str, str]:
+    lock = root / "dvc.lock"
+    if not lock.exists():
+        raise StackError(f"{lock} is missing: run `dvc repro` to train the stack")
+    stages = (yaml.safe_load(lock.read_text()) or {}).get("stages", {})
+    return {out["path"]: out["md5"] for stage in stages.values()
+            for out in stage.get("outs", []) if "md5" in out}
+
+
+# ---------------------------------------------------------------- the stream
+
+
+@dataclass
+class Tare:
+    """A live board's offset from the training rest reading, taken with nothing pressed,
+    and taken off every frame after. ``drift`` is how far, in counts (the largest channel),
+    the untouched reading has moved since (a running average over ``drift_frames`` of the
+    frames without contact; a stretch moves it too)."""
+
+    offset: np.ndarray
+    reading: np.ndarray
+    drift_frames: int = 200
+    _recent: np.ndarray = None  # type: ignore[assignment]  # starts at the tare's reading
+
+    @classmethod
+    def take(cls, frames: np.ndarray, rest: np.ndarray | None) -> Tare:
+        reading = np.asarray(frames, dtype=np.float64).mean(axis=0)
+        offset = reading - rest if rest is not None else np.zeros_like(reading)
+        return cls(offset, reading, _recent=reading.copy())
+
+    def apply(self, counts: np.ndarray) -> np.ndarray:
+        return np.asarray(counts, dtype=np.float64) - self.offset
+
+    def note_rest(self, counts: np.ndarray) -> None:
+        weight = 1.0 / self.drift_frames
+        self._recent = (1 - weight) * self._recent + weight * np.asarray(counts, np.float64)
+
+    @property
+    def drift(self) -> float:
+        return float(np.max(np.abs(self._recent - self.reading)))
+
+
+def _number(value: Any) -> Any:
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (float, np.floating)):
+        return None if math.isnan(value) else round(float(value), 6)
+    if isinstance(value, (np.integer,)):
+        return int(value)
+    return value
+
+
+def live_estimates(stack: SkinStack, batches: Iterable[list], *,
+                   tare_frames: int = TARE_FRAMES,
+                   notify: Callable[[str], object] = lambda message: None
+                   ) -> Iterator[dict[str, Any]]:
+    """One record per stream event, in order: an estimate per frame (``seq``, ``t_ms``,
+    the stack's columns and the drift since the tare), ``{"gap": ...}`` for lost frames,
+    ``{"rejected": ...}`` for a line that failed its check. The first ``tare_frames``
+    frames are the tare (nothing may be pressed), reported once as ``{"tare": ...}``
+    (``tare_frames=0``: no tare). ``batches`` are the events as they arrived: a batch's
+    frames are predicted together, as a scikit-learn call costs milliseconds whatever
+    its rows, so the stack keeps up with the board."""
+    from eskin.device.host import Junk, StreamFrame, StreamGap
+
+    taring: list[np.ndarray] = []
+    tare = Tare.take(np.zeros((1, len(CHANNELS))), None) if tare_frames <= 0 else None
+    for batch in batches:
+        records: list[dict[str, Any] | None] = []
+        pending: list[tuple[int, Any]] = []  # (index in records, frame) to predict
+        for event in batch:
+            if isinstance(event, StreamGap):
+                records.append({"gap": {"expected": event.expected, "got": event.got,
+                                        "lost": (event.got - event.expected) % 2**32}})
+            elif isinstance(event, Junk):
+                records.append({"rejected": event.error.reason})
+            elif isinstance(event, StreamFrame):
+                counts = np.asarray(event.frame.counts, dtype=np.float64)
+                if tare is not None:
+                    pending.append((len(records), event.frame))
+                    records.append(None)
+                    continue
+                taring.append(counts)
+                if len(taring) == tare_frames:
+                    tare = Tare.take(np.array(taring), stack.rest)
+                    notify(f"tared on {tare_frames} frames")
+                    records.append({"tare": {"frames": tare_frames, "offset_counts":
+                                             [round(float(v), 3) for v in tare.offset]}})
+        if pending:
+            counts = np.array([frame.counts for _, frame in pending], dtype=np.float64)
+            estimates = stack.predict(tare.apply(counts))
+            contact = estimates["contact"].to_numpy() if "contact" in estimates else None
+            for row, (at, frame) in enumerate(pending):
+                if contact is not None and not contact[row]:
+                    tare.note_rest(counts[row])
+                record = {"seq": frame.seq, "t_ms": frame.t_ms}
+                record.update({name: _number(estimates[name].iloc[row])
+                               for name in stack.columns})
+                record["drift_counts"] = round(tare.drift, 3)
+                records[at] = record
+        yield from records
+
+
+def json_line(record: dict[str, Any]) -> str:
+    return json.dumps(record, separators=(",", ":"), allow_nan=False)
+
+
+def stream_events(link, *, reconnect_s: float = 30.0, timeout_s: float | None = None,
+                  notify: Callable[[str], object] = print) -> Iterator:
+    """The board's stream as batches of events (:meth:`SerialLink.stream`), started, and
+    started again after a restart or a lost link reopened (as acquisition reopens it,
+    within ``reconnect_s``). Stops the stream when closed."""
+    from eskin.device.link import BoardReset, LinkError
+
+    link.start_stream()
+    try:
+        while True:
+            try:
+                yield from link.stream(timeout_s=timeout_s)
+            except BoardReset:
+                notify(f"{link.port}: the board restarted; streaming again")
+                link.start_stream()
+            except LinkError as err:
+                notify(f"{link.port}: {err}")
+                link.reopen(budget_s=reconnect_s, notify=notify)
+                link.start_stream()
+    finally:
+        try:
+            link.stop_stream()
+        except (LinkError, OSError):
+            pass  # the link is gone: nothing to stop

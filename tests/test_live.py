@@ -1,0 +1,159 @@
+"""Live: a trained stack on the simulated board's stream, against the same stack in batch.
+
+The board streams over a real pty (its own process); presses are scripted through its
+``SIM`` commands while it streams. The stack's live estimates, frame by frame as they
+arrive, must equal its batch predictions for the same frames.
+"""
+
+from __future__ import annotations
+
+import contextlib
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from eskin import steps
+from eskin.acquisition.session import simulated_board
+from eskin.config import section, skin_params
+from eskin.data import build
+from eskin.data.schema import md5_file, read_dataset, read_metadata
+from eskin.device.host import HostProtocol, StreamFrame, StreamGap
+from eskin.device.link import SerialLink
+from eskin.device.protocol import encode_frame
+from eskin.evaluation.crossval import fit_final
+from eskin.features import featurize_scene
+from eskin.learn import load_models
+from eskin.live import SkinStack, StackError, Tare, live_estimates, rest_reading, stream_events
+from eskin.models import build_model, model_settings
+from eskin.tasks import get_task
+from tests.conftest import small_scenes
+
+TARE = 50
+
+
+@pytest.fixture(scope="module")
+def stack(tmp_path_factory, repo_params):
+    """The repo's default models, trained on the small single-force scene."""
+    params = small_scenes(repo_params)
+    root = tmp_path_factory.mktemp("live")
+    steps.acquire(params, "single_force", root / "raw", progress=False)
+    build.ingest(params, "single_force", root / "raw", root / "processed")
+    featurize_scene(params, "single_force", root / "processed", root / "features",
+                    root / "models")
+    features = read_dataset(root / "features" / "single_force.parquet")
+    models = {}
+    for name in ("stretch", "force", "detect", "localise"):
+        task = get_task("single_force", name)
+        model, hyper = model_settings(section(params, f"train.{name}"), "tuned", "single_force")
+        models[name] = fit_final(task, features, build_model(task.role, model, hyper))
+    featurizer_file = root / "models" / "single_force" / "featurizer.joblib"
+    featurizer = load_models(featurizer_file, md5_file(featurizer_file))
+    processed = root / "processed" / "single_force.parquet"
+    return params, SkinStack("single_force", "single_force", featurizer, models,
+                             device=read_metadata(processed)["device"],
+                             rest=rest_reading(pd.read_parquet(processed)))
+
+
+# (command sent once this many estimates are out, what it does). Estimates trail the
+# board by a batch or so (the frames that arrived while the last was predicted: 10 to 15
+# here), so each phase is judged on its last 20 estimates only.
+SCRIPT = [
+    (60, "SIM PRESS 5 5 3.2536"),  # the small scene's one weight
+    (120, "SIM CLEAR"),
+    (170, "SIM PRESS 2 8 3.2536"),
+    (230, "SIM CLEAR"),
+    (260, "STRETCH 8"),
+]
+
+
+def run_live(params, stack, *, corrupt_fraction=0.0, estimates_wanted=320):
+    """Stream, run the script, and keep every stream event and every live record."""
+    settings = section(params, "acquire")
+    events, records = [], []
+    with contextlib.ExitStack() as resources:
+        board = resources.enter_context(simulated_board(
+            skin_params(params), rest_length_mm=float(settings["rest_length_mm"]),
+            corrupt_fraction=corrupt_fraction, frame_period_ms=8))
+        link = resources.enter_context(SerialLink(board.port, timeout_s=5.0))
+        stack.check_board(link.connect().device_id)
+
+        def kept(batches):
+            for batch in batches:
+                events.extend(batch)
+                yield batch
+
+        stream = resources.enter_context(contextlib.closing(stream_events(link)))
+        script = list(SCRIPT)
+        estimates = 0
+        for record in live_estimates(stack, kept(stream), tare_frames=TARE):
+            records.append(record)
+            estimates += "seq" in record
+            if script and estimates >= script[0][0]:
+                link.command(script.pop(0)[1])  # while the board streams
+            if estimates >= estimates_wanted:
+                break
+    return events, records
+
+
+def test_live_estimates_equal_the_batch_predictions_of_the_same_frames(stack):
+    params, skin = stack
+    events, records = run_live(params, skin)
+    frames = [e.frame for e in events if isinstance(e, StreamFrame)]
+    estimates = [r for r in records if "seq" in r]
+    assert len(estimates) == 320 and records[0] == {"tare": records[0]["tare"]}
+    tare = Tare.take(np.array([f.counts for f in frames[:TARE]]), skin.rest)
+    by_seq = {f.seq: f for f in frames}
+    live_frames = [by_seq[r["seq"]] for r in estimates]
+    batch = skin.predict(tare.apply(np.array([f.counts for f in live_frames])))
+    live = pd.DataFrame(estimates)
+    assert list(live["seq"]) == sorted(live["seq"]) and live["seq"].is_unique
+    assert list(live["t_ms"]) == [f.t_ms for f in live_frames]
+    assert (live["contact"] == batch["contact"]).all()
+    for name in ("x", "y"):
+        assert np.array_equal(live[name].astype(float), batch[name], equal_nan=True)
+    for name in ("stretch", "force", "contact_probability"):
+        # JSON carries 6 decimals
+        assert np.allclose(live[name].astype(float), batch[name], rtol=0, atol=5e-7)
+    # And the script was seen: the presses where they were made, the stretch after it.
+    untouched, pressed = live.iloc[40:60], live.iloc[100:120]
+    assert not untouched["contact"].any()
+    assert pressed["contact"].all() and (pressed["x"] == 5).mean() > 0.8
+    assert (pressed["force"] - 3.2536).abs().median() < 0.5
+    assert not live.iloc[150:170]["contact"].any()
+    again = live.iloc[210:230]
+    assert again["contact"].all() and (again["y"] == 8).mean() > 0.8
+    assert untouched["stretch"].mean() < 1.02 < live.iloc[300:]["stretch"].mean()
+
+
+def test_a_damaged_line_and_a_lost_frame_are_reported_and_never_predicted(stack):
+    params, skin = stack
+    events, records = run_live(params, skin, corrupt_fraction=0.05, estimates_wanted=150)
+    rejected = [r for r in records if "rejected" in r]
+    gaps = [r["gap"] for r in records if "gap" in r]
+    assert rejected and gaps
+    predicted = {r["seq"] for r in records if "seq" in r}
+    lost = {seq for gap in gaps for seq in range(gap["expected"], gap["got"])}
+    assert lost and not lost & predicted
+    assert len(predicted) == len([r for r in records if "seq" in r])
+
+
+def test_the_stream_survives_a_command_and_keeps_its_frames_in_order():
+    """Frames that arrive while a command is answered wait for the stream (sans-I/O part:
+    the protocol marks them, the link keeps them)."""
+    protocol = HostProtocol(device_id="b")
+    protocol.send_stream()
+    events = protocol.receive(b"#OK STREAM ON\n")
+    assert protocol.streaming and events
+    events = protocol.receive(encode_frame(7, 84, [500] * 20) + encode_frame(9, 108, [500] * 20))
+    assert [type(e) for e in events] == [StreamFrame, StreamGap, StreamFrame]
+    protocol.send_fence()
+    protocol.receive(b"#OK STREAM OFF\n")
+    assert not protocol.streaming
+
+
+def test_a_stack_for_another_board_is_refused_in_one_line(stack):
+    _, skin = stack
+    with pytest.raises(StackError, match="trained on device sim-.*, but the board says it is "
+                       "lab2-skin1: acquire and train on this board"):
+        skin.check_board("lab2-skin1")
