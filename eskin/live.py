@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 import yaml
+from threadpoolctl import ThreadpoolController
 
 from eskin.catalog import TASK_NAMES, features_path, featurizer_path, model_path, processed_path
 from eskin.data.schema import CHANNELS, read_metadata
@@ -33,6 +34,12 @@ from eskin.errors import EskinError
 from eskin.learn import load_models
 
 TARE_FRAMES = 100  # about 1.2 s of the stream at the board's 12 ms frame period
+# A few frames are too little work to share between OpenMP threads (gradient boosting):
+# waking them costs more than they save, and much more when the other core is busy
+# (harness/live_latency.py, single force with a bench running: per-frame p99 149 ms on
+# two threads, 18 ms on one). Batches up to this many rows are predicted on one thread.
+ONE_THREAD_ROWS = 64
+_THREADS = ThreadpoolController()
 
 
 class StackError(EskinError, ValueError):
@@ -104,6 +111,12 @@ class SkinStack:
         values = np.atleast_2d(np.asarray(counts, dtype=np.float64))
         if values.shape[1] != len(CHANNELS):
             raise ValueError(f"a frame has {len(CHANNELS)} channels, got {values.shape[1]}")
+        if len(values) <= ONE_THREAD_ROWS:
+            with _THREADS.limit(limits=1, user_api="openmp"):
+                return self._predict(values)
+        return self._predict(values)
+
+    def _predict(self, values: np.ndarray) -> pd.DataFrame:
         X = pd.DataFrame(values, columns=CHANNELS)
         features = pd.DataFrame(np.asarray(self.featurizer.transform(X), dtype=np.float64),
                                 columns=CHANNELS)

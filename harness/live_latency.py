@@ -1,0 +1,110 @@
+"""How fast the trained stack turns frames into estimates, live.
+
+For each scene's stack (from the workspace), on frames of its own dataset:
+
+* per frame: ``SkinStack.predict`` on one frame at a time, as a robot loop that asks for
+  every frame the moment it arrives does — median and 99th percentile, against the
+  budget of 1 ms a frame;
+* per batch: what ``eskin live`` does, predicting together the frames that arrived while
+  the last batch was predicted — the frames per second it sustains, against the board's
+  frame rate (the Python board's 12 ms period, 83 frames/s; the firmware's 56.8 frames/s);
+* the baseline, in the same process: the same frames through the featurizer alone, the
+  part of a call every model pays (input checks, DataFrame), so the ratio says what the
+  models add.
+
+    PYTHONPATH=. python -m harness.live_latency [--frames 500] [--json FILE]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from eskin.catalog import processed_path
+from eskin.data.schema import CHANNELS
+from eskin.live import SkinStack
+
+BUDGET_MS = 1.0
+BOARD_FPS = {"python board": 1000 / 12, "firmware": 56.8}
+
+
+def timed(call, items) -> np.ndarray:
+    """Milliseconds of ``call(item)`` for each item."""
+    out = []
+    for item in items:
+        started = time.perf_counter()
+        call(item)
+        out.append((time.perf_counter() - started) * 1000)
+    return np.array(out)
+
+
+def sustained_fps(stack: SkinStack, frames: np.ndarray, period_s: float) -> float:
+    """Frames per second the live loop keeps up with: frames arrive every ``period_s``;
+    each call predicts all that arrived during the last one (simulated clock)."""
+    clock, done, i = 0.0, 0, 0
+    while i < len(frames):
+        arrived = max(i + 1, min(len(frames), int(clock / period_s) + 1))
+        started = time.perf_counter()
+        stack.predict(frames[i:arrived])
+        clock = max(clock, (arrived - 1) * period_s) + time.perf_counter() - started
+        done = i = arrived
+    return done / clock
+
+
+def measure(scene: str, n: int, root: Path = Path(".")) -> dict:
+    stack = SkinStack.from_workspace(scene, root)
+    data = pd.read_parquet(root / processed_path(scene), columns=CHANNELS)
+    frames = data.sample(n, random_state=0).to_numpy(dtype=np.float64)
+    stack.predict(frames[:2])  # warm up
+    per_frame = timed(stack.predict, frames[:, None, :])
+    baseline = timed(lambda row: stack.featurizer.transform(pd.DataFrame(row, columns=CHANNELS)),
+                     frames[:, None, :])
+    started = time.perf_counter()
+    stack.predict(frames)
+    batch_ms = (time.perf_counter() - started) * 1000 / n
+    return {
+        "scene": scene, "frames": n,
+        "per_frame_median_ms": float(np.median(per_frame)),
+        "per_frame_p99_ms": float(np.percentile(per_frame, 99)),
+        "baseline_median_ms": float(np.median(baseline)),
+        "one_batch_ms_per_frame": batch_ms,
+        "sustained_fps": {name: sustained_fps(stack, frames, 1 / fps)
+                          for name, fps in BOARD_FPS.items()},
+    }
+
+
+def render(results: list[dict]) -> str:
+    lines = ["| scene | per frame, median | p99 | vs 1 ms budget | featurizer alone "
+             "(baseline) | models ÷ baseline | whole batch, per frame | keeps up with |",
+             "|---|---|---|---|---|---|---|---|"]
+    for r in results:
+        keeps = ", ".join(f"{name} ({fps:.0f}/s: {r['sustained_fps'][name]:.0f}/s)"
+                          for name, fps in BOARD_FPS.items()
+                          if r["sustained_fps"][name] >= 0.98 * fps) or "neither board"
+        lines.append(
+            f"| {r['scene']} | {r['per_frame_median_ms']:.2f} ms | {r['per_frame_p99_ms']:.2f} ms"
+            f" | {r['per_frame_median_ms'] / BUDGET_MS:.1f}× | {r['baseline_median_ms']:.2f} ms"
+            f" | {r['per_frame_median_ms'] / r['baseline_median_ms']:.1f}× | "
+            f"{r['one_batch_ms_per_frame'] * 1000:.0f} µs | {keeps} |")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=500)
+    parser.add_argument("--scenes", nargs="+", default=["single_force", "two_force"])
+    parser.add_argument("--json", type=Path)
+    args = parser.parse_args()
+    results = [measure(scene, args.frames) for scene in args.scenes]
+    print(render(results))
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()
