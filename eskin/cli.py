@@ -62,7 +62,7 @@ def _live(args: argparse.Namespace) -> int:
     from eskin.acquisition.session import simulated_board
     from eskin.config import load_params, section, skin_params
     from eskin.device.link import SerialLink
-    from eskin.live import SkinStack, json_line, live_estimates, stream_events
+    from eskin.live import LineBroadcast, SkinStack, json_line, live_estimates, stream_events
 
     def note(message: str) -> None:
         print(f"eskin live: {message}", file=sys.stderr, flush=True)
@@ -71,7 +71,8 @@ def _live(args: argparse.Namespace) -> int:
         raise ValueError("--tare-frames and --frames count frames: 0 or more")
     params = load_params(args.params)
     settings = section(params, "acquire")
-    stack = SkinStack.from_workspace(args.scene)
+    stack = (SkinStack.from_registry(args.scene, args.alias) if args.alias
+             else SkinStack.from_workspace(args.scene))
     with contextlib.ExitStack() as resources:
         port = args.port
         if args.simulated:
@@ -87,10 +88,18 @@ def _live(args: argparse.Namespace) -> int:
              f"untouched for {args.tare_frames} frames")
         events = resources.enter_context(contextlib.closing(stream_events(
             link, reconnect_s=float(settings["reconnect_s"]), notify=note)))
+        broadcast = None
+        if args.serve is not None:
+            broadcast = resources.enter_context(LineBroadcast(args.serve, notify=note))
+            note(f"serving the JSON lines on 127.0.0.1:{broadcast.port}")
         estimates = 0
         for record in live_estimates(stack, events, tare_frames=args.tare_frames,
                                      notify=note):
-            print(json_line(record), flush=True)
+            line = json_line(record)
+            if not args.quiet:
+                print(line, flush=True)
+            if broadcast is not None:
+                broadcast.send(line)
             estimates += "seq" in record
             if args.frames and estimates >= args.frames:
                 break
@@ -148,11 +157,18 @@ def build_parser() -> argparse.ArgumentParser:
     where.add_argument("--port", help="the board's port, e.g. /dev/ttyACM0")
     where.add_argument("--simulated", action="store_true",
                        help="start the simulated board (params.yaml's sim) and read it")
+    live.add_argument("--alias", metavar="NAME",
+                      help="the models registered in MLflow under this alias (e.g. champion) "
+                      "instead of the workspace's")
     live.add_argument("--tare-frames", type=int, default=100, metavar="N",
                       help="frames with nothing pressed, taken as the tare at start "
                       "(default 100, about 1.2 s; 0: no tare)")
     live.add_argument("--frames", type=int, default=0, metavar="N",
                       help="stop after N estimates (default: run until Ctrl-C)")
+    live.add_argument("--serve", type=int, metavar="PORT",
+                      help="also send the JSON lines to every client of 127.0.0.1:PORT "
+                      "(0: a free port, printed)")
+    live.add_argument("--quiet", action="store_true", help="no JSON lines on stdout")
     live.add_argument("--any-device", action="store_true",
                       help="use the stack on a board other than the one it was trained on")
     live.set_defaults(run=_live)

@@ -97,6 +97,46 @@ class SkinStack:
             rest = rest_reading(pd.read_parquet(processed))
         return cls(scene, meta["kind"], featurizer, models, skipped, meta.get("device"), rest)
 
+    @classmethod
+    def from_registry(cls, scene: str, alias: str, root: Path = Path(".")) -> SkinStack:
+        """The stack whose task models carry the MLflow alias ``alias`` (``champion``:
+        ``client.set_registered_model_alias("single_force.force", "champion", 3)``).
+        Each task's file is found by the md5 its version recorded, in the workspace or
+        DVC's cache, and checked before it is loaded, as ``eskin reproduce`` does; all
+        must come from the same features version."""
+        from eskin import tracking
+        from eskin.registry import versioned_file
+
+        client = tracking.connect()
+        versions = [v for v in client.search_model_versions(f"name LIKE '{scene}.%'")
+                    if alias in (v.aliases or [])]
+        by_task = {v.tags.get("eskin.task"): v for v in versions}
+        if not by_task:
+            raise StackError(f"no registered model of scene {scene!r} has the alias {alias!r}: "
+                             f"set one with MlflowClient().set_registered_model_alias("
+                             f"'{scene}.force', '{alias}', <version>)")
+        features_md5 = {v.tags.get("eskin.features_md5") for v in by_task.values()}
+        if len(features_md5) != 1:
+            raise StackError(f"the {alias!r} models of {scene} were trained on different "
+                             f"features versions ({', '.join(sorted(map(str, features_md5)))}): "
+                             "give the alias to versions of one training")
+        features = versioned_file(root, features_path(scene), features_md5.pop(),
+                                  f"features of {scene}")
+        meta = read_metadata(features)
+        models, skipped = {}, {}
+        for task in TASK_NAMES:
+            version = by_task.get(task)
+            if version is None:
+                skipped[task] = f"no {task} model has the alias {alias!r}"
+                continue
+            md5 = version.tags["eskin.model_md5"]
+            models[task] = load_models(versioned_file(root, model_path(scene, task), md5,
+                                                      f"{version.name} v{version.version}"), md5)
+        processed = versioned_file(root, processed_path(scene), meta["dataset"]["md5"],
+                                   f"dataset of {scene}")
+        return cls(scene, meta["kind"], _featurizer_for(scene, meta, features, root),
+                   models, skipped, meta.get("device"), rest_reading(pd.read_parquet(processed)))
+
     # ------------------------------------------------------------ predicting
 
     @property
@@ -189,6 +229,25 @@ def rest_reading(frame: pd.DataFrame) -> np.ndarray | None:
     if not rows.any():
         return None
     return frame.loc[rows, CHANNELS].to_numpy(dtype=np.float64).mean(axis=0)
+
+
+def _featurizer_for(scene: str, meta: dict, features: Path, root: Path):
+    """The featurizer that made ``features``: ``raw`` is the identity; a fitted one is the
+    workspace's, if the workspace's features are these (their md5s agree)."""
+    from eskin.data.schema import md5_file
+    from eskin.features import make_featurizer
+
+    method = meta["featurize"]["method"]
+    if method == "raw":
+        return make_featurizer("raw").fit(pd.DataFrame([[0.0] * len(CHANNELS)],
+                                                       columns=CHANNELS))
+    workspace = root / features_path(scene)
+    if workspace.exists() and md5_file(workspace) == md5_file(features):
+        relative = featurizer_path(scene)
+        return load_models(root / relative, _locked_md5s(root)[relative.as_posix()])
+    raise StackError(f"the registered models of {scene} were trained on {method!r} features, "
+                     "whose fitted featurizer is in the workspace only while its features are "
+                     "these: check out that commit (git checkout, dvc checkout)")
 
 
 def _locked_md5s(root: Path) -> dict[str, str]:
@@ -322,3 +381,66 @@ def stream_events(link, *, reconnect_s: float = 30.0, timeout_s: float | None = 
             link.stop_stream()
         except (LinkError, OSError):
             pass  # the link is gone: nothing to stop
+
+
+class LineBroadcast:
+    """JSON lines for other programs: a TCP server on 127.0.0.1 that sends every line to
+    every connected client. Each client has a bounded backlog (``max_backlog`` bytes): one
+    that does not read is dropped, and the live loop never waits for anybody."""
+
+    def __init__(self, port: int = 0, *, max_backlog: int = 1 << 20,
+                 notify: Callable[[str], object] = lambda message: None) -> None:
+        import socket
+
+        self._server = socket.create_server(("127.0.0.1", port))
+        self._server.setblocking(False)
+        self.port = self._server.getsockname()[1]
+        self.max_backlog = max_backlog
+        self.notify = notify
+        self._clients: dict[Any, bytearray] = {}
+
+    def _accept(self) -> None:
+        while True:
+            try:
+                client, address = self._server.accept()
+            except BlockingIOError:
+                return
+            client.setblocking(False)
+            self._clients[client] = bytearray()
+            self.notify(f"client {address[0]}:{address[1]} connected")
+
+    def send(self, line: str) -> None:
+        self._accept()
+        data = (line + "\n").encode()
+        for client, backlog in list(self._clients.items()):
+            backlog += data
+            try:
+                sent = client.send(backlog)
+                del backlog[:sent]
+            except BlockingIOError:
+                pass
+            except OSError:  # the client went away
+                self._drop(client, "disconnected")
+                continue
+            if len(backlog) > self.max_backlog:
+                self._drop(client, f"dropped: more than {self.max_backlog} bytes unread")
+
+    def _drop(self, client, why: str) -> None:
+        self._clients.pop(client, None)
+        try:
+            self.notify(f"client {client.getpeername()[1]} {why}")
+        except OSError:
+            self.notify(f"a client {why}")
+        client.close()
+
+    def close(self) -> None:
+        for client in list(self._clients):
+            client.close()
+        self._clients.clear()
+        self._server.close()
+
+    def __enter__(self) -> LineBroadcast:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

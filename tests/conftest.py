@@ -38,8 +38,8 @@ def write_params(directory: Path, params: dict) -> Path:
     return path
 
 
-PROJECT_FILES = ["eskin", "stages", "harness", "dvc.yaml", "bench", "stress", ".dvcignore",
-                 ".gitignore", "pyproject.toml", "README.md"]
+PROJECT_FILES = ["eskin", "stages", "harness", "firmware", "dvc.yaml", "bench", "stress",
+                 ".dvcignore", ".gitignore", "pyproject.toml", "README.md"]
 
 
 def run_checked(args, cwd, env, *, ok=True) -> subprocess.CompletedProcess:
@@ -66,7 +66,7 @@ def scratch_project(root: Path, params: dict, tracking_uri: str) -> dict:
         source = ROOT / name
         if source.is_dir():
             shutil.copytree(source, root / name,
-                            ignore=shutil.ignore_patterns("__pycache__", "dvc.lock"))
+                            ignore=shutil.ignore_patterns("__pycache__", "dvc.lock", "build"))
         else:
             shutil.copy2(source, root / name)
     write_params(root, params)

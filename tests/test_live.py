@@ -24,7 +24,16 @@ from eskin.device.protocol import encode_frame
 from eskin.evaluation.crossval import fit_final
 from eskin.features import featurize_scene
 from eskin.learn import load_models
-from eskin.live import SkinStack, StackError, Tare, live_estimates, rest_reading, stream_events
+from eskin.live import (
+    LineBroadcast,
+    SkinStack,
+    StackError,
+    Tare,
+    json_line,
+    live_estimates,
+    rest_reading,
+    stream_events,
+)
 from eskin.models import build_model, model_settings
 from eskin.tasks import get_task
 from tests.conftest import small_scenes
@@ -157,3 +166,30 @@ def test_a_stack_for_another_board_is_refused_in_one_line(stack):
     with pytest.raises(StackError, match="trained on device sim-.*, but the board says it is "
                        "lab2-skin1: acquire and train on this board"):
         skin.check_board("lab2-skin1")
+
+
+def test_the_json_lines_reach_a_client_on_loopback_and_a_stalled_one_is_dropped():
+    import socket
+
+    notes = []
+    # The kernel buffers several MB for a client on loopback before the backlog grows.
+    with LineBroadcast(0, max_backlog=1 << 20, notify=notes.append) as broadcast:
+        reader = socket.create_connection(("127.0.0.1", broadcast.port), timeout=5)
+        stalled = socket.create_connection(("127.0.0.1", broadcast.port), timeout=5)
+        stalled.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        received = bytearray()
+        lines = [json_line({"seq": i, "note": "x" * 500}) for i in range(40_000)]  # 20 MB
+        for line in lines:
+            broadcast.send(line)
+            with contextlib.suppress(BlockingIOError):
+                reader.setblocking(False)
+                received += reader.recv(1 << 16)
+        reader.setblocking(True)
+        reader.settimeout(2)
+        with contextlib.suppress(TimeoutError):
+            while received.count(b"\n") < len(lines):
+                received += reader.recv(1 << 16)
+        assert received.decode().splitlines() == lines
+        assert any("dropped: more than 1048576 bytes unread" in note for note in notes)
+        reader.close()
+        stalled.close()

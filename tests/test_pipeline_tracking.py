@@ -141,6 +141,49 @@ def test_a_repro_groups_its_task_runs_under_one_pipeline_run(scratch):
         (root / "params.yaml").read_text())["sim"]["seed"])
 
 
+def test_eskin_live_runs_the_reproduced_stack_and_refuses_a_changed_model_file(scratch):
+    """The stack `dvc repro` trained, on the simulated board's stream; every file of it
+    checked against dvc.lock first."""
+    root, env = scratch
+    done = eskin_cli(["live", "single_force", "--simulated", "--frames", "5",
+                      "--tare-frames", "10"], root, env)
+    records = [json.loads(line) for line in done.stdout.splitlines()]
+    assert "tare" in records[0] and [r["seq"] for r in records[1:]] == list(range(10, 15))
+    assert all(r["contact"] is False and r["force"] == 0.0 for r in records[1:])
+    model = root / "models" / "single_force" / "force.joblib"
+    original = model.read_bytes()
+    try:
+        model.write_bytes(original + b"\0")
+        done = eskin_cli(["live", "single_force", "--simulated", "--frames", "1"], root, env,
+                         check=False)
+        assert done.returncode == 1
+        assert "models/single_force/force.joblib: md5 is" in done.stderr
+        assert "not loading it" in done.stderr and "Traceback" not in done.stderr
+    finally:
+        model.write_bytes(original)
+
+
+def test_eskin_live_loads_the_models_registered_under_an_alias(scratch):
+    """`--alias champion`: the models registered in MLflow under it, found by the md5 their
+    versions recorded; an alias nobody has is one line saying how to set it."""
+    from mlflow import MlflowClient
+
+    root, env = scratch
+    client = MlflowClient(env["MLFLOW_TRACKING_URI"])
+    for task in ("stretch", "force", "detect", "localise"):
+        md5 = md5_file(root / "models" / "single_force" / f"{task}.joblib")
+        for version in client.search_model_versions(f"name LIKE 'single_force.{task}%'"):
+            if version.tags.get("eskin.model_md5") == md5:
+                client.set_registered_model_alias(version.name, "champion", version.version)
+    done = eskin_cli(["live", "single_force", "--simulated", "--alias", "champion",
+                      "--frames", "3", "--tare-frames", "5"], root, env)
+    records = [json.loads(line) for line in done.stdout.splitlines()]
+    assert [r["seq"] for r in records[1:]] == [5, 6, 7]
+    done = eskin_cli(["live", "single_force", "--simulated", "--alias", "nobody"], root, env,
+                     check=False)
+    assert done.returncode == 1 and "has the alias 'nobody'" in done.stderr
+
+
 def eskin_cli(args, root, env, check=True):
     done = subprocess.run([sys.executable, "-m", "eskin", *args], cwd=root, env=env, text=True,
                           capture_output=True, timeout=600)
