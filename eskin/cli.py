@@ -92,9 +92,18 @@ def _live(args: argparse.Namespace) -> int:
         if args.serve is not None:
             broadcast = resources.enter_context(LineBroadcast(args.serve, notify=note))
             note(f"serving the JSON lines on 127.0.0.1:{broadcast.port}")
+        view = None
+        if args.view is not None:
+            from eskin.live_view import LiveView
+
+            view = resources.enter_context(LiveView(scene=args.scene, kind=stack.kind,
+                                                    device=hello.device_id, port=args.view))
+            note(f"the live view is at {view.url}")
         estimates = 0
         for record in live_estimates(stack, events, tare_frames=args.tare_frames,
-                                     notify=note):
+                                     with_change=view is not None, notify=note):
+            if view is not None:
+                view.show(record)
             line = json_line(record)
             if not args.quiet:
                 print(line, flush=True)
@@ -167,6 +176,9 @@ def build_parser() -> argparse.ArgumentParser:
                       help="stop after N estimates (default: run until Ctrl-C)")
     live.add_argument("--serve", type=int, metavar="PORT",
                       help="also send the JSON lines to every client of 127.0.0.1:PORT "
+                      "(0: a free port, printed)")
+    live.add_argument("--view", type=int, metavar="PORT",
+                      help="show the estimates on a page at http://127.0.0.1:PORT/ "
                       "(0: a free port, printed)")
     live.add_argument("--quiet", action="store_true", help="no JSON lines on stdout")
     live.add_argument("--any-device", action="store_true",

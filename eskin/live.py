@@ -303,7 +303,7 @@ def _number(value: Any) -> Any:
 
 
 def live_estimates(stack: SkinStack, batches: Iterable[list], *,
-                   tare_frames: int = TARE_FRAMES,
+                   tare_frames: int = TARE_FRAMES, with_change: bool = False,
                    notify: Callable[[str], object] = lambda message: None
                    ) -> Iterator[dict[str, Any]]:
     """One record per stream event, in order: an estimate per frame (``seq``, ``t_ms``,
@@ -312,7 +312,9 @@ def live_estimates(stack: SkinStack, batches: Iterable[list], *,
     frames are the tare (nothing may be pressed), reported once as ``{"tare": ...}``
     (``tare_frames=0``: no tare). ``batches`` are the events as they arrived: a batch's
     frames are predicted together, as a scikit-learn call costs milliseconds whatever
-    its rows, so the stack keeps up with the board."""
+    its rows, so the stack keeps up with the board. ``with_change``: each estimate also
+    carries ``change_counts``, the 20 channels' change since the tare (the live view's
+    bars)."""
     from eskin.device.host import Junk, StreamFrame, StreamGap
 
     taring: list[np.ndarray] = []
@@ -349,6 +351,9 @@ def live_estimates(stack: SkinStack, batches: Iterable[list], *,
                 record.update({name: _number(estimates[name].iloc[row])
                                for name in stack.columns})
                 record["drift_counts"] = round(tare.drift, 3)
+                if with_change:
+                    record["change_counts"] = [round(float(v), 1)
+                                               for v in counts[row] - tare.reading]
                 records[at] = record
         yield from records
 

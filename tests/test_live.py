@@ -8,6 +8,8 @@ arrive, must equal its batch predictions for the same frames.
 from __future__ import annotations
 
 import contextlib
+import shutil
+import threading
 
 import numpy as np
 import pandas as pd
@@ -34,6 +36,7 @@ from eskin.live import (
     rest_reading,
     stream_events,
 )
+from eskin.live_view import LiveView
 from eskin.models import build_model, model_settings
 from eskin.tasks import get_task
 from tests.conftest import small_scenes
@@ -193,3 +196,67 @@ def test_the_json_lines_reach_a_client_on_loopback_and_a_stalled_one_is_dropped(
         assert any("dropped: more than 1048576 bytes unread" in note for note in notes)
         reader.close()
         stalled.close()
+
+
+CHROMIUM = shutil.which("chromium")
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is missing: `make test` "
+                    "installs it")
+def test_the_live_view_shows_a_press_where_and_as_hard_as_it_is(stack, tmp_path):
+    """The page in headless Chromium, read as a person reads it, while the live loop runs
+    on the simulated board's stream and a weight is pressed on node (5, 5)."""
+    from playwright.sync_api import sync_playwright
+
+    params, skin = stack
+    settings = section(params, "acquire")
+    stop, failure = threading.Event(), []
+
+    def loop(view):
+        try:
+            with contextlib.ExitStack() as resources:
+                board = resources.enter_context(simulated_board(
+                    skin_params(params), rest_length_mm=float(settings["rest_length_mm"]),
+                    frame_period_ms=12))
+                link = resources.enter_context(SerialLink(board.port, timeout_s=5.0))
+                link.connect()
+                stream = resources.enter_context(contextlib.closing(stream_events(link)))
+                estimates = 0
+                for record in live_estimates(skin, stream, tare_frames=TARE, with_change=True):
+                    view.show(record)
+                    estimates += "seq" in record
+                    if estimates == 30:
+                        link.command("SIM PRESS 5 5 3.2536")
+                    if stop.is_set() or estimates > 3000:
+                        return
+        except Exception as err:  # noqa: BLE001 - reported by the test below
+            failure.append(err)
+
+    with LiveView(scene="single_force", kind="single_force", device="sim") as view:
+        worker = threading.Thread(target=loop, args=(view,), daemon=True)
+        worker.start()
+        try:
+            with sync_playwright() as playwright:
+                browser = playwright.chromium.launch(executable_path=CHROMIUM,
+                                                     args=["--no-sandbox", "--disable-gpu"])
+                page = browser.new_page(viewport={"width": 980, "height": 640})
+                page.goto(view.url)
+                page.wait_for_function(
+                    "document.getElementById('location').textContent === 'x 5, y 5'",
+                    timeout=30_000)
+                shown = {name: page.inner_text(f"#{name}")
+                         for name in ("contact", "force", "stretch", "seq", "rate")}
+                cell = page.inner_text("#cell-5-5")
+                bar = page.eval_on_selector("#bar-x5", "bar => bar.style.height")
+                page.screenshot(path=str(tmp_path / "live_view.png"))
+                browser.close()
+        finally:
+            stop.set()
+            worker.join(timeout=30)
+    assert not failure, failure
+    assert shown["contact"].startswith("touch (p = ")
+    assert abs(float(shown["force"].removesuffix(" N")) - 3.2536) < 0.5
+    assert abs(float(cell) - 3.2536) < 0.5
+    assert abs(float(shown["stretch"]) - 1.0) < 0.02
+    assert 60 < float(shown["rate"]) < 100  # the board's 12 ms frames: 83 a second
+    assert float(bar.removesuffix("%")) > 50  # x5 carries the press

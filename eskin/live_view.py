@@ -1,0 +1,218 @@
+"""The live view: a page on 127.0.0.1 showing what the stack makes of each frame.
+
+A person pressing the skin looks at it: the 10×10 map with the estimated contact(s)
+(marked by force), the force, the location, the stretch, whether there is contact and
+how sure the detector is, the drift since the tare, the 20 channels' change since the
+tare as bars, and the frame rate. The page holds an ``EventSource`` on ``/events``;
+every client is sent the newest state only (a slow browser skips frames, nothing queues),
+and ``/state`` answers it once as JSON.
+
+A page, not a terminal view: it draws the map as the skin is laid out, any machine on the
+bench can open it (through an SSH tunnel: it binds to 127.0.0.1 only), and it is tested
+the way the report page is, in headless Chromium, reading what the page shows.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from typing import Any
+
+KEEPALIVE_S = 10.0  # an idle stream sends a comment this often, so a dead client is noticed
+
+PAGE = """<!doctype html>
+<html lang="en"><head><meta charset="utf-8"><title>eskin live: {scene}</title>
+<style>
+body {{ font-family: system-ui, sans-serif; margin: 1.5em; background: #fafafa; color: #222; }}
+h1 {{ font-size: 1.2em; margin: 0 0 .8em; }}
+main {{ display: flex; gap: 2em; align-items: flex-start; }}
+#map {{ display: grid; grid-template-columns: 1.6em repeat(10, 2.6em); gap: 3px; }}
+#map div {{ height: 2.6em; display: flex; align-items: center; justify-content: center;
+  font-size: .75em; color: #777; }}
+#map .cell {{ background: #e4e7eb; border-radius: 4px; color: #222; }}
+#readout {{ min-width: 17em; }}
+#readout p {{ margin: .3em 0; font-size: 1.1em; }}
+#readout b {{ display: inline-block; min-width: 9.5em; font-weight: 600; color: #555; }}
+#contact.touch {{ color: #b3261e; font-weight: 700; }}
+#bars {{ display: grid; grid-template-columns: repeat(20, 30px); gap: 3px; align-items: end;
+  height: 8em; margin-top: 1.5em; }}
+#bars div {{ background: #4a78b5; min-height: 1px; }}
+#barlabels {{ display: grid; grid-template-columns: repeat(20, 30px); gap: 3px;
+  font-size: .7em; color: #777; text-align: center; }}
+</style></head>
+<body>
+<h1>eskin live: <span id="scene">{scene}</span> ({kind}) on <span id="device">{device}</span></h1>
+<main>
+<div id="map"></div>
+<div id="readout">
+<p><b>contact</b><span id="contact">waiting for frames</span></p>
+<p><b>location</b><span id="location">–</span></p>
+<p><b>force</b><span id="force">–</span></p>
+<p><b>stretch λ</b><span id="stretch">–</span></p>
+<p><b>drift</b><span id="drift">–</span></p>
+<p><b>frame</b><span id="seq">–</span></p>
+<p><b>frames/s</b><span id="rate">–</span></p>
+<p><b>lost, damaged</b><span id="lost">0, 0</span></p>
+</div>
+</main>
+<div id="bars"></div><div id="barlabels"></div>
+<script>
+const map = document.getElementById("map");
+map.appendChild(document.createElement("div"));
+for (let x = 1; x <= 10; x++) {{
+  const label = document.createElement("div"); label.textContent = "x" + x; map.appendChild(label);
+}}
+for (let y = 10; y >= 1; y--) {{
+  const label = document.createElement("div"); label.textContent = "y" + y; map.appendChild(label);
+  for (let x = 1; x <= 10; x++) {{
+    const cell = document.createElement("div");
+    cell.className = "cell"; cell.id = `cell-${{x}}-${{y}}`; map.appendChild(cell);
+  }}
+}}
+const names = [...Array(10).keys()].map(i => "x" + (i + 1))
+  .concat([...Array(10).keys()].map(i => "y" + (i + 1)));
+for (const name of names) {{
+  const bar = document.createElement("div"); bar.id = "bar-" + name;
+  document.getElementById("bars").appendChild(bar);
+  const label = document.createElement("div"); label.textContent = name;
+  document.getElementById("barlabels").appendChild(label);
+}}
+const text = (id, value) => {{ document.getElementById(id).textContent = value; }};
+const fixed = (v, digits) => v === null || v === undefined ? "–" : v.toFixed(digits);
+let marked = [], first = null;
+function show(state) {{
+  const e = state.estimate;
+  if (!e) return;
+  for (const cell of marked) {{ cell.style.background = ""; cell.textContent = ""; }}
+  marked = [];
+  const contacts = "x" in e ? [[e.x, e.y, e.force]]
+    : [[e.x1, e.y1, e.force1], [e.x2, e.y2, e.force2]];
+  const touching = "contact" in e ? e.contact : true;
+  if (touching) for (const [x, y, f] of contacts) {{
+    const cell = document.getElementById(`cell-${{x}}-${{y}}`);
+    if (!cell) continue;
+    const strength = Math.max(0.25, Math.min(1, (f || 0) / 6));
+    cell.style.background = `rgba(179, 38, 30, ${{strength}})`;
+    cell.textContent = fixed(f, 1);
+    marked.push(cell);
+  }}
+  const contact = document.getElementById("contact");
+  contact.className = touching ? "touch" : "";
+  contact.textContent = (touching ? "touch" : "no touch") +
+    (e.contact_probability === null || e.contact_probability === undefined ? ""
+     : ` (p = ${{e.contact_probability.toFixed(3)}})`);
+  text("location", touching ? contacts.map(([x, y]) => `x ${{x}}, y ${{y}}`).join("; ") : "–");
+  text("force", touching ? contacts.map(([, , f]) => `${{fixed(f, 2)}} N`).join("; ") : "0 N");
+  text("stretch", fixed(e.stretch, 3));
+  text("drift", `${{fixed(e.drift_counts, 1)}} counts`);
+  text("seq", `${{e.seq}} (t = ${{(e.t_ms / 1000).toFixed(2)}} s)`);
+  if (first === null) first = [e.seq, e.t_ms];
+  else if (e.t_ms > first[1])
+    text("rate", ((e.seq - first[0]) / (e.t_ms - first[1]) * 1000).toFixed(1));
+  text("lost", `${{state.lost}}, ${{state.rejected}}`);
+  const change = e.change_counts || [];
+  const top = Math.max(20, ...change.map(Math.abs));
+  change.forEach((v, i) => {{
+    const bar = document.getElementById("bar-" + names[i]);
+    bar.style.height = `${{Math.abs(v) / top * 100}}%`;
+    bar.style.background = v < 0 ? "#999" : "#4a78b5";
+    bar.title = `${{names[i]}}: ${{v.toFixed(1)}} counts`;
+  }});
+}}
+const events = new EventSource("/events");
+events.onmessage = message => show(JSON.parse(message.data));
+</script>
+</body></html>
+"""
+
+
+class LiveView:
+    """Serve the page; :meth:`show` each record of :func:`eskin.live.live_estimates`."""
+
+    def __init__(self, *, scene: str, kind: str, device: str, port: int = 0) -> None:
+        self.page = PAGE.format(scene=scene, kind=kind, device=device).encode()
+        self._state: dict[str, Any] = {"estimate": None, "lost": 0, "rejected": 0, "tare": None}
+        self._version = 0
+        self._changed = threading.Condition()
+        self._closed = False
+        view = self
+
+        class Handler(BaseHTTPRequestHandler):
+            def log_message(self, *args: object) -> None:  # no access log on stderr
+                pass
+
+            def do_GET(self) -> None:  # noqa: N802 - http.server's name
+                if self.path == "/":
+                    self._send(200, "text/html; charset=utf-8", view.page)
+                elif self.path == "/state":
+                    self._send(200, "application/json", view.state_json().encode())
+                elif self.path == "/events":
+                    self._events()
+                else:
+                    self._send(404, "text/plain", b"not found\n")
+
+            def _send(self, status: int, kind: str, body: bytes) -> None:
+                self.send_response(status)
+                self.send_header("Content-Type", kind)
+                self.send_header("Content-Length", str(len(body)))
+                self.send_header("Cache-Control", "no-store")
+                self.end_headers()
+                self.wfile.write(body)
+
+            def _events(self) -> None:
+                self.send_response(200)
+                self.send_header("Content-Type", "text/event-stream")
+                self.send_header("Cache-Control", "no-store")
+                self.end_headers()
+                try:
+                    seen = -1
+                    while not view._closed:
+                        with view._changed:
+                            last = seen
+                            view._changed.wait_for(
+                                lambda last=last: view._version != last or view._closed,
+                                KEEPALIVE_S)
+                            fresh, seen = view._version != seen, view._version
+                            data = view.state_json()
+                        message = f"data: {data}\n\n" if fresh else ": idle\n\n"
+                        self.wfile.write(message.encode())
+                        self.wfile.flush()
+                except (BrokenPipeError, ConnectionResetError):
+                    return  # the browser went away
+
+        self._server = ThreadingHTTPServer(("127.0.0.1", port), Handler)
+        self._server.daemon_threads = True
+        self.port = self._server.server_address[1]
+        self.url = f"http://127.0.0.1:{self.port}/"
+        self._thread = threading.Thread(target=self._server.serve_forever, daemon=True)
+        self._thread.start()
+
+    def state_json(self) -> str:
+        return json.dumps(self._state, separators=(",", ":"), allow_nan=False)
+
+    def show(self, record: dict[str, Any]) -> None:
+        with self._changed:
+            if "seq" in record:
+                self._state["estimate"] = record
+            elif "gap" in record:
+                self._state["lost"] += record["gap"]["lost"]
+            elif "rejected" in record:
+                self._state["rejected"] += 1
+            elif "tare" in record:
+                self._state["tare"] = record["tare"]
+            self._version += 1
+            self._changed.notify_all()
+
+    def close(self) -> None:
+        with self._changed:
+            self._closed = True
+            self._changed.notify_all()
+        self._server.shutdown()
+        self._server.server_close()
+
+    def __enter__(self) -> LiveView:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
