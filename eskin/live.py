@@ -108,8 +108,9 @@ class SkinStack:
         from eskin.registry import versioned_file
 
         client = tracking.connect()
-        versions = [v for v in client.search_model_versions(f"name LIKE '{scene}.%'")
-                    if alias in (v.aliases or [])]
+        versions = [client.get_model_version_by_alias(model.name, alias)
+                    for model in client.search_registered_models(f"name LIKE '{scene}.%'")
+                    if alias in (model.aliases or {})]
         by_task = {v.tags.get("eskin.task"): v for v in versions}
         if not by_task:
             raise StackError(f"no registered model of scene {scene!r} has the alias {alias!r}: "

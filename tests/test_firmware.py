@@ -44,7 +44,9 @@ def sim(repo_params):
 @pytest.fixture
 def board(sim):
     with emulated_board(sim, rest_length_mm=REST_MM, samples=5) as (port, rig):
-        link = serial.Serial(port, 115200, timeout=10)
+        # Emulated time runs slower than real time on a busy machine (a 2 s stretch of the
+        # clamp took over 10 s once): the deadline is for a board that is gone, not slow.
+        link = serial.Serial(port, 115200, timeout=60)
         yield greeted(link), rig
         link.close()
 

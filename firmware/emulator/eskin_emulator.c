@@ -197,6 +197,12 @@ int main(int argc, char **argv) {
   fflush(python);
 
   for (;;) {
+    // uart_pty hands the board's output to the pty from its own thread, through a 512-byte
+    // FIFO that drops what does not fit. A thread starved of the CPU (a busy machine) would
+    // lose bytes no real USB bridge loses: the board waits for it instead, as emulated
+    // time may (the host sees a slower board, never a corrupted one).
+    const unsigned fifo = sizeof pty.pty.in.buffer;  // a power of two
+    while (((pty.pty.in.write - pty.pty.in.read) & (fifo - 1)) > fifo / 2) usleep(200);
     const int state = avr_run(avr);
     if (state == cpu_Done || state == cpu_Crashed) fail("the firmware stopped");
     if (reset_asked) {
