@@ -30,6 +30,7 @@ from eskin.data.schema import CHANNELS
 from eskin.live import SkinStack
 
 BUDGET_MS = 1.0
+FRAMES = 500  # sampled from each scene's dataset
 BOARD_FPS = {"python board": 1000 / 12, "firmware": 56.8}
 
 
@@ -96,7 +97,7 @@ def render(results: list[dict]) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--frames", type=int, default=500)
+    parser.add_argument("--frames", type=int, default=FRAMES)
     parser.add_argument("--scenes", nargs="+", default=["single_force", "two_force"])
     parser.add_argument("--json", type=Path)
     args = parser.parse_args()

@@ -24,10 +24,16 @@ from eskin.acquisition.rawlog import LOG_NAME, read_log
 from eskin.acquisition.runner import AcquisitionError
 from eskin.acquisition.session import acquire_scene
 from eskin.device.board import FIRMWARE, SimulatedBoard, simulator_identity
-from eskin.device.emulated import EMULATED_ID, FIRMWARE_ELF, HARNESS, emulated_board
+from eskin.device.emulated import (
+    EMULATED_ID,
+    FIRMWARE_ELF,
+    HARNESS,
+    cav424_volts,
+    emulated_board,
+)
 from eskin.device.faults import LinkFaults
 from eskin.device.link import LinkError
-from eskin.device.physics import SkinParams
+from eskin.device.physics import SkinModel, SkinParams
 from eskin.device.protocol import Frame, parse_line
 
 REST_MM = 101.0
@@ -67,6 +73,15 @@ def greeted(link):
 def ask(link, line: bytes) -> bytes:
     link.write(line + b"\n")
     return link.readline()
+
+
+def test_the_harness_voltage_is_the_models_before_its_adc(sim):
+    model = SkinModel(sim)
+    capacitance = np.linspace(10.0, 40.0, 20)
+    p = sim
+    counts = np.rint(np.clip(cav424_volts(model, capacitance), 0, p.supply_v) / p.supply_v
+                     * (2**p.adc_bits - 1))
+    assert np.array_equal(counts, model.to_counts(capacitance))
 
 
 def test_the_firmware_answers_bad_commands_as_the_python_board(board, sim):

@@ -53,6 +53,17 @@ STEPS_PER_MM = 2560        # firmware/eskin/board.h
 UNITS = 65535              # the harness's full scale (the supply): simavr keeps 16 bits
 
 
+def cav424_volts(model: SkinModel, capacitance_pf: np.ndarray) -> np.ndarray:
+    """The CAV424's output voltage, before the ADC: the first half of
+    :meth:`SkinModel.to_counts` (``tests/test_firmware.py`` checks that they agree). Not
+    split out of physics.py: that file's bytes are part of the simulated board's identity
+    (:func:`~eskin.device.board.simulator_identity`), so any edit there re-keys, and
+    redraws, every simulated dataset."""
+    p = model.params
+    return p.cav424_offset_v + model.cav424_gain_v * (capacitance_pf - p.cav424_ref_pf) / (
+        p.cav424_ref_pf)
+
+
 class EmulatedRig:
     """The skin and clamp around the emulated firmware; the harness process runs both.
 
@@ -102,7 +113,7 @@ class EmulatedRig:
                 self._block = list(self._trial.sample_pf(self.samples, stretch, self._indenters))
             capacitance = self._block.pop(0)
         supply = self.model.params.supply_v
-        volts = self.model.to_volts(capacitance) + self._half_step
+        volts = cav424_volts(self.model, capacitance) + self._half_step
         return [int(u) for u in np.clip(np.rint(volts / supply * UNITS), 0, UNITS)]
 
     def answer(self, question: str) -> str:

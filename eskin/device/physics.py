@@ -186,18 +186,14 @@ class SkinModel:
         stretched = self.baseline_pf * (1 + self.stretch_sensitivity * (stretch - 1))
         return stretched * (1 + indentation)
 
-    def to_volts(self, capacitance_pf: np.ndarray) -> np.ndarray:
-        """The CAV424's output voltage, before the ADC (the emulated board's input)."""
-        p = self.params
-        return p.cav424_offset_v + self.cav424_gain_v * (
-            capacitance_pf - p.cav424_ref_pf) / p.cav424_ref_pf
-
     def to_counts(self, capacitance_pf: np.ndarray) -> np.ndarray:
         """CAV424 voltage, clipped to the supply, then ADC counts (int)."""
         p = self.params
+        volts = p.cav424_offset_v + self.cav424_gain_v * (
+            capacitance_pf - p.cav424_ref_pf) / p.cav424_ref_pf
         full_scale = 2**p.adc_bits - 1
-        volts = np.clip(self.to_volts(capacitance_pf), 0.0, p.supply_v)
-        return np.rint(volts / p.supply_v * full_scale).astype(np.int64)
+        counts = np.rint(np.clip(volts, 0.0, p.supply_v) / p.supply_v * full_scale)
+        return counts.astype(np.int64)
 
     # ----------------------------------------------------------- randomness
 
