@@ -60,6 +60,7 @@ bench: setup
 	dvc repro dvc.yaml bench/dvc.yaml
 	@cat reports/benchmark/*/summary.md reports/soak/*.md
 	@cat reports/fuzz/parser.json reports/fuzz/import.json reports/import_memory.md
+	@cat reports/live_latency/*.md
 
 # Every model under the data real users produce (stress/dvc.yaml): reports/stress.{json,md}.
 stress: setup
