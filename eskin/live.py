@@ -317,6 +317,7 @@ def live_estimates(stack: SkinStack, batches: Iterable[list], *,
     carries ``change_counts``, the 20 channels' change since the tare (the live view's
     bars)."""
     from eskin.device.host import Junk, StreamFrame, StreamGap
+    from eskin.device.link import StreamOverflow
 
     taring: list[np.ndarray] = []
     tare = Tare.take(np.zeros((1, len(CHANNELS))), None) if tare_frames <= 0 else None
@@ -329,6 +330,8 @@ def live_estimates(stack: SkinStack, batches: Iterable[list], *,
                                         "lost": (event.got - event.expected) % 2**32}})
             elif isinstance(event, Junk):
                 records.append({"rejected": event.error.reason})
+            elif isinstance(event, StreamOverflow):
+                records.append({"overflow": {"dropped": event.dropped}})
             elif isinstance(event, StreamFrame):
                 counts = np.asarray(event.frame.counts, dtype=np.float64)
                 if tare is not None:

@@ -260,3 +260,27 @@ def test_the_live_view_shows_a_press_where_and_as_hard_as_it_is(stack, tmp_path)
     assert abs(float(shown["stretch"]) - 1.0) < 0.02
     assert 60 < float(shown["rate"]) < 100  # the board's 12 ms frames: 83 a second
     assert float(bar.removesuffix("%")) > 50  # x5 carries the press
+
+
+def test_stream_events_beyond_the_backlog_kept_during_a_command_are_reported(stack):
+    """Frames that arrive while a command is answered wait for the stream in a bounded
+    backlog; those that do not fit are counted and reported, never silently gone."""
+    import collections
+    import time
+
+    from eskin.device.link import StreamOverflow
+
+    params, _ = stack
+    with simulated_board(skin_params(params), rest_length_mm=101.0,
+                         frame_period_ms=4) as board, SerialLink(board.port) as link:
+        link.connect()
+        link._backlog = collections.deque(maxlen=5)  # instead of STREAM_BACKLOG's 4,096
+        link.start_stream()
+        time.sleep(0.3)  # about 75 frames pile up before the command reads them
+        link.command("SIM CLEAR")
+        first = next(link.stream())
+        link.stop_stream()
+    assert isinstance(first[0], StreamOverflow) and first[0].dropped > 20
+    frames = [e for e in first[1:6] if isinstance(e, StreamFrame)]
+    assert len(frames) == 5 and [f.frame.seq for f in frames] == list(
+        range(frames[0].frame.seq, frames[0].frame.seq + 5))

@@ -45,6 +45,14 @@ MAX_EVIDENCE_LINES = 64    # rejected lines kept per attempt (the rest only coun
 STREAM_BACKLOG = 4096      # stream events kept while a command is answered (~50 s of frames)
 
 
+@dataclass(frozen=True)
+class StreamOverflow:
+    """``dropped`` stream events did not fit the backlog kept while a command was answered
+    (:data:`STREAM_BACKLOG`): the oldest went."""
+
+    dropped: int
+
+
 class LinkError(EskinError, RuntimeError):
     """The board could not be reached or stopped answering."""
 
@@ -123,9 +131,9 @@ class SerialLink:
         self.protocol = HostProtocol()
         self._pending: deque[HostEvent] = deque()
         # Stream events that arrive while a command is answered, for stream() to yield;
-        # bounded: the oldest go first, counted in stream_dropped.
+        # bounded: the oldest go first, counted, and stream() reports them (StreamOverflow).
         self._backlog: deque[HostEvent] = deque(maxlen=STREAM_BACKLOG)
-        self.stream_dropped = 0
+        self._overflowed = 0
         self._serial = self._open()
 
     @property
@@ -224,7 +232,7 @@ class SerialLink:
         """A stream event met while answering a command waits for stream()."""
         if isinstance(event, StreamFrame | StreamGap):
             if len(self._backlog) == self._backlog.maxlen:
-                self.stream_dropped += 1
+                self._overflowed += 1
             self._backlog.append(event)
             return True
         return False
@@ -357,14 +365,17 @@ class SerialLink:
     def stream(self, *, timeout_s: float | None = None) -> Iterator[list[HostEvent]]:
         """The live stream, as the events each read brought (so a consumer can handle
         what has arrived at once): :class:`StreamFrame`, :class:`StreamGap` (frames lost)
-        and :class:`Junk` (a line that failed its check). LinkError when nothing arrives
-        for ``timeout_s`` (default: the link's), BoardReset or DeviceChanged as for a
-        request."""
+        and :class:`Junk` (a line that failed its check), and :class:`StreamOverflow` for
+        stream events dropped while a long command was answered. LinkError when nothing
+        arrives for ``timeout_s`` (default: the link's), BoardReset or DeviceChanged as for
+        a request."""
         timeout = self.timeout_s if timeout_s is None else timeout_s
         deadline = time.monotonic() + timeout
         while True:
-            arrived = list(self._backlog)
+            arrived: list = [StreamOverflow(self._overflowed)] if self._overflowed else []
+            arrived += self._backlog
             self._backlog.clear()
+            self._overflowed = 0
             if not self._pending:
                 self._read()
             while self._pending:
