@@ -88,30 +88,35 @@ def _live(args: argparse.Namespace) -> int:
              f"untouched for {args.tare_frames} frames")
         events = resources.enter_context(contextlib.closing(stream_events(
             link, reconnect_s=float(settings["reconnect_s"]), notify=note)))
-        broadcast = None
-        if args.serve is not None:
-            broadcast = resources.enter_context(LineBroadcast(args.serve, notify=note))
-            note(f"serving the JSON lines on 127.0.0.1:{broadcast.port}")
-        view = None
-        if args.view is not None:
-            from eskin.live_view import LiveView
+        broadcast = view = None
+        try:
+            if args.serve is not None:
+                broadcast = resources.enter_context(LineBroadcast(args.serve, notify=note))
+                note(f"serving the JSON lines on 127.0.0.1:{broadcast.port}")
+            if args.view is not None:
+                from eskin.live_view import LiveView
 
-            view = resources.enter_context(LiveView(scene=args.scene, kind=stack.kind,
-                                                    device=hello.device_id, port=args.view))
-            note(f"the live view is at {view.url}")
+                view = resources.enter_context(LiveView(
+                    scene=args.scene, kind=stack.kind, device=hello.device_id, port=args.view))
+                note(f"the live view is at {view.url}")
+        except OSError as err:  # the port is taken, say
+            raise ValueError(f"cannot serve on 127.0.0.1 ({err.strerror or err})") from None
         estimates = 0
-        for record in live_estimates(stack, events, tare_frames=args.tare_frames,
-                                     with_change=view is not None, notify=note):
-            if view is not None:
-                view.show(record)
-            line = json_line(record)
-            if not args.quiet:
-                print(line, flush=True)
-            if broadcast is not None:
-                broadcast.send(line)
-            estimates += "seq" in record
-            if args.frames and estimates >= args.frames:
-                break
+        try:
+            for record in live_estimates(stack, events, tare_frames=args.tare_frames,
+                                         with_change=view is not None, notify=note):
+                if view is not None:
+                    view.show(record)
+                line = json_line(record)
+                if not args.quiet:
+                    print(line, flush=True)
+                if broadcast is not None:
+                    broadcast.send(line)
+                estimates += "seq" in record
+                if args.frames and estimates >= args.frames:
+                    break
+        except KeyboardInterrupt:  # how a live session ends
+            note(f"stopped after {estimates} estimates")
     return 0
 
 

@@ -110,7 +110,8 @@ class SkinStack:
         client = tracking.connect()
         versions = [client.get_model_version_by_alias(model.name, alias)
                     for model in client.search_registered_models(f"name LIKE '{scene}.%'")
-                    if alias in (model.aliases or {})]
+                    # LIKE's "_" matches any character, and scene names have them
+                    if model.name.startswith(f"{scene}.") and alias in (model.aliases or {})]
         by_task = {v.tags.get("eskin.task"): v for v in versions}
         if not by_task:
             raise StackError(f"no registered model of scene {scene!r} has the alias {alias!r}: "
