@@ -59,6 +59,7 @@ static int reset_asked = 0;
 static long vanish_ms = -1;    // VANISH asked: the milliseconds the link stays away
 static uart_pty_t pty;
 static const char *link_path;
+static int kept_slave = -1;    // the current pty's slave, held open after a VANISH
 static int frame_due = 0;      // x1 was selected: its conversion starts the next scan
 
 static void fail(const char *what) {
@@ -160,6 +161,8 @@ static void vanish(long ms) {
   unlink(link_path);
   if (dup2(master, pty.pty.s) < 0) fail("cannot replace the pty");
   close(master);
+  if (kept_slave >= 0) close(kept_slave);  // the previous VANISH's pty is gone
+  kept_slave = slave;
   memcpy(pty.pty.slavename, name, sizeof name);
   usleep((useconds_t)ms * 1000);  // emulated time stands still meanwhile
   follow_pty();
