@@ -73,6 +73,10 @@ def _live(args: argparse.Namespace) -> int:
     settings = section(params, "acquire")
     stack = (SkinStack.from_registry(args.scene, args.alias) if args.alias
              else SkinStack.from_workspace(args.scene))
+    declared = (section(params, "scenes").get(args.scene) or {}).get("kind")
+    if declared is not None and declared != stack.kind:
+        raise ValueError(f"scenes.{args.scene} is a {declared} scene in {args.params}, but its "
+                         f"trained stack is {stack.kind}: run `dvc repro` to train it again")
     with contextlib.ExitStack() as resources:
         port = args.port
         if args.simulated:

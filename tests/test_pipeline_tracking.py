@@ -161,6 +161,19 @@ def test_eskin_live_runs_the_reproduced_stack_and_refuses_a_changed_model_file(s
         assert "not loading it" in done.stderr and "Traceback" not in done.stderr
     finally:
         model.write_bytes(original)
+    # A scene whose kind changed since its stack was trained: retrain, says the one line.
+    params = yaml.safe_load((root / "params.yaml").read_text())
+    params["scenes"]["single_force"].update(kind="two_force", nodes_x=[1, 10], nodes_y=[1, 10],
+                                            forces=[3.2536])
+    changed = root / "changed_params.yaml"
+    changed.write_text(yaml.safe_dump(params, sort_keys=False))
+    try:
+        done = eskin_cli(["live", "single_force", "--simulated", "--params", str(changed)],
+                         root, env, check=False)
+    finally:
+        changed.unlink()
+    assert done.returncode == 1 and done.stderr.strip().endswith(
+        "its trained stack is single_force: run `dvc repro` to train it again")
 
 
 def test_eskin_live_loads_the_models_registered_under_an_alias(scratch):
