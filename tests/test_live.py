@@ -150,9 +150,9 @@ def test_a_damaged_line_and_a_lost_frame_are_reported_and_never_predicted(stack)
     assert len(predicted) == len([r for r in records if "seq" in r])
 
 
-def test_the_stream_survives_a_command_and_keeps_its_frames_in_order():
-    """Frames that arrive while a command is answered wait for the stream (sans-I/O part:
-    the protocol marks them, the link keeps them)."""
+def test_the_host_protocol_marks_streamed_frames_and_gaps_until_the_fence():
+    """Sans-I/O: after #OK STREAM ON, frames are StreamFrame and a lost seq a StreamGap;
+    the STREAM OFF fence's #OK ends the stream."""
     protocol = HostProtocol(device_id="b")
     protocol.send_stream()
     events = protocol.receive(b"#OK STREAM ON\n")
