@@ -70,7 +70,7 @@ class EmulatedRig:
     Use :func:`emulated_board`, which starts and stops it. ``faults`` maps a scan number
     (counted from 1) to a fault dealt as that scan begins: ``reset`` (the board resets
     mid-request) or ``vanish`` (the USB link drops for ``vanish_s`` and comes back on a new
-    pty, the board reset as an Uno is when its port is opened). ``dealt`` lists them.
+    pty, the board reset as an Uno is when its port is opened).
     """
 
     def __init__(self, params: SkinParams, *, rest_length_mm: float, samples: int,
@@ -82,7 +82,6 @@ class EmulatedRig:
         if unknown:
             raise ValueError(f"emulated faults must be {' or '.join(FAULTS)}, got {unknown}")
         self.vanish_ms = round(vanish_s * 1000)
-        self.dealt: list[tuple[int, str]] = []
         self.failure: str | None = None  # why the rig stopped answering, if it did
         self.model = SkinModel(params)
         self.rest_length_mm = rest_length_mm
@@ -124,7 +123,6 @@ class EmulatedRig:
         self._scans += 1
         fault = self.faults.get(self._scans)
         if fault is not None:
-            self.dealt.append((self._scans, fault))
             return "RESET\n" if fault == "reset" else f"VANISH {self.vanish_ms}\n"
         return "VOLTS " + " ".join(map(str, self.volts(int(words[1])))) + "\n"
 
