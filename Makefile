@@ -2,7 +2,8 @@
 # make test:  set up everything and run the tests.
 # make bench: bench/dvc.yaml, per scene: variants' run time against error, the Bayes bound;
 #             the soak (a whole scene over a faulty link, two SIGKILLs); then the fuzzers
-#             (100,000 inputs each) and the import's memory.
+#             (100,000 inputs each), the import's memory, and the trained stacks' live
+#             latency.
 # make stress: the numerical stress suite (stress/dvc.yaml), per scene.
 SHELL := /bin/bash
 PYTHON ?= python3
