@@ -73,20 +73,18 @@ class SkinStack:
                              f"`eskin train {scene} <task>`)")
         meta = read_metadata(features)
 
-        def checked(path: Path) -> Path:
+        def load_recorded(path: Path):
             if not (root / path).exists():
                 raise StackError(f"{path} is missing: run `dvc repro` (or `dvc checkout`)")
             md5 = recorded.get(path.as_posix())
             if md5 is None:
                 raise StackError(f"{path} is not in dvc.lock: run `dvc repro`")
-            return root / path
+            return load_models(root / path, md5)
 
-        featurizer_file = checked(featurizer_path(scene))
-        featurizer = load_models(featurizer_file, recorded[featurizer_path(scene).as_posix()])
+        featurizer = load_recorded(featurizer_path(scene))
         models, skipped = {}, {}
         for task in TASK_NAMES:
-            relative = model_path(scene, task)
-            loaded = load_models(checked(relative), recorded[relative.as_posix()])
+            loaded = load_recorded(model_path(scene, task))
             if "skipped" in loaded:
                 skipped[task] = loaded["skipped"]
             else:

@@ -26,6 +26,17 @@ def small_scenes(repo_params: dict) -> dict:
     return params
 
 
+def prepared_scene(params: dict, scene: str, root: Path) -> Path:
+    """``scene`` acquired from the simulated board over a pty and ingested under ``root``
+    (raw/<scene>, processed/); returns the dataset's path."""
+    from eskin import steps
+    from eskin.data import build
+
+    steps.acquire(params, scene, root / "raw" / scene, progress=False)
+    build.ingest(params, scene, root / "raw" / scene, root / "processed")
+    return root / "processed" / f"{scene}.parquet"
+
+
 @pytest.fixture
 def small_params(repo_params):
     return small_scenes(repo_params)

@@ -3,13 +3,11 @@
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import small_scenes
+from conftest import prepared_scene, small_scenes
 from scipy.linalg import LinAlgError
 from sklearn.metrics import r2_score
 from sklearn.utils.estimator_checks import check_estimator
 
-from eskin import steps
-from eskin.data import build
 from eskin.data.schema import CHANNELS, contact_mask, read_dataset
 from eskin.device.physics import SkinModel, SkinParams
 from eskin.gp import FixedKernelGaussianProcess, SparseGaussianProcess, stable_cholesky
@@ -108,9 +106,7 @@ def task_labels(frame):
 def small_dataset(tmp_path_factory, repo_params):
     params = small_scenes(repo_params)
     root = tmp_path_factory.mktemp("oracle")
-    steps.acquire(params, "single_force", root / "raw", progress=False)
-    build.ingest(params, "single_force", root / "raw", root / "processed")
-    return params, read_dataset(root / "processed" / "single_force.parquet")
+    return params, read_dataset(prepared_scene(params, "single_force", root))
 
 
 def test_oracle_is_near_perfect_where_the_physics_is_unambiguous(small_dataset):

@@ -5,12 +5,11 @@ import json
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import small_scenes
+from conftest import prepared_scene, small_scenes
 from sklearn.utils.estimator_checks import check_estimator
 
-from eskin import learn, steps
+from eskin import learn
 from eskin.catalog import TASK_NAMES
-from eskin.data import build
 from eskin.data.schema import CHANNELS, md5_file, node_id
 from eskin.evaluation.crossval import cross_validate, parallel_backend
 from eskin.evaluation.cv import assign_folds, strata
@@ -28,8 +27,7 @@ def project(tmp_path_factory, repo_params):
     params["train"]["force"]["paper"]["subsample"] = 300
     root = tmp_path_factory.mktemp("project")
     for scene in ("single_force", "two_force"):
-        steps.acquire(params, scene, root / "raw" / scene, progress=False)
-        build.ingest(params, scene, root / "raw" / scene, root / "processed")
+        prepared_scene(params, scene, root)
         featurize_scene(params, scene, root / "processed", root / "features", root / "models")
     return params, root
 

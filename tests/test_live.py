@@ -11,21 +11,19 @@ import contextlib
 import shutil
 import threading
 
+import joblib
 import numpy as np
 import pandas as pd
 import pytest
 
-from eskin import steps
 from eskin.acquisition.session import simulated_board
 from eskin.config import section, skin_params
-from eskin.data import build
-from eskin.data.schema import md5_file, read_dataset, read_metadata
+from eskin.data.schema import read_dataset, read_metadata
 from eskin.device.host import HostProtocol, StreamFrame, StreamGap
 from eskin.device.link import SerialLink
 from eskin.device.protocol import encode_frame
 from eskin.evaluation.crossval import fit_final
 from eskin.features import featurize_scene
-from eskin.learn import load_models
 from eskin.live import (
     LineBroadcast,
     SkinStack,
@@ -39,7 +37,7 @@ from eskin.live import (
 from eskin.live_view import LiveView
 from eskin.models import build_model, model_settings
 from eskin.tasks import get_task
-from tests.conftest import small_scenes
+from tests.conftest import prepared_scene, small_scenes
 
 TARE = 50
 
@@ -49,8 +47,7 @@ def stack(tmp_path_factory, repo_params):
     """The repo's default models, trained on the small single-force scene."""
     params = small_scenes(repo_params)
     root = tmp_path_factory.mktemp("live")
-    steps.acquire(params, "single_force", root / "raw", progress=False)
-    build.ingest(params, "single_force", root / "raw", root / "processed")
+    processed = prepared_scene(params, "single_force", root)
     featurize_scene(params, "single_force", root / "processed", root / "features",
                     root / "models")
     features = read_dataset(root / "features" / "single_force.parquet")
@@ -59,9 +56,7 @@ def stack(tmp_path_factory, repo_params):
         task = get_task("single_force", name)
         model, hyper = model_settings(section(params, f"train.{name}"), "tuned", "single_force")
         models[name] = fit_final(task, features, build_model(task.role, model, hyper))
-    featurizer_file = root / "models" / "single_force" / "featurizer.joblib"
-    featurizer = load_models(featurizer_file, md5_file(featurizer_file))
-    processed = root / "processed" / "single_force.parquet"
+    featurizer = joblib.load(root / "models" / "single_force" / "featurizer.joblib")
     return params, SkinStack("single_force", "single_force", featurizer, models,
                              device=read_metadata(processed)["device"],
                              rest=rest_reading(pd.read_parquet(processed)))
@@ -284,3 +279,4 @@ def test_stream_events_beyond_the_backlog_kept_during_a_command_are_reported(sta
     frames = [e for e in first[1:6] if isinstance(e, StreamFrame)]
     assert len(frames) == 5 and [f.frame.seq for f in frames] == list(
         range(frames[0].frame.seq, frames[0].frame.seq + 5))
+

@@ -209,8 +209,7 @@ class HostProtocol:
 
     def send_stream(self) -> bytes:
         """``STREAM ON``: once its ``#OK`` arrives, frames are :class:`StreamFrame`."""
-        self._start("command", "STREAM", "STREAM ON")
-        return b"STREAM ON\n"
+        return self.send_command("STREAM ON")
 
     def send_sample(self, n: int) -> bytes:
         if n < 1:

@@ -344,18 +344,7 @@ class SerialLink:
 
     def start_stream(self) -> None:
         """``STREAM ON`` and its ``#OK``: the board sends frames until stopped."""
-        self._prepare()
-
-        def on_event(event: HostEvent) -> bool | None:
-            self._raise_for_board(event, "during STREAM ON")
-            if isinstance(event, Answered):
-                return True
-            if isinstance(event, Violation):
-                raise ProtocolViolation(f"board on {self.port} broke protocol during "
-                                        f"STREAM ON: {event.reason}")
-            return None
-
-        self._exchange(self.protocol.send_stream(), "STREAM ON", on_event)
+        self.command("STREAM ON")
 
     def stop_stream(self) -> None:
         """``STREAM OFF`` (the fence): nothing more is sent."""
