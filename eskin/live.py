@@ -267,10 +267,11 @@ class Tare:
     """A live board's offset from the training rest reading, taken with nothing pressed,
     and taken off every frame after. ``drift`` is how far, in counts (the largest channel),
     the untouched reading has moved since (a running average over ``drift_frames`` of the
-    frames without contact; a stretch moves it too)."""
+    frames without contact; a stretch moves it too). Without a tare (:meth:`none`) there
+    is nothing to measure drift or change from: both are None."""
 
     offset: np.ndarray
-    reading: np.ndarray
+    reading: np.ndarray | None
     drift_frames: int = 200
     _recent: np.ndarray = None  # type: ignore[assignment]  # starts at the tare's reading
 
@@ -280,16 +281,24 @@ class Tare:
         offset = reading - rest if rest is not None else np.zeros_like(reading)
         return cls(offset, reading, _recent=reading.copy())
 
+    @classmethod
+    def none(cls) -> Tare:
+        return cls(np.zeros(len(CHANNELS)), None)
+
     def apply(self, counts: np.ndarray) -> np.ndarray:
         return np.asarray(counts, dtype=np.float64) - self.offset
 
     def note_rest(self, counts: np.ndarray) -> None:
+        if self.reading is None:
+            return
         weight = 1.0 / self.drift_frames
         self._recent = (1 - weight) * self._recent + weight * np.asarray(counts, np.float64)
 
     @property
-    def drift(self) -> float:
-        return float(np.max(np.abs(self._recent - self.reading)))
+    def drift(self) -> float | None:
+        if self.reading is None:
+            return None
+        return round(float(np.max(np.abs(self._recent - self.reading))), 3)
 
 
 def _number(value: Any) -> Any:
@@ -319,7 +328,7 @@ def live_estimates(stack: SkinStack, batches: Iterable[list], *,
     from eskin.device.link import StreamOverflow
 
     taring: list[np.ndarray] = []
-    tare = Tare.take(np.zeros((1, len(CHANNELS))), None) if tare_frames <= 0 else None
+    tare = Tare.none() if tare_frames <= 0 else None
     for batch in batches:
         records: list[dict[str, Any] | None] = []
         pending: list[tuple[int, Any]] = []  # (index in records, frame) to predict
@@ -353,10 +362,10 @@ def live_estimates(stack: SkinStack, batches: Iterable[list], *,
                 record = {"seq": frame.seq, "t_ms": frame.t_ms}
                 record.update({name: _number(estimates[name].iloc[row])
                                for name in stack.columns})
-                record["drift_counts"] = round(tare.drift, 3)
+                record["drift_counts"] = tare.drift
                 if with_change:
-                    record["change_counts"] = [round(float(v), 1)
-                                               for v in counts[row] - tare.reading]
+                    record["change_counts"] = None if tare.reading is None else [
+                        round(float(v), 1) for v in counts[row] - tare.reading]
                 records[at] = record
         yield from records
 

@@ -280,3 +280,15 @@ def test_stream_events_beyond_the_backlog_kept_during_a_command_are_reported(sta
     assert len(frames) == 5 and [f.frame.seq for f in frames] == list(
         range(frames[0].frame.seq, frames[0].frame.seq + 5))
 
+
+def test_without_a_tare_there_is_no_drift_or_change_to_report(stack):
+    """--tare-frames 0: nothing to measure drift or change from, so both are null (not
+    the raw counts' distance from zero)."""
+    from eskin.device.protocol import parse_line
+
+    _, skin = stack
+    frames = [StreamFrame(parse_line(encode_frame(seq, 12 * seq, [400] * 20).rstrip(b"\n")))
+              for seq in range(3)]
+    records = list(live_estimates(skin, [frames], tare_frames=0, with_change=True))
+    assert [r["seq"] for r in records] == [0, 1, 2]
+    assert all(r["drift_counts"] is None and r["change_counts"] is None for r in records)
