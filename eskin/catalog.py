@@ -38,6 +38,7 @@ PLOTS_DIR = Path("reports/plots")
 BENCH_DIR = Path("reports/benchmark")
 SOAK_DIR = Path("reports/soak")
 STRESS_DIR = Path("reports/stress")
+EXPORT_DIR = Path("reports/export")
 PAGE = Path("reports/index.html")
 README = Path("README.md")
 
@@ -68,6 +69,16 @@ def predictions_path(scene: str, task: str) -> Path:
 
 def model_path(scene: str, task: str) -> Path:
     return MODELS_DIR / scene / f"{task}.joblib"
+
+
+def stack_path(scene: str) -> Path:
+    """The scene's whole stack as one ONNX file (eskin/export.py)."""
+    return MODELS_DIR / scene / "stack.onnx"
+
+
+def export_report_path(scene: str) -> Path:
+    """How the ONNX stack agrees with the scikit-learn stack it was made from."""
+    return EXPORT_DIR / f"{scene}.json"
 
 
 def bench_dir(scene: str) -> Path:

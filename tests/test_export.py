@@ -1,0 +1,201 @@
+"""The stack as one ONNX file (eskin.export) against the scikit-learn stack it came from.
+
+Synthetic stacks built to reach every converter and its corners: ties between terminals
+(which peak TopK picks), rows with fewer than two peaks, NaN readings (the trees' missing
+branch), a tree that is a single leaf, two and three classes, each featurizer. The stacks
+trained on the simulated skin are checked by the export stage itself (tests of the
+pipeline) and live in tests/test_live.py.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import onnx
+import pandas as pd
+import pytest
+from sklearn.base import BaseEstimator, RegressorMixin
+from sklearn.ensemble import HistGradientBoostingClassifier, HistGradientBoostingRegressor
+
+from eskin.data.schema import CHANNELS
+from eskin.export import ExportError, compare, stack_to_onnx, write_stack
+from eskin.features import make_featurizer
+from eskin.models import REGISTRY, ActiveTerminals, ForceProfile, build_model
+from eskin.stack import ExportedStack, SkinStack
+
+
+def readings(n: int, seed: int) -> np.ndarray:
+    """ADC-like counts: integers, so that neighbours tie; a press lifts a few terminals."""
+    rng = np.random.default_rng(seed)
+    counts = rng.integers(500, 504, size=(n, 20)).astype(float)
+    for row in range(n):
+        for axis in (0, 10):
+            for _ in range(rng.integers(0, 3)):  # 0, 1 or 2 presses: 0 to 2 peaks
+                at = axis + rng.integers(0, 10)
+                counts[row, at] += rng.integers(1, 40)
+    return counts
+
+
+def fitted(role: str, name: str, X, y, **hyper):
+    return build_model(role, name, hyper).fit(pd.DataFrame(X, columns=CHANNELS), y)
+
+
+def exported(stack: SkinStack, tmp_path) -> ExportedStack:
+    return ExportedStack.from_file(write_stack(stack, tmp_path / "stack.onnx", sources={}))
+
+
+def assert_same(stack: SkinStack, onnx_stack: ExportedStack, X: np.ndarray) -> None:
+    report = compare(onnx_stack, stack, X)
+    for name, found in report["estimates"].items():
+        assert found["differing_alone"] == 0, (name, found)
+
+
+@pytest.mark.parametrize("featurizer", ["raw", "standardise", "baseline"])
+def test_a_single_force_stack_exports_with_the_same_estimates(featurizer, tmp_path):
+    X = readings(1500, seed=1)
+    press = X.max(axis=1) - np.median(X, axis=1)
+    contact = press > 20
+    force = np.where(contact, press / 10, 0.0)
+    stretch = 1 + (X.sum(axis=1) % 7) / 100
+    where = np.argmax(X[:, :10], axis=1) + 1
+    transform = make_featurizer(featurizer).fit(pd.DataFrame(X, columns=CHANNELS))
+    F = np.asarray(transform.transform(pd.DataFrame(X, columns=CHANNELS)))
+    models = {
+        "stretch": {"stretch": fitted("stretch", "paper", F, stretch)},
+        "force": {"force": fitted("force", "physics_profile", F, force, max_iter=30)},
+        "detect": {"contact": fitted("detect", "hist_gradient_boosting", F, contact,
+                                     max_iter=20)},
+        "localise": {"x": fitted("localise", "logistic", F, where),
+                     "y": fitted("localise", "hist_gradient_boosting", F, where % 3,
+                                 max_iter=10)},
+    }
+    stack = SkinStack("synthetic", "single_force", transform, models,
+                      rest=X[~contact].mean(axis=0))
+    onnx_stack = exported(stack, tmp_path)
+    assert_same(stack, onnx_stack, readings(800, seed=2))
+    assert onnx_stack.columns == stack.columns and onnx_stack.kind == "single_force"
+    np.testing.assert_array_equal(onnx_stack.rest, stack.rest)
+
+
+def test_a_two_force_stack_exports_with_the_same_estimates(tmp_path):
+    X = readings(1500, seed=3)
+    peaks = np.argsort(X[:, :10], axis=1, kind="stable")[:, -2:]
+    models = {
+        "localise": {f"x{i + 1}": fitted("localise", "active_terminals", X,
+                                          np.sort(peaks, axis=1)[:, i] // 4, max_iter=15)
+                     for i in range(2)},  # three classes
+        "force": {"force1": fitted("force", "hist_gradient_boosting", X, X[:, 4] - 500,
+                                   max_iter=15),
+                  "force2": fitted("force", "random_forest", X, X[:, 14], n_estimators=5)},
+    }
+    stack = SkinStack("synthetic", "two_force", make_featurizer("raw").fit(
+        pd.DataFrame(X, columns=CHANNELS)), models, skipped={"stretch": "one level"})
+    onnx_stack = exported(stack, tmp_path)
+    test = readings(800, seed=4)
+    assert_same(stack, onnx_stack, test)
+    estimates = onnx_stack.predict(test)
+    assert estimates["stretch"].isna().all() and estimates["y1"].isna().all()
+
+
+def test_a_missing_value_takes_the_branch_each_split_learnt(tmp_path):
+    import onnxruntime
+
+    from eskin.export import OPSETS, _convert, _register
+
+    _register()
+    X = readings(1500, seed=10)
+    X[::5, 2] = np.nan  # seen in training: each split on x3 learns where NaN goes
+    y = np.nan_to_num(X[:, 2], nan=560.0) + X[:, 11]
+    for model in (HistGradientBoostingRegressor(max_iter=10).fit(X, y),
+                  HistGradientBoostingClassifier(max_iter=10).fit(X, y > np.median(y))):
+        converted = _convert(model, "x", 20)
+        for opset in converted.opset_import:
+            opset.version = OPSETS[opset.domain]
+        session = onnxruntime.InferenceSession(converted.SerializeToString())
+        test = readings(400, seed=11)
+        test[::3, 2] = np.nan
+        ours = session.run(None, {"x": test})
+        if hasattr(model, "classes_"):
+            np.testing.assert_array_equal(ours[0], model.predict(test))
+            np.testing.assert_allclose(ours[1], model.predict_proba(test), rtol=0, atol=1e-15)
+        else:
+            np.testing.assert_allclose(ours[0].ravel(), model.predict(test), rtol=0, atol=1e-12)
+
+
+def test_the_transformers_match_numpy_to_the_last_bit():
+    """ForceProfile's sums run in numpy's order, ActiveTerminals breaks ties as a stable
+    argsort does: both give numpy's values exactly, on every row — but for the log of
+    the amplitude ratio, whose last bit is onnxruntime's log (the next step rounds to 1e-6)."""
+    import onnxruntime
+    from skl2onnx import convert_sklearn
+    from skl2onnx.common.data_types import DoubleTensorType
+
+    from eskin.export import CONVERTER_OPSETS, _register
+
+    _register()
+    X = readings(3000, seed=5) * 1.37  # sums of non-integers, where order shows
+    log_ratios = [24, 29]
+    for transformer in (ForceProfile(quiet=3).fit(X), ActiveTerminals().fit(X)):
+        model = convert_sklearn(transformer, initial_types=[("x", DoubleTensorType([None, 20]))],
+                                target_opset=CONVERTER_OPSETS)
+        session = onnxruntime.InferenceSession(model.SerializeToString())
+        ours = session.run(None, {"x": X[:500]})[0]  # 500 rows: within numpy's buffer
+        theirs = transformer.transform(X[:500])
+        exact = [c for c in range(theirs.shape[1])
+                 if not (isinstance(transformer, ActiveTerminals) and c in log_ratios)]
+        np.testing.assert_array_equal(ours[:, exact], theirs[:, exact])
+        np.testing.assert_allclose(ours, theirs, rtol=4.5e-16, atol=0)
+
+
+SMALL = {("force", "paper"): {"subsample": 100},
+         ("force", "sparse_gp"): {"n_inducing": 50, "hyper_subsample": 100},
+         ("force", "exact_gp"): {"hyper_subsample": 100}}
+
+
+@pytest.mark.parametrize("role, name", [(role, name) for role, models in REGISTRY.items()
+                                        for name in models])
+def test_every_model_of_the_registry_exports(role, name, tmp_path):
+    """Any model params.yaml can choose (the paper's configuration included) goes into the
+    file, with the scikit-learn model's estimates."""
+    X = readings(600, seed=12)
+    targets = {"stretch": X[:, 3] / 500, "force": X[:, 3] + X[:, 12] / 2,
+               "detect": X.max(axis=1) - np.median(X, axis=1) > 20,
+               "localise": np.argmax(X[:, :10], axis=1) % 4 + 1}
+    task, target = {"stretch": ("stretch", "stretch"), "force": ("force", "force"),
+                    "detect": ("detect", "contact"), "localise": ("localise", "x")}[role]
+    models = {task: {target: fitted(role, name, X, targets[role], **SMALL.get((role, name), {}))}}
+    stack = SkinStack("every", "single_force", make_featurizer("raw").fit(X), models)
+    assert_same(stack, exported(stack, tmp_path), readings(300, seed=13))
+
+
+class Channel3(RegressorMixin, BaseEstimator):
+    """A model of the lab's own, which no converter knows."""
+
+    def fit(self, X, y):  # noqa: N803
+        self.n_features_in_ = X.shape[1]
+        return self
+
+    def predict(self, X):  # noqa: N803
+        return np.asarray(X)[:, 3]
+
+
+def test_a_model_without_an_onnx_form_is_one_clear_error():
+    X = readings(200, seed=8)
+    stack = SkinStack("own", "two_force", make_featurizer("raw").fit(X),
+                      {"force": {"force1": Channel3().fit(X, X[:, 0])}})
+    with pytest.raises(ExportError, match="cannot export Channel3: Unable to find a shape"):
+        stack_to_onnx(stack)
+
+
+def test_the_file_says_what_it_is(tmp_path):
+    X = readings(300, seed=9)
+    stack = SkinStack("meta", "two_force", make_featurizer("raw").fit(X),
+                      {"force": {"force1": fitted("force", "hist_gradient_boosting", X, X[:, 0],
+                                                  max_iter=3)}},
+                      device={"id": "board-7"})
+    path = write_stack(stack, tmp_path / "s.onnx", sources={"models/meta/force.joblib": "ab"})
+    props = {p.key: p.value for p in onnx.load(path).metadata_props}
+    assert props["eskin.scene"] == "meta" and '"board-7"' in props["eskin.device"]
+    loaded = ExportedStack.from_file(path)
+    loaded.check_board("board-7")
+    with pytest.raises(ValueError, match="trained on device board-7"):
+        loaded.check_board("board-8")
