@@ -60,9 +60,11 @@ def _live(args: argparse.Namespace) -> int:
     import contextlib
 
     from eskin.acquisition.session import simulated_board
+    from eskin.catalog import raw_dir, stack_path
     from eskin.config import load_params, section, skin_params
     from eskin.device.link import SerialLink
-    from eskin.live import LineBroadcast, SkinStack, json_line, live_estimates, stream_events
+    from eskin.live import LineBroadcast, LiveRecorder, json_line, live_estimates, stream_events
+    from eskin.stack import ExportedStack, SkinStack
 
     def note(message: str) -> None:
         print(f"eskin live: {message}", file=sys.stderr, flush=True)
@@ -71,9 +73,19 @@ def _live(args: argparse.Namespace) -> int:
         raise ValueError("--tare-frames and --frames count frames: 0 or more")
     params = load_params(args.params)
     settings = section(params, "acquire")
-    stack = (SkinStack.from_registry(args.scene, args.alias) if args.alias
-             else SkinStack.from_workspace(args.scene))
-    declared = (section(params, "scenes").get(args.scene) or {}).get("kind")
+    if args.onnx is not None:
+        stack = ExportedStack.from_file(Path(args.onnx) if args.onnx else stack_path(args.scene))
+        if stack.scene != args.scene:
+            raise ValueError(f"{args.onnx} is the {stack.scene} stack, not {args.scene}'s")
+    elif args.alias:
+        stack = SkinStack.from_registry(args.scene, args.alias)
+    else:
+        stack = SkinStack.from_workspace(args.scene)
+    scene_params = section(params, "scenes").get(args.scene) or {}
+    if args.record and scene_params.get("source") == "import":
+        raise ValueError(f"--record keeps a board's frames in the raw log of a scene acquired "
+                         f"from a board; {args.scene} is imported from a file")
+    declared = scene_params.get("kind")
     if declared is not None and declared != stack.kind:
         raise ValueError(f"scenes.{args.scene} is a {declared} scene in {args.params}, but its "
                          f"trained stack is {stack.kind}: run `dvc repro` to train it again")
@@ -92,6 +104,20 @@ def _live(args: argparse.Namespace) -> int:
              f"untouched for {args.tare_frames} frames")
         events = resources.enter_context(contextlib.closing(stream_events(
             link, reconnect_s=float(settings["reconnect_s"]), notify=note)))
+        recorder = None
+        if args.record:
+            source = "simulated" if args.simulated else "serial"
+            recorder = LiveRecorder.open(
+                raw_dir(args.scene), args.scene, hello, source=source,
+                port="simulated board (pty)" if args.simulated else port,
+                stack=(f"onnx {args.onnx or stack_path(args.scene)}" if args.onnx is not None
+                       else f"registry @{args.alias}" if args.alias else "workspace"))
+            resources.callback(lambda: note(
+                f"recorded {recorder.frames} frame(s) in {recorder.attempts} attempt(s) as "
+                f"session {recorder.session} of {recorder.writer.path}; `dvc repro` puts "
+                f"them in data/processed/{args.scene}.live.parquet"))
+            resources.callback(recorder.close)
+            events = recorder.tap(events)
         broadcast = view = None
         try:
             if args.serve is not None:
@@ -121,6 +147,13 @@ def _live(args: argparse.Namespace) -> int:
                     break
         except KeyboardInterrupt:  # how a live session ends
             note(f"stopped after {estimates} estimates")
+    return 0
+
+
+def _export(args: argparse.Namespace) -> int:
+    from eskin.export import export_scene
+
+    print(export_scene(args.scene))
     return 0
 
 
@@ -175,9 +208,13 @@ def build_parser() -> argparse.ArgumentParser:
     where.add_argument("--port", help="the board's port, e.g. /dev/ttyACM0")
     where.add_argument("--simulated", action="store_true",
                        help="start the simulated board (params.yaml's sim) and read it")
-    live.add_argument("--alias", metavar="NAME",
-                      help="the models registered in MLflow under this alias (e.g. champion) "
-                      "instead of the workspace's")
+    which = live.add_mutually_exclusive_group()
+    which.add_argument("--alias", metavar="NAME",
+                       help="the models registered in MLflow under this alias (e.g. champion) "
+                       "instead of the workspace's")
+    which.add_argument("--onnx", nargs="?", const="", metavar="FILE",
+                       help="the stack exported as ONNX (default models/<scene>/stack.onnx, "
+                       "which dvc repro writes), run by onnxruntime: under 1 ms a frame")
     live.add_argument("--tare-frames", type=int, default=100, metavar="N",
                       help="frames with nothing pressed, taken as the tare at start "
                       "(default 100, about 1.2 s; 0: no tare)")
@@ -189,6 +226,9 @@ def build_parser() -> argparse.ArgumentParser:
     live.add_argument("--view", type=int, metavar="PORT",
                       help="show the estimates on a page at http://127.0.0.1:PORT/ "
                       "(0: a free port, printed)")
+    live.add_argument("--record", action="store_true",
+                      help="also append the frames to the scene's raw log as a live session "
+                      "(dvc repro then keeps them in data/processed/<scene>.live.parquet)")
     live.add_argument("--quiet", action="store_true", help="no JSON lines on stdout")
     live.add_argument("--any-device", action="store_true",
                       help="use the stack on a board other than the one it was trained on")
@@ -208,6 +248,12 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--params", type=Path, default=Path("params.yaml"))
     train.add_argument("--no-track", action="store_true", help="do not log to MLflow")
     train.set_defaults(run=_learning_step)
+
+    export = commands.add_parser(
+        "export", help="write a scene's trained stack as one ONNX file "
+        "(models/<scene>/stack.onnx) and check it against the scikit-learn stack")
+    export.add_argument("scene")
+    export.set_defaults(run=_export)
 
     compare = commands.add_parser(
         "compare", help="the latest run of every variant side by side, from MLflow: "

@@ -1,17 +1,11 @@
-"""Live: a scene's whole trained stack on a board's stream, frame by frame.
+"""Live: a scene's stack (:mod:`eskin.stack`) on a board's stream, frame by frame.
 
-:class:`SkinStack` is the one object a robot loop needs: the scene's featurizer and its
-task models (stretch, contact, location, force), loaded from the workspace with every
-file's md5 checked against dvc.lock, and ``predict(counts)`` from the 20 channels to
-the estimates. :func:`live_estimates` runs it on a :class:`~eskin.device.link.SerialLink`
-that streams (``STREAM ON``): a tare first (frames with nothing pressed, whose offset from
-the training data's rest reading is taken off every frame after), then one estimate per
-frame, carrying the board's ``seq`` and ``t_ms``; a lost frame or a damaged line is
-reported where it happened and never predicted.
-
-A single-force stack detects contact, and locates and weighs a contact only where it
-detects one (elsewhere x and y are NaN and the force 0); stretch is estimated on every
-frame. A two-force stack always has two contacts: x1, y1, x2, y2, force1, force2.
+:func:`live_estimates` runs a stack on a :class:`~eskin.device.link.SerialLink` that
+streams (``STREAM ON``): a tare first (frames with nothing pressed, whose offset from the
+training data's rest reading is taken off every frame after), then one estimate per frame,
+carrying the board's ``seq`` and ``t_ms``; a lost frame or a damaged line is reported
+where it happened and never predicted. :class:`LineBroadcast` hands the estimates to other
+programs as JSON lines on 127.0.0.1.
 """
 
 from __future__ import annotations
@@ -19,247 +13,16 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Callable, Iterable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pandas as pd
-import yaml
-from threadpoolctl import ThreadpoolController
 
-from eskin.catalog import TASK_NAMES, features_path, featurizer_path, model_path, processed_path
-from eskin.data.schema import CHANNELS, read_metadata
-from eskin.errors import EskinError
-from eskin.learn import load_models
+from eskin.data.schema import CHANNELS
+from eskin.stack import ExportedStack, SkinStack
 
 TARE_FRAMES = 100  # about 1.2 s of the stream at the board's 12 ms frame period
-# A few frames are too little work to share between OpenMP threads (gradient boosting):
-# waking them costs more than they save, and much more when the other core is busy
-# (harness/live_latency.py, single force with a bench running: per-frame p99 149 ms on
-# two threads, 18 ms on one). Batches up to this many rows are predicted on one thread.
-ONE_THREAD_ROWS = 64
-_THREADS = ThreadpoolController()
-
-
-class StackError(EskinError, ValueError):
-    """No stack to load, or a stack that does not fit the board."""
-
-
-@dataclass
-class SkinStack:
-    """A scene's trained models, as one estimator from the 20 channels to the estimates."""
-
-    scene: str
-    kind: str
-    featurizer: Any
-    models: dict[str, dict[str, Any]]          # task → target → fitted estimator
-    skipped: dict[str, str] = field(default_factory=dict)  # task → why it has no model
-    device: dict | None = None                 # the board the training data came from
-    rest: np.ndarray | None = None             # training rest reading (counts), for a tare
-
-    # ------------------------------------------------------------ loading
-
-    @classmethod
-    def from_workspace(cls, scene: str, root: Path = Path(".")) -> SkinStack:
-        """The stack ``dvc repro`` trained for ``scene``, each file checked against the md5
-        dvc.lock records for it (a model file is code: only the recorded one is loaded)."""
-        root = Path(root)
-        recorded = _locked_md5s(root)
-        features = root / features_path(scene)
-        if not features.exists():
-            raise StackError(f"no trained stack for scene {scene!r} ({features} is missing): "
-                             f"run `dvc repro` (or `eskin featurize {scene}` and "
-                             f"`eskin train {scene} <task>`)")
-        meta = read_metadata(features)
-
-        def load_recorded(path: Path):
-            if not (root / path).exists():
-                raise StackError(f"{path} is missing: run `dvc repro` (or `dvc checkout`)")
-            md5 = recorded.get(path.as_posix())
-            if md5 is None:
-                raise StackError(f"{path} is not in dvc.lock: run `dvc repro`")
-            return load_models(root / path, md5)
-
-        featurizer = load_recorded(featurizer_path(scene))
-        models, skipped = {}, {}
-        for task in TASK_NAMES:
-            loaded = load_recorded(model_path(scene, task))
-            if "skipped" in loaded:
-                skipped[task] = loaded["skipped"]
-            else:
-                models[task] = loaded
-        rest = None
-        processed = root / processed_path(scene)
-        if processed.exists():
-            rest = rest_reading(pd.read_parquet(processed))
-        return cls(scene, meta["kind"], featurizer, models, skipped, meta.get("device"), rest)
-
-    @classmethod
-    def from_registry(cls, scene: str, alias: str, root: Path = Path(".")) -> SkinStack:
-        """The stack whose task models carry the MLflow alias ``alias`` (``champion``:
-        ``client.set_registered_model_alias("single_force.force", "champion", 3)``).
-        Each task's file is found by the md5 its version recorded, in the workspace or
-        DVC's cache, and checked before it is loaded, as ``eskin reproduce`` does; all
-        must come from the same features version."""
-        from eskin import tracking
-        from eskin.registry import versioned_file
-
-        client = tracking.connect()
-        versions = [client.get_model_version_by_alias(model.name, alias)
-                    for model in client.search_registered_models(f"name LIKE '{scene}.%'")
-                    # LIKE's "_" matches any character, and scene names have them
-                    if model.name.startswith(f"{scene}.") and alias in (model.aliases or {})]
-        by_task = {v.tags.get("eskin.task"): v for v in versions}
-        if not by_task:
-            raise StackError(f"no registered model of scene {scene!r} has the alias {alias!r}: "
-                             f"set one with MlflowClient().set_registered_model_alias("
-                             f"'{scene}.force', '{alias}', <version>)")
-        features_md5 = {v.tags.get("eskin.features_md5") for v in by_task.values()}
-        if len(features_md5) != 1:
-            raise StackError(f"the {alias!r} models of {scene} were trained on different "
-                             f"features versions ({', '.join(sorted(map(str, features_md5)))}): "
-                             "give the alias to versions of one training")
-        features = versioned_file(root, features_path(scene), features_md5.pop(),
-                                  f"features of {scene}")
-        meta = read_metadata(features)
-        models, skipped = {}, {}
-        for task in TASK_NAMES:
-            version = by_task.get(task)
-            if version is None:
-                skipped[task] = f"no {task} model has the alias {alias!r}"
-                continue
-            md5 = version.tags["eskin.model_md5"]
-            models[task] = load_models(versioned_file(root, model_path(scene, task), md5,
-                                                      f"{version.name} v{version.version}"), md5)
-        processed = versioned_file(root, processed_path(scene), meta["dataset"]["md5"],
-                                   f"dataset of {scene}")
-        return cls(scene, meta["kind"], _featurizer_for(scene, meta, features, root),
-                   models, skipped, meta.get("device"), rest_reading(pd.read_parquet(processed)))
-
-    # ------------------------------------------------------------ predicting
-
-    @property
-    def columns(self) -> list[str]:
-        if self.kind == "single_force":
-            return ["stretch", "contact", "contact_probability", "x", "y", "force"]
-        return ["stretch", "x1", "y1", "x2", "y2", "force1", "force2"]
-
-    def predict(self, counts) -> pd.DataFrame:
-        """Estimates for each row of ``counts`` (n × 20 channel readings, x1..x10 then
-        y1..y10, in the units the stack was trained on)."""
-        values = np.atleast_2d(np.asarray(counts, dtype=np.float64))
-        if values.shape[1] != len(CHANNELS):
-            raise ValueError(f"a frame has {len(CHANNELS)} channels, got {values.shape[1]}")
-        if len(values) <= ONE_THREAD_ROWS:
-            with _THREADS.limit(limits=1, user_api="openmp"):
-                return self._predict(values)
-        return self._predict(values)
-
-    def _predict(self, values: np.ndarray) -> pd.DataFrame:
-        X = pd.DataFrame(values, columns=CHANNELS)
-        features = pd.DataFrame(np.asarray(self.featurizer.transform(X), dtype=np.float64),
-                                columns=CHANNELS)
-        n = len(features)
-        out = pd.DataFrame(index=range(n))
-        out["stretch"] = self._regress("stretch", "stretch", features)
-        if self.kind != "single_force":
-            located = self._each("localise", features)
-            weighed = self._each("force", features)
-            for name in ("x1", "y1", "x2", "y2"):
-                out[name] = located.get(name, np.full(n, np.nan))
-            for name in ("force1", "force2"):
-                out[name] = weighed.get(name, np.full(n, np.nan))
-            return out
-        contact, probability = self._detect(features)
-        out["contact"] = contact
-        out["contact_probability"] = probability
-        out["x"], out["y"] = np.full(n, np.nan), np.full(n, np.nan)
-        out["force"] = np.zeros(n)
-        if contact.any():
-            touched = features[contact]
-            located = self._each("localise", touched)
-            for name in ("x", "y"):
-                if name in located:
-                    out.loc[contact, name] = located[name]
-            out.loc[contact, "force"] = self._regress("force", "force", touched)
-        return out
-
-    def _each(self, task: str, features: pd.DataFrame) -> dict[str, np.ndarray]:
-        return {target: np.asarray(model.predict(features), dtype=np.float64)
-                for target, model in self.models.get(task, {}).items()}
-
-    def _regress(self, task: str, target: str, features: pd.DataFrame) -> np.ndarray:
-        model = self.models.get(task, {}).get(target)
-        if model is None:
-            return np.full(len(features), np.nan)
-        return np.asarray(model.predict(features), dtype=np.float64)
-
-    def _detect(self, features: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
-        model = self.models.get("detect", {}).get("contact")
-        n = len(features)
-        if model is None:  # no detector (a scene without contact-free samples): always
-            return np.ones(n, dtype=bool), np.full(n, np.nan)
-        contact = np.asarray(model.predict(features)).astype(bool)
-        if hasattr(model, "predict_proba"):
-            classes = list(model.classes_)
-            probability = model.predict_proba(features)[:, classes.index(True)]
-        else:  # the paper's SVM gives no probability
-            probability = np.full(n, np.nan)
-        return contact, probability
-
-    # ------------------------------------------------------------ fitting the board
-
-    def check_board(self, device_id: str) -> None:
-        """A stack trained on one board's data reads another's wrong (every terminal has
-        its own baseline and gain): refuse it, saying what to do."""
-        trained_on = (self.device or {}).get("id")
-        if trained_on is not None and trained_on != device_id:
-            raise StackError(f"the {self.scene} stack was trained on device {trained_on}, but "
-                             f"the board says it is {device_id}: acquire and train on this "
-                             "board (or pass --any-device to use it anyway)")
-
-
-def rest_reading(frame: pd.DataFrame) -> np.ndarray | None:
-    """The training data's reading with nothing pressed, at the lowest stretch: what a tare
-    takes a live board's offset from. None for a scene without such samples."""
-    from eskin.features import baseline_rows
-
-    rows = baseline_rows(frame)
-    if not rows.any():
-        return None
-    return frame.loc[rows, CHANNELS].to_numpy(dtype=np.float64).mean(axis=0)
-
-
-def _featurizer_for(scene: str, meta: dict, features: Path, root: Path):
-    """The featurizer that made ``features``: ``raw`` is the identity; a fitted one is the
-    workspace's, if the workspace's features are these (their md5s agree)."""
-    from eskin.data.schema import md5_file
-    from eskin.features import make_featurizer
-
-    method = meta["featurize"]["method"]
-    if method == "raw":
-        return make_featurizer("raw").fit(pd.DataFrame([[0.0] * len(CHANNELS)],
-                                                       columns=CHANNELS))
-    workspace = root / features_path(scene)
-    if workspace.exists() and md5_file(workspace) == md5_file(features):
-        relative = featurizer_path(scene)
-        return load_models(root / relative, _locked_md5s(root)[relative.as_posix()])
-    raise StackError(f"the registered models of {scene} were trained on {method!r} features, "
-                     "whose fitted featurizer is in the workspace only while its features are "
-                     "these: check out that commit (git checkout, dvc checkout)")
-
-
-def _locked_md5s(root: Path) -> dict[str, str]:
-    lock = root / "dvc.lock"
-    if not lock.exists():
-        raise StackError(f"{lock} is missing: run `dvc repro` to train the stack")
-    stages = (yaml.safe_load(lock.read_text()) or {}).get("stages", {})
-    return {out["path"]: out["md5"] for stage in stages.values()
-            for out in stage.get("outs", []) if "md5" in out}
-
-
-# ---------------------------------------------------------------- the stream
 
 
 @dataclass
@@ -311,7 +74,7 @@ def _number(value: Any) -> Any:
     return value
 
 
-def live_estimates(stack: SkinStack, batches: Iterable[list], *,
+def live_estimates(stack: SkinStack | ExportedStack, batches: Iterable[list], *,
                    tare_frames: int = TARE_FRAMES, with_change: bool = False,
                    notify: Callable[[str], object] = lambda message: None
                    ) -> Iterator[dict[str, Any]]:
@@ -461,3 +224,84 @@ class LineBroadcast:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+class LiveRecorder:
+    """``eskin live --record``: the stream's frames appended to the scene's raw log as a
+    live session, so that a demonstration is kept as data, versioned with the scene's.
+
+    The frames go in attempts of at most ``chunk`` frames, each one unbroken run of the
+    board's sequence: a gap, a restart or a lost link ends one and the next begins after
+    it, and each is closed (``E``) and flushed as it ends, so an interruption loses at
+    most the frames of the attempt under way. Their conditions (``{"key": "live/<session>/
+    <n>", "live": true}``) are no plan's: ingest leaves them out of the training data
+    and puts them in ``data/processed/<scene>.live.parquet``. Rejected lines are kept as
+    evidence, the first ``MAX_EVIDENCE_LINES`` of an attempt, as acquisition keeps them.
+    """
+
+    def __init__(self, writer, session: str, *, chunk: int = 500) -> None:
+        self.writer, self.session, self.chunk = writer, session, chunk
+        self.attempt: int | None = None
+        self.in_attempt = self.rejected_in_attempt = self.frames = self.attempts = 0
+        self.last_seq = -1
+
+    @classmethod
+    def open(cls, raw_dir, scene: str, hello, *, port: str, source: str, stack: str,
+             chunk: int = 500) -> LiveRecorder:
+        from datetime import UTC, datetime
+
+        from eskin import __version__
+        from eskin.acquisition.rawlog import LOG_NAME, RawLogWriter, read_log_if_any
+
+        path = Path(raw_dir) / LOG_NAME
+        contents = read_log_if_any(path)
+        live = {s["session"] for s in (contents.sessions if contents else [])
+                if s.get("mode") == "live"}
+        session = f"live{len(live) + 1:03d}"
+        header = {"session": session, "mode": "live", "scene": scene, "eskin": __version__,
+                  "source": source, "port": port, "stack": stack,
+                  "device": {"id": hello.device_id, "firmware": hello.firmware,
+                             "terminals": hello.terminals, "adc_bits": hello.adc_bits},
+                  "started_utc": datetime.now(UTC).isoformat(timespec="seconds")}
+        return cls(RawLogWriter(path, header, contents), session, chunk=chunk)
+
+    def tap(self, batches: Iterable[list]) -> Iterator[list]:
+        """``batches`` as they are, each recorded first."""
+        for batch in batches:
+            self.record(batch)
+            yield batch
+
+    def record(self, batch: list) -> None:
+        from eskin.device.host import Junk, StreamFrame
+        from eskin.device.link import MAX_EVIDENCE_LINES
+
+        for event in batch:
+            if isinstance(event, StreamFrame):
+                if self.attempt is not None and event.frame.seq != (self.last_seq + 1) % 2**32:
+                    self.end()  # the board restarted, or the link was reopened
+                self.last_seq = event.frame.seq
+                if self.attempt is None:
+                    self.attempt = self.writer.begin(
+                        {"key": f"live/{self.session}/{self.attempts + 1:05d}", "live": True})
+                    self.attempts += 1
+                self.writer.frames(self.attempt, [event.frame])
+                self.in_attempt += 1
+                self.frames += 1
+                if self.in_attempt >= self.chunk:
+                    self.end()
+            elif isinstance(event, Junk):
+                if self.attempt is not None and self.rejected_in_attempt < MAX_EVIDENCE_LINES:
+                    self.writer.rejected(self.attempt, [event.error])
+                    self.rejected_in_attempt += 1
+            else:  # a gap, an overflow: the run of frames is broken
+                self.end()
+        self.writer.flush()
+
+    def end(self) -> None:
+        if self.attempt is not None:
+            self.writer.end(self.attempt, self.in_attempt)
+        self.attempt, self.in_attempt, self.rejected_in_attempt = None, 0, 0
+
+    def close(self) -> None:
+        self.end()
+        self.writer.close()

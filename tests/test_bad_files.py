@@ -158,7 +158,7 @@ def line_edit(number: int, old: str, new: str):
 LOG_CASES = {
     # name: (damage to the list of lines, expected error regex under bad_rows: error)
     "empty file": (lambda lines: [], r": no raw log; run `eskin acquire single_force` first"),
-    "header only": (lambda lines: lines[:1], r": the raw log has no session"),
+    "header only": (lambda lines: lines[:1], r": the raw log has no acquisition session"),
     "not a raw log": (replace_line(1, "time,cx1,cx2"), r":1: not an eskin raw log"),
     "newer format": (replace_line(1, "#eskin-raw 2"), r":1: not an eskin raw log"),
     "frame with a bad CRC": (line_edit(4, ",500,", ",501,"), r":4: stored frame does not verify"),

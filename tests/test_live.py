@@ -23,19 +23,19 @@ from eskin.device.host import HostProtocol, StreamFrame, StreamGap
 from eskin.device.link import SerialLink
 from eskin.device.protocol import encode_frame
 from eskin.evaluation.crossval import fit_final
+from eskin.export import write_stack
 from eskin.features import featurize_scene
 from eskin.live import (
     LineBroadcast,
-    SkinStack,
-    StackError,
+    LiveRecorder,
     Tare,
     json_line,
     live_estimates,
-    rest_reading,
     stream_events,
 )
 from eskin.live_view import LiveView
 from eskin.models import build_model, model_settings
+from eskin.stack import ExportedStack, SkinStack, StackError, rest_reading
 from eskin.tasks import get_task
 from tests.conftest import prepared_scene, small_scenes
 
@@ -74,8 +74,9 @@ SCRIPT = [
 ]
 
 
-def run_live(params, stack, *, corrupt_fraction=0.0, estimates_wanted=320):
-    """Stream, run the script, and keep every stream event and every live record."""
+def run_live(params, stack, *, corrupt_fraction=0.0, estimates_wanted=320, record_to=None):
+    """Stream, run the script, and keep every stream event and every live record (and,
+    ``record_to`` a raw directory, record the stream there as ``--record`` does)."""
     settings = section(params, "acquire")
     events, records = [], []
     with contextlib.ExitStack() as resources:
@@ -83,7 +84,8 @@ def run_live(params, stack, *, corrupt_fraction=0.0, estimates_wanted=320):
             skin_params(params), rest_length_mm=float(settings["rest_length_mm"]),
             corrupt_fraction=corrupt_fraction, frame_period_ms=8))
         link = resources.enter_context(SerialLink(board.port, timeout_s=5.0))
-        stack.check_board(link.connect().device_id)
+        hello = link.connect()
+        stack.check_board(hello.device_id)
 
         def kept(batches):
             for batch in batches:
@@ -91,6 +93,12 @@ def run_live(params, stack, *, corrupt_fraction=0.0, estimates_wanted=320):
                 yield batch
 
         stream = resources.enter_context(contextlib.closing(stream_events(link)))
+        if record_to is not None:
+            recorder = LiveRecorder.open(record_to, "single_force", hello,
+                                         source="simulated", port="pty", stack="test",
+                                         chunk=100)
+            resources.callback(recorder.close)
+            stream = recorder.tap(stream)
         script = list(SCRIPT)
         estimates = 0
         for record in live_estimates(stack, kept(stream), tare_frames=TARE):
@@ -103,16 +111,17 @@ def run_live(params, stack, *, corrupt_fraction=0.0, estimates_wanted=320):
     return events, records
 
 
-def test_live_estimates_equal_the_batch_predictions_of_the_same_frames(stack):
-    params, skin = stack
-    events, records = run_live(params, skin)
+def live_against_batch(events, records, reference: SkinStack, estimates_wanted: int
+                       ) -> pd.DataFrame:
+    """The live estimates, checked against ``reference``'s batch predictions of the same
+    frames (after the same tare)."""
     frames = [e.frame for e in events if isinstance(e, StreamFrame)]
     estimates = [r for r in records if "seq" in r]
-    assert len(estimates) == 320 and records[0] == {"tare": records[0]["tare"]}
-    tare = Tare.take(np.array([f.counts for f in frames[:TARE]]), skin.rest)
+    assert len(estimates) == estimates_wanted and records[0] == {"tare": records[0]["tare"]}
+    tare = Tare.take(np.array([f.counts for f in frames[:TARE]]), reference.rest)
     by_seq = {f.seq: f for f in frames}
     live_frames = [by_seq[r["seq"]] for r in estimates]
-    batch = skin.predict(tare.apply(np.array([f.counts for f in live_frames])))
+    batch = reference.predict(tare.apply(np.array([f.counts for f in live_frames])))
     live = pd.DataFrame(estimates)
     assert list(live["seq"]) == sorted(live["seq"]) and live["seq"].is_unique
     assert list(live["t_ms"]) == [f.t_ms for f in live_frames]
@@ -122,6 +131,22 @@ def test_live_estimates_equal_the_batch_predictions_of_the_same_frames(stack):
     for name in ("stretch", "force", "contact_probability"):
         # JSON carries 6 decimals
         assert np.allclose(live[name].astype(float), batch[name], rtol=0, atol=5e-7)
+    return live
+
+
+def test_the_exported_stack_live_gives_the_scikit_learn_stacks_batch_estimates(stack,
+                                                                                tmp_path):
+    params, skin = stack
+    exported = ExportedStack.from_file(write_stack(skin, tmp_path / "stack.onnx", sources={}))
+    events, records = run_live(params, exported, estimates_wanted=260)
+    live = live_against_batch(events, records, skin, 260)
+    assert live.iloc[100:120]["contact"].all() and not live.iloc[40:60]["contact"].any()
+
+
+def test_live_estimates_equal_the_batch_predictions_of_the_same_frames(stack):
+    params, skin = stack
+    events, records = run_live(params, skin)
+    live = live_against_batch(events, records, skin, 320)
     # And the script was seen: the presses where they were made, the stretch after it.
     untouched, pressed = live.iloc[40:60], live.iloc[100:120]
     assert not untouched["contact"].any()
@@ -131,6 +156,41 @@ def test_live_estimates_equal_the_batch_predictions_of_the_same_frames(stack):
     again = live.iloc[210:230]
     assert again["contact"].all() and (again["y"] == 8).mean() > 0.8
     assert untouched["stretch"].mean() < 1.02 < live.iloc[300:]["stretch"].mean()
+
+
+def test_record_keeps_the_stream_in_the_raw_log_apart_from_the_training_data(stack, tmp_path):
+    """`--record`: every streamed frame, damaged lines and gaps included, goes into the
+    scene's raw log as a live session; ingest gives the same training data as before and
+    the recorded frames beside it, and acquisition still finds nothing left to do."""
+    from eskin import steps
+    from eskin.acquisition.rawlog import read_log
+    from eskin.data import build
+
+    params, skin = stack
+    processed = prepared_scene(params, "single_force", tmp_path)
+    raw = tmp_path / "raw" / "single_force"
+    before = pd.read_parquet(processed)
+    events, records = run_live(params, skin, corrupt_fraction=0.03, estimates_wanted=250,
+                               record_to=raw)
+    streamed = [e.frame.seq for e in events if isinstance(e, StreamFrame)]
+    log = read_log(raw / "acquisition.log")
+    live = [s for s in log.sessions if s.get("mode") == "live"]
+    assert [s["session"] for s in live] == ["live001"] and log.bad_lines == []
+    attempts = sorted((a for a in log.completed.values() if a.session.get("mode") == "live"),
+                      key=lambda a: a.number)
+    assert all(len(a.frames) <= 100 for a in attempts)
+    for attempt in attempts:  # each an unbroken run of the board's sequence
+        assert np.all(np.diff([f.seq for f in attempt.frames]) == 1)
+    assert any(len(a.frames) < 100 for a in attempts[:-1])  # a gap ended one early
+    message = build.ingest(params, "single_force", raw, tmp_path / "processed")
+    assert f"{len(streamed)} live-recorded frame(s) of 1 session(s)" in message
+    after = pd.read_parquet(processed)
+    pd.testing.assert_frame_equal(after, before)
+    recorded = pd.read_parquet(tmp_path / "processed" / "single_force.live.parquet")
+    assert list(recorded["seq"]) == streamed and set(recorded["session"]) == {"live001"}
+    size = (raw / "acquisition.log").stat().st_size
+    steps.acquire(params, "single_force", raw, progress=False)  # nothing left to acquire
+    assert (raw / "acquisition.log").stat().st_size == size
 
 
 def test_a_damaged_line_and_a_lost_frame_are_reported_and_never_predicted(stack):

@@ -150,6 +150,15 @@ def test_eskin_live_runs_the_reproduced_stack_and_refuses_a_changed_model_file(s
     records = [json.loads(line) for line in done.stdout.splitlines()]
     assert "tare" in records[0] and [r["seq"] for r in records[1:]] == list(range(10, 15))
     assert all(r["contact"] is False and r["force"] == 0.0 for r in records[1:])
+    # dvc repro exported the stack, and found it agreeing with the scikit-learn stack
+    agreement = json.loads((root / "reports" / "export" / "single_force.json").read_text())
+    assert agreement["frames"] > 1000
+    assert all(e["differing_alone"] == 0 for e in agreement["estimates"].values())
+    done = eskin_cli(["live", "single_force", "--simulated", "--onnx", "--frames", "5",
+                      "--tare-frames", "10"], root, env)
+    exported = [json.loads(line) for line in done.stdout.splitlines()]
+    assert [r["seq"] for r in exported[1:]] == list(range(10, 15))
+    assert all(r["contact"] is False for r in exported[1:])
     model = root / "models" / "single_force" / "force.joblib"
     original = model.read_bytes()
     try:

@@ -3,7 +3,8 @@
 One text file per scene, one record per line, fields separated by tabs::
 
     #eskin-raw 1
-    S <json session: id, scene, source, port, device, simulator>
+    S <json session: id, scene, source, port, device, simulator; "mode": "live" for a
+       live recording, whose conditions are chunks of the stream, not the plan's>
     B <attempt> <json condition: key, stretch, contacts>
     F <attempt> <frame line exactly as received>
     R <attempt> <reason> <json string of the rejected bytes>
@@ -144,6 +145,12 @@ def read_log(path: Path) -> LogContents:
                     tainted.add(int(rest.partition("\t")[0]))
     return LogContents(sessions, completed, max(attempts, default=0), rejected, bad, torn,
                        headerless)
+
+
+def acquisition_sessions(contents: LogContents) -> list[dict]:
+    """The sessions that acquired a plan's conditions, in order: not the live recordings
+    (``eskin live --record``, ``"mode": "live"``), which are no plan's."""
+    return [s for s in contents.sessions if s.get("mode") != "live"]
 
 
 def read_log_if_any(path: Path) -> LogContents | None:

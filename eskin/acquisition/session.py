@@ -21,7 +21,13 @@ from pathlib import Path
 
 from eskin import __version__
 from eskin.acquisition.plan import ScenePlan
-from eskin.acquisition.rawlog import LOG_NAME, LogContents, RawLogWriter, read_log_if_any
+from eskin.acquisition.rawlog import (
+    LOG_NAME,
+    LogContents,
+    RawLogWriter,
+    acquisition_sessions,
+    read_log_if_any,
+)
 from eskin.acquisition.runner import (
     AcquisitionError,
     AcquisitionReport,
@@ -76,16 +82,17 @@ def session_id(contents: LogContents | None, plan: ScenePlan, hello: Hello) -> s
     and a device's sessions are numbered the same whatever else the log holds
     (another simulator seed, say), so a fresh clone gets the same labels.
     """
-    if contents is None or not contents.sessions:
+    sessions = acquisition_sessions(contents) if contents is not None else []
+    if not sessions:
         return "s001"
-    last, device_id = contents.sessions[-1], hello.device_id
+    last, device_id = sessions[-1], hello.device_id
     keys = {c.key(device_id, hello.firmware) for c in plan.conditions}
     whole = {key for key, attempt in contents.completed.items()
              if len(attempt.frames) >= plan.samples}
     if (last["device"]["id"] == device_id and last.get("plan") == plan.as_dict()
             and not keys <= whole):
         return last["session"]
-    ids = {s["session"] for s in contents.sessions if s["device"]["id"] == device_id}
+    ids = {s["session"] for s in sessions if s["device"]["id"] == device_id}
     return f"s{len(ids) + 1:03d}"
 
 

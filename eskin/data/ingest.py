@@ -9,14 +9,14 @@ ingest (``bad_rows: error``, the default) — never dropped silently.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from eskin.acquisition.plan import ScenePlan
-from eskin.acquisition.rawlog import LogContents, read_log_if_any
+from eskin.acquisition.rawlog import LogContents, acquisition_sessions, read_log_if_any
 from eskin.data.schema import CHANNELS, DatasetError, sha256_file
 
 BAD_ROW_POLICIES = ("error", "quarantine")
@@ -27,6 +27,8 @@ class Ingested:
     frame: pd.DataFrame
     metadata: dict
     quarantine: list[dict]
+    # the live recordings' frames (live_frames); a file imported has none
+    live: pd.DataFrame = field(default_factory=lambda: live_frames(None))
 
 
 def check_policy(bad_rows: str) -> None:
@@ -48,7 +50,7 @@ def ingest_log(path: Path, plan: ScenePlan, *, bad_rows: str = "error") -> Inges
     quarantine = [{"source": str(b.path), "line": b.line_number, "reason": b.reason,
                    "text": b.text} for b in contents.bad_lines]
     frame = _rows(contents, plan, path)
-    last = contents.sessions[-1]
+    last = acquisition_sessions(contents)[-1]
     metadata = {
         "scene": plan.name, "kind": plan.kind, "plan": plan.as_dict(),
         "device": last["device"], "simulator": last.get("simulator"),
@@ -57,17 +59,19 @@ def ingest_log(path: Path, plan: ScenePlan, *, bad_rows: str = "error") -> Inges
                    "sessions": sorted({s for s in frame["session"].unique()}),
                    "frames_rejected_on_link": contents.frames_rejected},
     }
-    return Ingested(frame, metadata, quarantine)
+    return Ingested(frame, metadata, quarantine, live_frames(contents))
 
 
 def _rows(contents: LogContents, plan: ScenePlan, path: Path) -> pd.DataFrame:
-    if not contents.sessions:
-        raise DatasetError(f"{path}: the raw log has no session")
+    sessions = acquisition_sessions(contents)
+    if not sessions:
+        raise DatasetError(f"{path}: the raw log has no acquisition session; run "
+                           f"`eskin acquire {plan.name}`")
     others = sorted({str(s.get("scene")) for s in contents.sessions} - {plan.name})
     if others:
         raise DatasetError(f"{path}: the raw log holds sessions of scene(s) {others} besides "
                            f"{plan.name}; each scene has its own log (data/raw/<scene>/)")
-    device = contents.sessions[-1]["device"]
+    device = sessions[-1]["device"]
     attempts, missing = [], []
     for condition in plan.conditions:
         attempt = contents.completed.get(condition.key(device["id"], device["firmware"]))
@@ -98,6 +102,28 @@ def _rows(contents: LogContents, plan: ScenePlan, path: Path) -> pd.DataFrame:
     data["seq"] = seq
     data["t_ms"] = t_ms
     return pd.DataFrame(data)
+
+
+LIVE_COLUMNS = [*CHANNELS, "session", "device", "trial", "sample", "seq", "t_ms"]
+
+
+def live_frames(contents: LogContents | None) -> pd.DataFrame:
+    """The frames of the log's live recordings (``eskin live --record``), in the order
+    recorded: no labels (nobody said where the skin was pressed), so no training data,
+    but a demonstration kept, to replay through a stack or to see how a board drifts."""
+    attempts = [] if contents is None else [
+        a for _, a in sorted((a.number, a) for a in contents.completed.values())
+        if a.session.get("mode") == "live"]
+    frames = [(a, i, f) for a in attempts for i, f in enumerate(a.frames)]
+    data: dict[str, object] = {c: np.array([f.counts[j] for _, _, f in frames], dtype=float)
+                               for j, c in enumerate(CHANNELS)}
+    data.update(session=[a.session["session"] for a, _, _ in frames],
+                device=[a.session["device"]["id"] for a, _, _ in frames],
+                trial=[a.condition["key"] for a, _, _ in frames],
+                sample=np.array([i for _, i, _ in frames], dtype=np.int64),
+                seq=np.array([f.seq for _, _, f in frames], dtype=np.int64),
+                t_ms=np.array([f.t_ms for _, _, f in frames], dtype=np.int64))
+    return pd.DataFrame(data, columns=LIVE_COLUMNS)
 
 
 def _labels(conditions: list, kind: str) -> dict[str, np.ndarray]:
