@@ -74,7 +74,8 @@ SCRIPT = [
 ]
 
 
-def run_live(params, stack, *, corrupt_fraction=0.0, estimates_wanted=320, record_to=None):
+def run_live(params, stack, *, corrupt_fraction=0.0, estimates_wanted=320, record_to=None,
+             faults=None, script=SCRIPT):
     """Stream, run the script, and keep every stream event and every live record (and,
     ``record_to`` a raw directory, record the stream there as ``--record`` does)."""
     settings = section(params, "acquire")
@@ -82,7 +83,7 @@ def run_live(params, stack, *, corrupt_fraction=0.0, estimates_wanted=320, recor
     with contextlib.ExitStack() as resources:
         board = resources.enter_context(simulated_board(
             skin_params(params), rest_length_mm=float(settings["rest_length_mm"]),
-            corrupt_fraction=corrupt_fraction, frame_period_ms=8))
+            corrupt_fraction=corrupt_fraction, frame_period_ms=8, faults=faults))
         link = resources.enter_context(SerialLink(board.port, timeout_s=5.0))
         hello = link.connect()
         stack.check_board(hello.device_id)
@@ -99,7 +100,7 @@ def run_live(params, stack, *, corrupt_fraction=0.0, estimates_wanted=320, recor
                                          chunk=100)
             resources.callback(recorder.close)
             stream = recorder.tap(stream)
-        script = list(SCRIPT)
+        script = list(script)
         estimates = 0
         for record in live_estimates(stack, kept(stream), tare_frames=TARE):
             records.append(record)
@@ -191,6 +192,33 @@ def test_record_keeps_the_stream_in_the_raw_log_apart_from_the_training_data(sta
     size = (raw / "acquisition.log").stat().st_size
     steps.acquire(params, "single_force", raw, progress=False)  # nothing left to acquire
     assert (raw / "acquisition.log").stat().st_size == size
+
+
+def test_the_stream_goes_on_across_board_restarts_and_a_vanishing_port(stack, tmp_path):
+    """As acquisition does: a board that restarts streams again, a port that vanishes is
+    reopened; the estimates go on, each from a frame that arrived."""
+    from eskin.device.faults import LinkFaults
+
+    params, skin = stack
+    log = tmp_path / "faults.log"
+    events, records = run_live(params, skin, estimates_wanted=500, script=[],
+                               faults=LinkFaults(reset=0.004, vanish=0.004, vanish_s=0.3,
+                                                 seed=3, log=str(log)),
+                               record_to=tmp_path / "raw")
+    kinds = [line.split("\t")[0] for line in log.read_text().splitlines()]
+    assert kinds.count("reset") >= 1 and kinds.count("vanish") >= 1, kinds
+    estimates = [r for r in records if "seq" in r]
+    assert len(estimates) == 500
+    arrived = [e.frame.seq for e in events if isinstance(e, StreamFrame)]
+    assert [r["seq"] for r in estimates] == arrived[TARE:TARE + 500]
+    assert np.any(np.diff(arrived) < 0)  # the board restarted
+    # Recorded whole, in unbroken runs: a restart ends one.
+    from eskin.acquisition.rawlog import read_log
+
+    attempts = sorted(read_log(tmp_path / "raw" / "acquisition.log").completed.values(),
+                      key=lambda a: a.number)
+    assert [f.seq for a in attempts for f in a.frames] == arrived
+    assert all(np.all(np.diff([f.seq for f in a.frames]) == 1) for a in attempts)
 
 
 def test_a_damaged_line_and_a_lost_frame_are_reported_and_never_predicted(stack):
