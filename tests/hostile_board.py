@@ -22,6 +22,13 @@ Misbehaviours, each at the ``at``-th ``SAMPLE`` request (1-based):
   presses forgotten, its ``#HELLO``);
 * ``trickle``: from then on, one junk byte every 100 ms and no answer;
 * ``flood``: from then on, frames as fast as the line takes them, no answer.
+
+``STREAM ON`` starts a frame every 12 ms until ``STREAM OFF``, answers interleaved;
+``sent`` keeps every streamed frame as (seq, counts). Misbehaviour while streaming, at
+the ``at``-th streamed frame:
+
+* ``stream_other_board``: another board's ``#HELLO``, and its frames from then on (its
+  own id, its sequence from 0).
 """
 
 from __future__ import annotations
@@ -68,6 +75,9 @@ class HostileBoard:
         self.hijacked = False        # another board has taken over the line
         self.gone_wild = False       # trickle / flood: never answers again
         self.held = b""              # lagging: the frame held back for the next answer
+        self.streaming = False
+        self.streamed = 0
+        self.sent: list[tuple[int, list[int]]] = []  # streamed frames: (seq, counts)
         self._inbox = b""
 
     # ---------------------------------------------------------------- readings
@@ -102,6 +112,7 @@ class HostileBoard:
         if name == "HELLO":
             return self.hello()
         if name == "STREAM":
+            self.streaming = words[1].upper() == "ON"
             return f"#OK STREAM {words[1].upper()}\n".encode()
         if name == "STRETCH":
             self.stretch_mm = words[1]
@@ -161,6 +172,16 @@ class HostileBoard:
             out += self.handle(line.strip())
         return out
 
+    def stream_next(self) -> bytes:
+        """The next streamed frame (after another board's greeting, on cue)."""
+        self.streamed += 1
+        greeting = b""
+        if self.misbehaviour == "stream_other_board" and self.streamed == self.at:
+            self.hijacked, self.seq = True, 0
+            greeting = self.hello()
+        self.sent.append((self.seq, self.counts(self.hijacked)))
+        return greeting + self.frame()
+
     def wild(self) -> tuple[bytes, float]:
         """What a board gone wild sends next, and the pause after it."""
         if self.misbehaviour == "trickle":
@@ -188,13 +209,19 @@ class Served:
 
     def _pump(self, read, write, readable) -> None:
         pending = b""
+        next_frame = time.monotonic()
         while not self._stop.is_set():
             if self.board.gone_wild and not pending:
                 pending, pause = self.board.wild()
                 if pause:
                     time.sleep(pause)
+            now = time.monotonic()
+            if self.board.streaming and not self.board.gone_wild and now >= next_frame:
+                pending += self.board.stream_next()
+                next_frame = max(next_frame + 0.012, now)
+            wait = max(0.0, min(0.05, next_frame - now)) if self.board.streaming else 0.05
             ready_r, ready_w, _ = select.select([readable], [readable] if pending else [], [],
-                                                0.05)
+                                                wait)
             if ready_r:
                 data = read()
                 if data is None:

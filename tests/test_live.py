@@ -38,6 +38,7 @@ from eskin.models import build_model, model_settings
 from eskin.stack import ExportedStack, SkinStack, StackError, rest_reading
 from eskin.tasks import get_task
 from tests.conftest import prepared_scene, small_scenes
+from tests.hostile_board import HostileBoard, Served
 
 TARE = 50
 
@@ -219,6 +220,67 @@ def test_the_stream_goes_on_across_board_restarts_and_a_vanishing_port(stack, tm
                       key=lambda a: a.number)
     assert [f.seq for a in attempts for f in a.frames] == arrived
     assert all(np.all(np.diff([f.seq for f in a.frames]) == 1) for a in attempts)
+
+
+def live_on_hostile(skin, board: HostileBoard, wanted: int, record_to=None):
+    """``live_estimates`` on the independent board (tests/hostile_board.py) over a pty:
+    the records, and the error that ended them, if one did."""
+    records, error = [], None
+    with Served(board) as served, SerialLink(served.port, timeout_s=5.0) as link:
+        hello = link.connect()
+        stream = contextlib.closing(stream_events(link, reconnect_s=2.0, notify=lambda m: None))
+        with stream as events:
+            recorder = None if record_to is None else LiveRecorder.open(
+                record_to, "single_force", hello, source="serial", port=served.port,
+                stack="test", chunk=100)
+            try:
+                tapped = events if recorder is None else recorder.tap(events)
+                for record in live_estimates(skin, tapped, tare_frames=TARE):
+                    records.append(record)
+                    if sum("seq" in r for r in records) >= wanted:
+                        break
+            except Exception as err:  # noqa: BLE001 - the test looks at it
+                error = err
+            finally:
+                if recorder is not None:
+                    recorder.close()
+    return records, error
+
+
+def test_live_on_an_independent_board_predicts_exactly_the_frames_it_sent(stack):
+    """A board that shares none of eskin's protocol code: every frame it streamed is
+    parsed to its own counts and predicted once, in order, as the batch stack would."""
+    _, skin = stack
+    board = HostileBoard()
+    records, error = live_on_hostile(skin, board, wanted=200)
+    assert error is None
+    estimates = [r for r in records if "seq" in r]
+    sent = dict(board.sent)
+    assert [r["seq"] for r in estimates] == [seq for seq, _ in board.sent[TARE:TARE + 200]]
+    tare = Tare.take(np.array([counts for _, counts in board.sent[:TARE]], dtype=float),
+                     skin.rest)
+    batch = skin.predict(tare.apply(np.array([sent[r["seq"]] for r in estimates], float)))
+    assert np.allclose(pd.DataFrame(estimates)["stretch"], batch["stretch"], atol=5e-7)
+    assert (pd.DataFrame(estimates)["contact"] == batch["contact"]).all()
+
+
+def test_another_board_mid_stream_ends_live_and_none_of_its_frames_is_kept(stack, tmp_path):
+    """The wave's bug, live: another board's #HELLO mid-stream, then its frames from seq 0.
+    eskin live stops with one line naming both ids; nothing of the other board is
+    predicted or recorded."""
+    from eskin.acquisition.rawlog import read_log
+    from eskin.device.link import DeviceChanged
+
+    _, skin = stack
+    board = HostileBoard(misbehaviour="stream_other_board", at=150)
+    records, error = live_on_hostile(skin, board, wanted=400, record_to=tmp_path / "raw")
+    assert isinstance(error, DeviceChanged) and "OTHER-9999" in str(error)
+    assert "hostile-0001" in str(error) and "\n" not in str(error)
+    ours = [seq for seq, counts in board.sent if counts[0] != 777]
+    assert [r["seq"] for r in records if "seq" in r] == ours[TARE:]
+    log = read_log(tmp_path / "raw" / "acquisition.log")
+    kept = [f for a in log.completed.values() for f in a.frames]
+    assert [f.seq for f in kept] == ours and all(f.counts[0] != 777 for f in kept)
 
 
 def test_a_damaged_line_and_a_lost_frame_are_reported_and_never_predicted(stack):
