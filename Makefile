@@ -2,8 +2,8 @@
 # make test:  set up everything and run the tests.
 # make bench: bench/dvc.yaml, per scene: variants' run time against error, the Bayes bound;
 #             the soak (a whole scene over a faulty link, two SIGKILLs); then the fuzzers
-#             (100,000 inputs each), the import's memory, and the trained stacks' live
-#             latency.
+#             (100,000 inputs each), the import's memory, the trained stacks' live
+#             latency, and cross-validation on Dask against loky.
 # make stress: the numerical stress suite (stress/dvc.yaml), per scene.
 SHELL := /bin/bash
 PYTHON ?= python3
@@ -14,7 +14,7 @@ export DVC_NO_ANALYTICS := 1
 export MLFLOW_ENABLE_TELEMETRY := false
 export DO_NOT_TRACK := 1
 
-.PHONY: setup browser avr firmware repro bench stress test lint clean
+.PHONY: setup browser avr firmware postgres lab-server repro bench stress test lint clean
 
 setup: $(VENV)/.installed
 
@@ -36,6 +36,20 @@ avr:
 	  $(SUDO) apt-get update -qq && \
 	  $(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends \
 	    $(AVR_PACKAGES); }
+
+# A lab's tracking server (eskin/lab.py): MLflow on Debian's PostgreSQL, installed where
+# missing; its tests start one on 127.0.0.1.
+postgres:
+	@{ command -v pg_ctl >/dev/null || ls /usr/lib/postgresql/*/bin/pg_ctl >/dev/null 2>&1; } || { \
+	  echo "installing Debian's postgresql for the lab tracking server"; \
+	  $(SUDO) apt-get update -qq && \
+	  $(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends \
+	    postgresql; }
+
+# PostgreSQL and `mlflow server --serve-artifacts` on it, data in .lab/, until Ctrl-C;
+# then, in each clone: export MLFLOW_TRACKING_URI=http://127.0.0.1:5000
+lab-server: setup postgres
+	python -m eskin.lab serve --dir .lab
 
 # firmware/eskin/build/eskin.{hex,elf}, the flash and RAM used in size.txt, and the
 # emulation harness that runs it under simavr (firmware/emulator/build/eskin_emulator).
@@ -61,14 +75,14 @@ bench: setup
 	dvc repro dvc.yaml bench/dvc.yaml
 	@cat reports/benchmark/*/summary.md reports/soak/*.md
 	@cat reports/fuzz/parser.json reports/fuzz/import.json reports/import_memory.md
-	@cat reports/live_latency/*.md
+	@cat reports/live_latency/*.md reports/dask_scaling/*.md
 
 # Every model under the data real users produce (stress/dvc.yaml): reports/stress.{json,md}.
 stress: setup
 	dvc repro dvc.yaml stress/dvc.yaml
 	@cat reports/stress/*.md
 
-test: setup browser firmware
+test: setup browser firmware postgres
 	pytest -q
 
 lint: setup

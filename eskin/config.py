@@ -51,7 +51,7 @@ NonNegative = Annotated[float, Field(ge=0)]
 Count = Annotated[int, Field(ge=1)]
 Seed = Annotated[int, Field(ge=0)]
 Scheme = Literal[SCHEMES]  # type: ignore[valid-type]
-Backend = Literal["loky", "threading", "sequential", "dask", "ray"]
+Backend = Literal["loky", "threading", "sequential", "dask"]
 Jobs = Annotated[int, Field(ge=-1)]
 
 # sim: every field of SkinParams, all required (no built-in default stands in for a

@@ -16,6 +16,7 @@ its final models with the run's lineage as version tags (for ``eskin reproduce``
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import logging
 import os
@@ -32,6 +33,11 @@ os.environ.setdefault("MLFLOW_ENABLE_TELEMETRY", "false")
 os.environ.setdefault("MLFLOW_DISABLE_TELEMETRY", "true")
 os.environ.setdefault("MLFLOW_SUPPRESS_PRINTING_URL_TO_STDOUT", "true")  # stage output: ours
 os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
+# A tracking server that is gone: three tries over about 7 s, not MLflow's seven over
+# minutes; a request that hangs, 60 s.
+os.environ.setdefault("MLFLOW_HTTP_REQUEST_MAX_RETRIES", "3")
+os.environ.setdefault("MLFLOW_HTTP_REQUEST_BACKOFF_FACTOR", "1")
+os.environ.setdefault("MLFLOW_HTTP_REQUEST_TIMEOUT", "60")
 
 import mlflow  # noqa: E402 - telemetry must be off before import
 import pandas as pd  # noqa: E402
@@ -41,9 +47,27 @@ from mlflow.models import infer_signature  # noqa: E402
 from mlflow.tracking import MlflowClient  # noqa: E402
 
 from eskin.data.schema import CHANNELS  # noqa: E402
+from eskin.errors import EskinError  # noqa: E402
 
 EXPERIMENT = "eskin"
 PIPELINE_TAG = "eskin.pipeline"
+
+
+class TrackingError(EskinError, RuntimeError):
+    """The tracking store failed; the message names it."""
+
+
+@contextlib.contextmanager
+def _naming_the_store(what: str):
+    """MLflow's (and its HTTP client's) errors as one line that says which store failed."""
+    import requests
+
+    try:
+        yield
+    except (mlflow.exceptions.MlflowException, requests.RequestException, OSError) as err:
+        first = (str(err).strip().splitlines() or [type(err).__name__])[0][:300]
+        raise TrackingError(f"MLflow tracking at {tracking_uri()} failed while {what}: "
+                            f"{first}") from None
 
 
 def project_root() -> Path:
@@ -189,6 +213,13 @@ def log_task_run(*, scene: str, task: str, params: Mapping[str, Any], params_tex
     whose digest is the DVC md5 of the dataset's Parquet file; ``started``, the
     step's ``time.perf_counter()`` at its start, gives the metric ``wall_seconds``.
     """
+    with _naming_the_store(f"logging {scene}/{task}"):
+        return _log_task_run(scene, task, params, params_text, results, models, dataset,
+                             dataset_digest, dataset_source, started, extra_tags)
+
+
+def _log_task_run(scene, task, params, params_text, results, models, dataset, dataset_digest,
+                  dataset_source, started, extra_tags) -> TrackedRun:
     experiment_id, parent, key, tags = _pipeline(scene, params_text)
     run_tags = {**tags, **(extra_tags or {}), **process_tags(), "eskin.task": task,
                 "eskin.kind": "task",
@@ -301,6 +332,11 @@ def _requirements() -> list[str]:
 def log_scores_run(*, scene: str, task: str, scores: Mapping[str, Any], params_text: str,
                    dataset_digest: str) -> str:
     """Log a run that only scores other runs' predictions (e.g. two-force pairs)."""
+    with _naming_the_store(f"logging {scene}/{task}"):
+        return _log_scores_run(scene, task, scores, params_text, dataset_digest)
+
+
+def _log_scores_run(scene, task, scores, params_text, dataset_digest) -> str:
     experiment_id, parent, key, tags = _pipeline(scene, params_text)
     with mlflow.start_run(experiment_id=experiment_id, run_name=f"{scene}/{task}",
                           parent_run_id=parent,

@@ -104,6 +104,26 @@ def eskin(args, cwd, **kwargs):
 
 
 @pytest.fixture(scope="module")
+def lab():
+    """A lab's tracking server (eskin/lab.py): PostgreSQL on 127.0.0.1 and `mlflow server
+    --serve-artifacts` on it; yields (database, tracking server). One per test module."""
+    import shutil
+    import tempfile
+
+    from eskin.lab import LabServerError, lab_server
+
+    home = Path(tempfile.mkdtemp(prefix="eskin-lab-"))  # postgres must reach it: not 0700
+    home.chmod(0o755)
+    try:
+        with lab_server(home) as servers:
+            yield servers
+    except LabServerError as err:
+        pytest.fail(f"{err} (`make test` installs PostgreSQL where missing)")
+    finally:
+        shutil.rmtree(home, ignore_errors=True)
+
+
+@pytest.fixture(scope="module")
 def mlflow_server(tmp_path_factory):
     """A real `mlflow server` on 127.0.0.1 (SQLite backend, proxied artifacts in a temp dir);
     yields its URI. One per test module, so one module's runs are not another's."""

@@ -272,10 +272,17 @@ def test_folds_give_the_same_predictions_on_every_joblib_backend(backend, projec
     assert result.per_fold == reference.per_fold
 
 
-def test_an_unavailable_cluster_backend_is_a_clear_error():
-    with pytest.raises(ValueError, match="pip install ray"):
-        with parallel_backend("ray"):
-            pass
+def test_ray_is_no_backend_and_params_say_which_are(repo_params):
+    """Ray was dropped for Dask (README: a lab's scale): params.yaml naming it is one line
+    listing the backends there are."""
+    import copy
+
+    from eskin.config import validate_params
+
+    params = copy.deepcopy(repo_params)
+    params["cv"]["backend"] = "ray"
+    with pytest.raises(ValueError, match=r"cv\.backend.*'dask'"):
+        validate_params(params)
 
 
 def test_force_profile_reads_stretch_and_press_in_any_units(repo_params):

@@ -27,14 +27,14 @@ def run(args, cwd, env):
 
 
 @pytest.fixture(scope="module")
-def scratch(tmp_path_factory, repo_params, mlflow_server):
+def scratch(tmp_path_factory, repo_params, lab):
     root = tmp_path_factory.mktemp("pipeline")
     params = small_scenes(repo_params)
     params["cv"].update(n_jobs=1, folds=5)
     params["report"].update(dpi=60, page_dpi=50)
     params["train"]["force"]["paper"]["subsample"] = 200
     params["train"]["localise"]["paper"]["n_estimators"] = 20
-    env = scratch_project(root, params, mlflow_server)
+    env = scratch_project(root, params, lab[1].uri)  # the lab's server, on PostgreSQL
     run(["dvc", "repro"], root, env)
     run(["git", "add", "-A"], root, env)
     run(["git", "commit", "-qm", "repro"], root, env)
@@ -224,13 +224,22 @@ def wait_for_queue(root, env, timeout=600):
     raise AssertionError(f"queue still busy after {timeout} s:\n{status}")
 
 
-def test_queued_experiments_run_two_at_a_time_and_compare_side_by_side(scratch):
+def test_queued_experiments_run_two_at_a_time_and_compare_side_by_side(scratch, tmp_path):
+    """Two queued experiments at a time in this clone while a second clone runs one of
+    its own: three writers to the lab's server at once, every run landing under its
+    experiment's name, on its dataset and commit."""
     root, env = scratch
     # Against the workspace, which the force-rf experiment above left with its params.
     for name, setting in (("q-logistic", "train.detect.model=logistic"),
                           ("q-ridge", "train.stretch.model=ridge")):
         run(["dvc", "exp", "run", "--queue", "-n", name, "-S", setting], root, env)
+    second = tmp_path / "second_clone"
+    run(["git", "clone", "-q", str(root), str(second)], tmp_path, env)
+    run(["dvc", "cache", "dir", str(root / ".dvc" / "cache")], second, env)
+    run(["dvc", "checkout", "-q", "dvc.yaml"], second, env)  # not bench/: never run here
     run(["dvc", "queue", "start", "-j", "2"], root, env)
+    run(["dvc", "exp", "run", "-n", "c2-knn", "-S", "train.localise.model.single_force=knn"],
+        second, env)
     status = wait_for_queue(root, env)
     assert status.count("Success") == 2, status
 
@@ -238,11 +247,13 @@ def test_queued_experiments_run_two_at_a_time_and_compare_side_by_side(scratch):
     mlflow.set_tracking_uri(env["MLFLOW_TRACKING_URI"])
     digest = md5_file(root / "data" / "processed" / "single_force.parquet")
     head = run(["git", "rev-parse", "HEAD"], root, env).strip()
-    for name, task in (("q-logistic", "detect"), ("q-ridge", "stretch")):
+    everything = mlflow.search_runs(experiment_names=["eskin"])
+    assert set(everything["status"]) == {"FINISHED"}
+    for name, task in (("q-logistic", "detect"), ("q-ridge", "stretch"), ("c2-knn", "localise")):
         found = mlflow.search_runs(experiment_names=["eskin"], filter_string=(
             f"tags.`eskin.dvc_experiment` = '{name}' and tags.`eskin.kind` = 'task'"))
-        assert list(found["tags.eskin.task"]) == [task]  # only what the setting changes
-        trained = found.iloc[0]
+        assert set(found["tags.eskin.task"]) == {task}  # only what the setting changes
+        trained = found[found["tags.eskin.scene"] == "single_force"].iloc[0]
         assert trained["tags.eskin.dataset_digest"] == digest
         assert trained["tags.eskin.git_commit"] == head
 
@@ -295,7 +306,8 @@ def test_another_seed_is_a_second_dataset_version_and_the_audit_shows_both(scrat
     assert versions.loc[second, "source"] == "simulated (seed 7)"
     assert versions.loc[second, "variants"] == "seed7"
     assert int(versions.loc[second, "runs"]) == 4  # stretch, force, detect, localise
-    assert int(versions.loc[first, "runs"]) == 7   # the repro's 4, force-rf, q-logistic, q-ridge
+    # the repro's 4, then force-rf, q-logistic, q-ridge and c2-knn's single-force run
+    assert int(versions.loc[first, "runs"]) == 8
     assert versions.loc[first, "committed"].split()[0] != "not"  # in the repro commit's lock
     printed = eskin_cli(["audit"], root, env).stdout
     assert f"{first} trained:" in printed and f"{second} trained:" in printed
@@ -314,3 +326,32 @@ def test_another_seed_is_a_second_dataset_version_and_the_audit_shows_both(scrat
     # The first dataset's model still reproduces: its features come back from DVC's cache.
     done = eskin_cli(["reproduce", "single_force.localise.x", "--version", "1"], root, env)
     assert "reproduced" in done.stdout and ".dvc/cache" in done.stdout, done.stdout
+
+
+def test_postgres_gone_mid_run_fails_the_stage_in_one_line_naming_the_server(scratch, lab):
+    """The lab's PostgreSQL stops while a stage trains: the stage ends, exit 1, with one
+    line naming the tracking URI, within the tries eskin allows MLflow's client (not its
+    default minutes). A stage creates its runs only when it logs, after training, so none
+    is left RUNNING; one that a killed stage left open is marked FAILED by the next
+    (tests/test_stale_runs.py). Once the database is back, stages log again."""
+    import mlflow
+
+    root, env = scratch
+    database, tracking = lab
+    started = time.monotonic()
+    stage = subprocess.Popen([sys.executable, "-m", "eskin", "train", "single_force", "force"],
+                             cwd=root, env=env, text=True, stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE)
+    time.sleep(0.5)  # importing, then training: nothing logged yet
+    database.stop()
+    try:
+        _, stderr = stage.communicate(timeout=300)
+    finally:
+        database.start()
+    assert stage.returncode == 1, stderr
+    errors = [line for line in stderr.splitlines() if line.startswith("eskin: error:")]
+    assert len(errors) == 1 and f"MLflow tracking at {tracking.uri} failed" in errors[0], stderr
+    assert "Traceback" not in stderr and time.monotonic() - started < 120
+    eskin_cli(["train", "single_force", "stretch"], root, env)
+    found = mlflow.search_runs(experiment_names=["eskin"])
+    assert "RUNNING" not in set(found["status"])

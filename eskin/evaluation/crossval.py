@@ -1,12 +1,14 @@
 """Cross-validate a task: out-of-fold predictions, per-fold scores, a final refit.
 
 Folds run in parallel through joblib (``n_jobs``) under whatever backend
-``joblib.parallel_config`` sets, so a Dask or Ray cluster takes them without
-code changes: ``cv.backend`` in params.yaml (see ``parallel_backend``).
+``joblib.parallel_config`` sets, so a Dask cluster takes them without code
+changes: ``cv.backend`` in params.yaml (see ``parallel_backend``).
 """
 
 from __future__ import annotations
 
+import contextlib
+import os
 import time
 from collections import Counter
 from collections.abc import Callable
@@ -39,35 +41,66 @@ class CVResult:
 LOKY_IDLE_S = 10
 
 
+DASK_CONNECT_S = 30        # a lab cluster that does not answer in this long is an error
+NO_WORKERS_S = 120         # a local cluster's task with no worker left fails after this long
+
+
 def parallel_backend(name: str = "loky"):
     """The joblib backend folds run on, as a context manager.
 
-    ``loky`` (processes, joblib's default), ``threading``, ``multiprocessing`` and
-    ``sequential`` are joblib's own; ``dask`` runs them on the Dask cluster that
-    ``DASK_SCHEDULER_ADDRESS`` names (``pip install distributed``) and ``ray`` on the
-    Ray cluster of ``RAY_ADDRESS`` (``pip install ray``). Results do not depend on it.
+    ``loky`` (processes, joblib's default), ``threading`` and ``sequential`` are
+    joblib's own. ``dask`` runs them on a ``dask.distributed`` cluster: the one
+    ``DASK_SCHEDULER_ADDRESS`` names (a lab's, ``tcp://host:8786``), else the client
+    already open in this process, else a local cluster on 127.0.0.1. The features go
+    to the workers once per cross-validation, not once per fold (joblib scatters every
+    argument over 1 kB and reuses it by identity); a fold whose worker dies is run
+    again on another. Results do not depend on the backend.
     """
-    if name == "ray":
-        try:
-            from ray.util.joblib import register_ray
-        except ImportError as err:
-            raise ValueError("cv.backend: ray needs Ray installed (pip install ray)") from err
-        register_ray()
-    elif name == "dask":
-        try:
-            from distributed import Client, default_client
-        except ImportError as err:
-            raise ValueError("cv.backend: dask needs Dask installed "
-                             "(pip install distributed)") from err
-        try:
-            default_client()
-        except ValueError:
-            Client()  # DASK_SCHEDULER_ADDRESS, or a local cluster
+    if name == "dask":
+        _dask_client()
     if name == "loky":
         # Idle workers exit after this long: a stage killed outright (SIGKILL) cannot stop
         # its workers, and joblib's default would leave them alive for five minutes.
         return parallel_config(backend=name, idle_worker_timeout=LOKY_IDLE_S)
     return parallel_config(backend=name)
+
+
+def _dask_client():
+    try:
+        import dask
+        from distributed import Client, LocalCluster, default_client
+    except ImportError as err:
+        raise ValueError("cv.backend: dask needs dask.distributed installed "
+                         "(pip install 'dask[distributed]')") from err
+    address = os.environ.get("DASK_SCHEDULER_ADDRESS")
+    try:
+        client = default_client()
+        if not address or client.scheduler.address == address:
+            return client
+    except ValueError:
+        pass
+    if address:
+        try:
+            return Client(address, timeout=DASK_CONNECT_S, set_as_default=True)
+        except OSError as err:
+            raise ValueError(f"no Dask scheduler answered at {address} "
+                             f"(DASK_SCHEDULER_ADDRESS) within {DASK_CONNECT_S} s: {err}"
+                             ) from None
+    with dask.config.set({"distributed.scheduler.no-workers-timeout": f"{NO_WORKERS_S}s"}):
+        return Client(LocalCluster(host="127.0.0.1", dashboard_address=None,
+                                   threads_per_worker=1))
+
+
+def _shared_with_cluster(*data):
+    """Under the dask backend, ``data`` sent to every worker before the folds (joblib's
+    ``scatter``, broadcast): a fold whose worker dies runs on another that has it. Left
+    to joblib, each would be scattered to one worker, and lost with it."""
+    from joblib.parallel import get_active_backend
+
+    backend, _ = get_active_backend()
+    if type(backend).__name__ != "DaskDistributedBackend":
+        return contextlib.nullcontext()
+    return parallel_config(backend="dask", scatter=list(data))
 
 
 def decision_scores(model: BaseEstimator, X: np.ndarray) -> np.ndarray | None:
@@ -79,11 +112,13 @@ def decision_scores(model: BaseEstimator, X: np.ndarray) -> np.ndarray | None:
     return None
 
 
-def _fit_predict_fold(estimator: BaseEstimator, X: np.ndarray, targets: dict[str, np.ndarray],
-                      train: np.ndarray, test: np.ndarray,
+def _fit_predict_fold(estimator: BaseEstimator, X: np.ndarray, targets: pd.DataFrame,
+                      fold_of: np.ndarray, fold: int,
                       binary: bool) -> tuple[dict, float, float, set, dict]:
+    train, test = np.flatnonzero(fold_of != fold), np.flatnonzero(fold_of == fold)
     predictions, fit_s, predict_s, notes, scores = {}, 0.0, 0.0, set(), {}
-    for name, y in targets.items():
+    for name in targets.columns:
+        y = targets[name].to_numpy()
         model = clone(estimator)
         start = time.perf_counter()
         model.fit(X[train], y[train])
@@ -108,9 +143,14 @@ def cross_validate(task: Task, frame: pd.DataFrame, folds: np.ndarray, estimator
     fold_ids = [f for f in np.unique(fold_of) if f >= 0]
     splits = [(np.flatnonzero(fold_of != f), np.flatnonzero(fold_of == f)) for f in fold_ids]
     binary = task.scorer == "detection"
-    outcomes = Parallel(n_jobs=n_jobs)(
-        delayed(_fit_predict_fold)(estimator, X, targets, train, test, binary)
-        for train, test in splits)
+    # What every fold shares goes to a cluster's workers once (each fold task carries a
+    # fold number): the targets as one frame, not a dict, which joblib would send with
+    # every task.
+    target_frame = pd.DataFrame(targets)
+    with _shared_with_cluster(X, target_frame, fold_of):
+        outcomes = Parallel(n_jobs=n_jobs)(
+            delayed(_fit_predict_fold)(estimator, X, target_frame, fold_of, fold, binary)
+            for fold in fold_ids)
 
     score: Callable = metrics.SCORERS[task.scorer]
     predictions = data.drop(columns=CHANNELS).assign(fold=fold_of)

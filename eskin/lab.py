@@ -1,0 +1,215 @@
+"""A lab's tracking server: MLflow on PostgreSQL, its artifacts served by MLflow.
+
+One researcher's clone logs to SQLite in the project (``mlflow.db``). A lab shares
+one server: PostgreSQL as MLflow's backend store, and ``mlflow server
+--serve-artifacts``, so that clients send artifacts through the server and need no
+access to its disk. Every clone then sets ``MLFLOW_TRACKING_URI`` to the server's
+address; the pipeline is unchanged. ``make lab-server`` (``python -m eskin.lab
+serve``) starts both on 127.0.0.1 with their data under ``.lab/``; a lab that serves
+other machines puts the server behind its own network or SSH tunnel.
+
+PostgreSQL refuses to run as root: as root, its commands run as Debian's
+``postgres`` user, which owns the data directory.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import glob
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+from eskin.errors import EskinError, run_friendly
+
+DATABASE = "mlflow"
+START_S = 60.0   # each server has this long to answer
+
+
+class LabServerError(EskinError, RuntimeError):
+    """The lab server could not be set up or started."""
+
+
+def free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def _postgres_bin(name: str) -> str:
+    found = shutil.which(name) or next(iter(sorted(glob.glob(
+        f"/usr/lib/postgresql/*/bin/{name}"), reverse=True)), None)
+    if found is None:
+        raise LabServerError(f"PostgreSQL's {name} is not installed: run `make lab-server` "
+                             "(it installs Debian's postgresql where missing)")
+    return found
+
+
+def _as_postgres(command: list[str]) -> list[str]:
+    """PostgreSQL will not run as root: as root, run it as the ``postgres`` user."""
+    if os.geteuid() != 0:
+        return command
+    return ["runuser", "-u", "postgres", "--", *command]
+
+
+@dataclass
+class Postgres:
+    """A PostgreSQL cluster in ``directory``, listening on 127.0.0.1:``port`` only."""
+
+    directory: Path
+    port: int
+
+    @property
+    def data(self) -> Path:
+        return self.directory / "pgdata"
+
+    @property
+    def uri(self) -> str:
+        return f"postgresql+psycopg2://postgres@127.0.0.1:{self.port}/{DATABASE}"
+
+    def _run(self, command: list[str], what: str, timeout_s: float = START_S) -> None:
+        try:
+            done = subprocess.run(_as_postgres(command), capture_output=True, text=True,
+                                  timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            raise LabServerError(f"PostgreSQL: {what} took over {timeout_s:g} s") from None
+        if done.returncode != 0:
+            detail = (done.stderr or done.stdout).strip().splitlines()
+            raise LabServerError(f"PostgreSQL: {what} failed: {detail[-1] if detail else '?'}"
+                                 f" (log: {self.directory / 'postgres.log'})")
+
+    def start(self) -> None:
+        self.directory.mkdir(parents=True, exist_ok=True)
+        if os.geteuid() == 0:  # the postgres user must reach and own its files
+            self.directory.chmod(0o755)
+            shutil.chown(self.directory, "postgres")
+        fresh = not (self.data / "PG_VERSION").exists()
+        if fresh:
+            self._run([_postgres_bin("initdb"), "-D", str(self.data), "-U", "postgres",
+                       "--auth=trust", "-E", "UTF8"], "initdb")
+        # Loopback only, and the socket in its own directory (not /var/run/postgresql).
+        self._run([_postgres_bin("pg_ctl"), "-D", str(self.data), "-w", "-t", str(int(START_S)),
+                   "-l", str(self.directory / "postgres.log"), "-o",
+                   f"-h 127.0.0.1 -p {self.port} -k {self.directory}", "start"], "start")
+        if fresh:
+            self._run([_postgres_bin("createdb"), "-h", "127.0.0.1", "-p", str(self.port),
+                       "-U", "postgres", DATABASE], "createdb")
+
+    def stop(self) -> None:
+        with contextlib.suppress(LabServerError):
+            self._run([_postgres_bin("pg_ctl"), "-D", str(self.data), "-m", "fast", "-w",
+                       "stop"], "stop")
+
+
+@dataclass
+class TrackingServer:
+    """``mlflow server`` on the PostgreSQL store, serving artifacts from ``artifacts``."""
+
+    store_uri: str
+    artifacts: Path
+    port: int
+    log: Path
+    process: subprocess.Popen | None = None
+
+    @property
+    def uri(self) -> str:
+        return f"http://127.0.0.1:{self.port}"
+
+    def start(self) -> None:
+        self.artifacts.mkdir(parents=True, exist_ok=True)
+        env = {**os.environ, "MLFLOW_ENABLE_TELEMETRY": "false",
+               "MLFLOW_DISABLE_TELEMETRY": "true", "DO_NOT_TRACK": "1",
+               # No job runner: eskin submits no (GenAI) jobs, and its consumers poll.
+               "MLFLOW_SERVER_ENABLE_JOB_EXECUTION": "false"}
+        with self.log.open("ab") as log:
+            self.process = subprocess.Popen(
+                [sys.executable, "-m", "mlflow", "server", "--host", "127.0.0.1",
+                 "--port", str(self.port), "--workers", "2",
+                 "--backend-store-uri", self.store_uri, "--serve-artifacts",
+                 "--artifacts-destination", str(self.artifacts)],
+                stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True)
+        deadline = time.monotonic() + START_S
+        while time.monotonic() < deadline:
+            if self.process.poll() is not None:
+                raise LabServerError(f"mlflow server exited ({self.process.returncode}); "
+                                     f"its log: {self.log}")
+            try:
+                with urllib.request.urlopen(f"{self.uri}/health", timeout=2) as answer:
+                    if answer.status == 200:
+                        return
+            except OSError:
+                time.sleep(0.25)
+        self.stop()
+        raise LabServerError(f"mlflow server did not answer on {self.uri} within "
+                             f"{START_S:g} s; its log: {self.log}")
+
+    def stop(self) -> None:
+        if self.process is not None and self.process.poll() is None:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(self.process.pid, signal.SIGTERM)
+            try:
+                self.process.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                os.killpg(self.process.pid, signal.SIGKILL)
+                self.process.wait(timeout=15)
+
+
+@contextlib.contextmanager
+def lab_server(directory: Path, *, pg_port: int | None = None,
+               port: int | None = None) -> Iterator[tuple[Postgres, TrackingServer]]:
+    """PostgreSQL and the MLflow server on it, both on 127.0.0.1, stopped on exit."""
+    directory = Path(directory).resolve()
+    database = Postgres(directory / "postgres", pg_port or free_port())
+    database.start()
+    try:
+        tracking = TrackingServer(database.uri, directory / "artifacts", port or free_port(),
+                                  directory / "mlflow-server.log")
+        tracking.start()
+        try:
+            yield database, tracking
+        finally:
+            tracking.stop()
+    finally:
+        database.stop()
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m eskin.lab", description=__doc__.split(
+        "\n\n")[0])
+    commands = parser.add_subparsers(dest="command", required=True)
+    serve = commands.add_parser("serve", help="start PostgreSQL and the MLflow server on it "
+                                "until Ctrl-C")
+    serve.add_argument("--dir", type=Path, default=Path(".lab"),
+                       help="where the database and the artifacts live (default .lab)")
+    serve.add_argument("--port", type=int, default=5000, help="MLflow's port (default 5000)")
+    serve.add_argument("--pg-port", type=int, default=5433,
+                       help="PostgreSQL's port (default 5433)")
+    args = parser.parse_args(argv)
+
+    def serve_until_stopped() -> int:
+        with lab_server(args.dir, pg_port=args.pg_port, port=args.port) as (database, tracking):
+            print(f"MLflow tracking server on {tracking.uri} (PostgreSQL {database.uri}; "
+                  f"artifacts in {tracking.artifacts}); in each clone:\n"
+                  f"  export MLFLOW_TRACKING_URI={tracking.uri}\nCtrl-C stops both.",
+                  flush=True)
+            try:
+                while tracking.process.poll() is None:
+                    time.sleep(1)
+            except KeyboardInterrupt:
+                return 0
+            raise LabServerError(f"mlflow server exited; its log: {tracking.log}")
+
+    return run_friendly(serve_until_stopped)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

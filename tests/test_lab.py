@@ -1,0 +1,122 @@
+"""A lab's scale: cross-validation on a real dask.distributed cluster (a scheduler and
+two worker processes on 127.0.0.1, started here) against loky.
+
+The lab's tracking server (PostgreSQL under ``mlflow server --serve-artifacts``,
+eskin/lab.py) is the one tests/test_pipeline_tracking.py runs the whole pipeline,
+concurrent experiments from two clones and a database lost mid-run against.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import signal
+import threading
+import time
+
+import pandas as pd
+import pytest
+
+from eskin.evaluation.crossval import cross_validate, parallel_backend
+from eskin.evaluation.cv import assign_folds
+from eskin.models import build_model
+from eskin.tasks import get_task
+from tests.conftest import prepared_scene, small_scenes
+
+# ---------------------------------------------------------------- Dask
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    """A scheduler and two worker processes (one thread each) on 127.0.0.1."""
+    from distributed import Client, LocalCluster
+
+    from harness.dask_scaling import ShippedData
+
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                      dashboard_address=None, silence_logs=logging.ERROR) as local, \
+            Client(local, timeout=60) as client:
+        client.register_plugin(ShippedData())
+        yield local, client
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory, repo_params):
+    params = small_scenes(repo_params)
+    return pd.read_parquet(prepared_scene(params, "single_force",
+                                          tmp_path_factory.mktemp("dask")))
+
+
+def cv_on(backend: str, frame: pd.DataFrame, n_jobs: int = 2,
+          model: str = "hist_gradient_boosting"):
+    task = get_task("single_force", "force")
+    folds = assign_folds(frame, "single_force", "grouped", 10, 42)
+    hyper = {"max_iter": 60} if model == "hist_gradient_boosting" else {"n_estimators": 30}
+    estimator = build_model("force", model, {**hyper, "seed": 0})
+    with parallel_backend(backend):
+        return cross_validate(task, frame, folds, estimator, "grouped", n_jobs=n_jobs)
+
+
+def test_dask_gives_the_predictions_of_loky_and_ships_the_features_once(cluster, dataset,
+                                                                         monkeypatch):
+    from harness.dask_scaling import clear, shipped
+
+    local, client = cluster
+    reference = cv_on("loky", dataset)
+    clear(client)
+    # As a lab points the pipeline at its cluster: by address, no client of our own open
+    monkeypatch.setenv("DASK_SCHEDULER_ADDRESS", local.scheduler_address)
+    result = cv_on("dask", dataset, n_jobs=-1)
+    pd.testing.assert_frame_equal(result.predictions, reference.predictions)
+    sent = shipped(client)  # per task: joblib's batch of folds
+    assert sent["tasks"] >= 2
+    features = len(dataset) * 20 * 8  # rows × 20 channels, float64
+    assert sent["shared_bytes"] >= features  # the features and targets: in every task ...
+    assert sent["own_bytes_per_task"] == 0  # ... and nothing else of size in any
+
+
+def test_a_worker_killed_mid_sweep_and_the_sweep_completes_on_the_other(cluster, dataset):
+    _, client = cluster
+    killed: list[tuple[str, float]] = []
+
+    def kill_a_busy_worker():
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            busy = [worker for worker, keys in client.processing().items() if keys]
+            if busy:  # a fold under way there: kill it mid-fold
+                killed.append((busy[0], time.monotonic()))
+                with contextlib.suppress(Exception):  # it dies before it can answer
+                    client.run(lambda: os.kill(os.getpid(), signal.SIGKILL), workers=busy[:1])
+                return
+            time.sleep(0.01)
+
+    killer = threading.Thread(target=kill_a_busy_worker)
+    killer.start()
+    result = cv_on("dask", dataset, n_jobs=-1, model="random_forest")
+    done = time.monotonic()
+    killer.join()
+    assert killed and killed[0][1] < done  # it died while the sweep ran
+    assert killed[0][0] not in client.scheduler_info()["workers"]
+    pd.testing.assert_frame_equal(result.predictions,
+                                  cv_on("loky", dataset, model="random_forest").predictions)
+
+
+def test_an_unreachable_scheduler_is_one_line_naming_it(monkeypatch):
+    monkeypatch.setattr("eskin.evaluation.crossval.DASK_CONNECT_S", 2)
+    with socket_closed() as address:
+        monkeypatch.setenv("DASK_SCHEDULER_ADDRESS", address)
+        with pytest.raises(ValueError, match=f"no Dask scheduler answered at {address}"):
+            parallel_backend("dask")
+
+
+class socket_closed:
+    """The address of a loopback port nobody listens on."""
+
+    def __enter__(self) -> str:
+        from eskin.lab import free_port
+
+        return f"tcp://127.0.0.1:{free_port()}"
+
+    def __exit__(self, *exc) -> None:
+        pass
