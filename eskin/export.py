@@ -12,13 +12,16 @@ file it was made from. Loading it takes onnxruntime and numpy only::
     session = onnxruntime.InferenceSession("models/single_force/stack.onnx")
     force = session.run(["force"], {"counts": numpy.array([frame], dtype=numpy.float64)})[0]
 
-The conversion is skl2onnx's, with converters for what it lacks: eskin's own
-transformers (:class:`~eskin.models.ForceProfile`, :class:`~eskin.models.ActiveTerminals`,
-:class:`~eskin.features.BaselineDelta`), the rounding ``FunctionTransformer`` of
-``eskin.models._scaled``, and scikit-learn's histogram gradient boosting. skl2onnx 1.20
-converts the last into ``ai.onnx.ml`` opset 1 tree ensembles, whose thresholds and
-outputs are float32 (and whose attributes it fails to build); here it becomes opset 5's
-``TreeEnsemble``, in float64 like scikit-learn, so a split falls the same way.
+The conversion is skl2onnx's, with converters (registered in its registry, for this
+process) for what it lacks: eskin's own transformers (:class:`~eskin.models.ForceProfile`,
+:class:`~eskin.models.ActiveTerminals`, :class:`~eskin.features.BaselineDelta`), the
+rounding ``FunctionTransformer`` of ``eskin.models._scaled``, LinearSVC and eskin's
+Gaussian processes in float64, and the tree ensembles (random forests, extra trees,
+histogram gradient boosting). skl2onnx 1.20 writes those as ``ai.onnx.ml`` opset 1 tree
+ensembles, whose thresholds and outputs are float32 (and fails to build them for
+histogram gradient boosting); here they are opset 5's ``TreeEnsemble``, in float64 as
+scikit-learn computes, so a split falls the same way. Every model of the registry
+exports (tests/test_export.py).
 """
 
 from __future__ import annotations

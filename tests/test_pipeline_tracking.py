@@ -238,7 +238,7 @@ def test_queued_experiments_run_two_at_a_time_and_compare_side_by_side(scratch, 
     run(["dvc", "cache", "dir", str(root / ".dvc" / "cache")], second, env)
     run(["dvc", "checkout", "-q", "dvc.yaml"], second, env)  # not bench/: never run here
     run(["dvc", "queue", "start", "-j", "2"], root, env)
-    run(["dvc", "exp", "run", "-n", "c2-knn", "-S", "train.localise.model.single_force=knn"],
+    run(["dvc", "exp", "run", "-n", "c2-alpha", "-S", "train.stretch.ridge.alpha=2.0"],
         second, env)
     status = wait_for_queue(root, env)
     assert status.count("Success") == 2, status
@@ -249,7 +249,7 @@ def test_queued_experiments_run_two_at_a_time_and_compare_side_by_side(scratch, 
     head = run(["git", "rev-parse", "HEAD"], root, env).strip()
     everything = mlflow.search_runs(experiment_names=["eskin"])
     assert set(everything["status"]) == {"FINISHED"}
-    for name, task in (("q-logistic", "detect"), ("q-ridge", "stretch"), ("c2-knn", "localise")):
+    for name, task in (("q-logistic", "detect"), ("q-ridge", "stretch"), ("c2-alpha", "stretch")):
         found = mlflow.search_runs(experiment_names=["eskin"], filter_string=(
             f"tags.`eskin.dvc_experiment` = '{name}' and tags.`eskin.kind` = 'task'"))
         assert set(found["tags.eskin.task"]) == {task}  # only what the setting changes
@@ -306,7 +306,7 @@ def test_another_seed_is_a_second_dataset_version_and_the_audit_shows_both(scrat
     assert versions.loc[second, "source"] == "simulated (seed 7)"
     assert versions.loc[second, "variants"] == "seed7"
     assert int(versions.loc[second, "runs"]) == 4  # stretch, force, detect, localise
-    # the repro's 4, then force-rf, q-logistic, q-ridge and c2-knn's single-force run
+    # the repro's 4, then force-rf, q-logistic, q-ridge and c2-alpha
     assert int(versions.loc[first, "runs"]) == 8
     assert versions.loc[first, "committed"].split()[0] != "not"  # in the repro commit's lock
     printed = eskin_cli(["audit"], root, env).stdout
@@ -339,7 +339,7 @@ def test_postgres_gone_mid_run_fails_the_stage_in_one_line_naming_the_server(scr
     root, env = scratch
     database, tracking = lab
     started = time.monotonic()
-    stage = subprocess.Popen([sys.executable, "-m", "eskin", "train", "single_force", "force"],
+    stage = subprocess.Popen([sys.executable, "-m", "eskin", "train", "single_force", "stretch"],
                              cwd=root, env=env, text=True, stdout=subprocess.PIPE,
                              stderr=subprocess.PIPE)
     time.sleep(0.5)  # importing, then training: nothing logged yet
@@ -351,6 +351,7 @@ def test_postgres_gone_mid_run_fails_the_stage_in_one_line_naming_the_server(scr
     assert stage.returncode == 1, stderr
     errors = [line for line in stderr.splitlines() if line.startswith("eskin: error:")]
     assert len(errors) == 1 and f"MLflow tracking at {tracking.uri} failed" in errors[0], stderr
+    assert "while logging single_force/stretch" in errors[0]
     assert "Traceback" not in stderr and time.monotonic() - started < 120
     eskin_cli(["train", "single_force", "stretch"], root, env)
     found = mlflow.search_runs(experiment_names=["eskin"])
