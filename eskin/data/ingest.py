@@ -111,9 +111,9 @@ def live_frames(contents: LogContents | None) -> pd.DataFrame:
     """The frames of the log's live recordings (``eskin live --record``), in the order
     recorded: no labels (nobody said where the skin was pressed), so no training data,
     but a demonstration kept, to replay through a stack or to see how a board drifts."""
-    attempts = [] if contents is None else [
-        a for _, a in sorted((a.number, a) for a in contents.completed.values())
-        if a.session.get("mode") == "live"]
+    attempts = [] if contents is None else sorted(
+        (a for a in contents.completed.values() if a.session.get("mode") == "live"),
+        key=lambda a: a.number)
     frames = [(a, i, f) for a in attempts for i, f in enumerate(a.frames)]
     data: dict[str, object] = {c: np.array([f.counts[j] for _, _, f in frames], dtype=float)
                                for j, c in enumerate(CHANNELS)}

@@ -51,10 +51,10 @@ def parallel_backend(name: str = "loky"):
     ``loky`` (processes, joblib's default), ``threading`` and ``sequential`` are
     joblib's own. ``dask`` runs them on a ``dask.distributed`` cluster: the one
     ``DASK_SCHEDULER_ADDRESS`` names (a lab's, ``tcp://host:8786``), else the client
-    already open in this process, else a local cluster on 127.0.0.1. The features go
-    to the workers once per cross-validation, not once per fold (joblib scatters every
-    argument over 1 kB and reuses it by identity); a fold whose worker dies is run
-    again on another. Results do not depend on the backend.
+    already open in this process, else a local cluster on 127.0.0.1. The features,
+    targets and fold numbers go to every worker once per cross-validation, not with
+    every fold (:func:`_shared_with_cluster`); a fold whose worker dies is run again on
+    another. Results do not depend on the backend.
     """
     if name == "dask":
         _dask_client()
