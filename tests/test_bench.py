@@ -241,3 +241,70 @@ def test_the_strongest_force_model_does_not_beat_the_bound_on_held_out_trials(li
         model.fit(frame.loc[train, CHANNELS].to_numpy(float), force[train])
         predicted = model.predict(frame.loc[test, CHANNELS].to_numpy(float))
         assert r2_score(force[test], predicted) < bound_r2, (name, bound_r2)
+
+
+# ------------------------------------------------------- the two-contact bound
+
+@pytest.fixture(scope="module")
+def two_contacts(repo_params):
+    """Directly simulated two-contact rows: 15 pairs of 6 nodes (sharing rows, columns and
+    node 8's neighbourhood), every force pair, 2 samples a trial."""
+    from eskin.acquisition.plan import two_force_plan
+    from harness.calibrate import simulate_plan
+
+    sim = SkinParams.from_mapping(repo_params["sim"])
+    conditions = ([1.0], [1.2936, 3.2536, 5.2136], [1, 6, 10], [1, 6])
+    plan = two_force_plan("bound", *conditions, samples=2)
+    return sim, conditions, simulate_plan(sim, plan, seed=11)
+
+
+def test_the_pair_oracle_reads_the_skin_as_the_simulator_does(two_contacts):
+    """Its vectorised means are the simulator's, latents and clipping included."""
+    from eskin.device.physics import Indenter
+    from harness.pair_oracle import PairSkin, pair_conditions
+
+    sim, conditions, _ = two_contacts
+    model = SkinModel(sim)
+    cond = pair_conditions(*conditions)
+    rng = np.random.default_rng(0)
+    which = rng.integers(0, len(cond), 40)
+    latents = 2.5 * rng.standard_normal((40, 6))  # offsets clipped beyond 3 SD
+    means = PairSkin(model).means(cond, which, latents)
+    for k, i in enumerate(which):
+        offsets = np.clip(sim.placement_sd_nodes * latents[k], -sim.placement_max_nodes,
+                          sim.placement_max_nodes)
+        seatings = np.exp(sim.seating_variation * latents[k, [2, 5]])
+        pressed = [Indenter(cond.x1[i], cond.y1[i], cond.force1[i], tuple(offsets[:2]),
+                            seatings[0]),
+                   Indenter(cond.x2[i], cond.y2[i], cond.force2[i], tuple(offsets[3:5]),
+                            seatings[1])]
+        np.testing.assert_allclose(means[k], model.capacitance(1.0, pressed), rtol=1e-12)
+
+
+def test_the_pair_bound_converges_and_no_strong_model_beats_it(two_contacts):
+    """Doubling the importance sample moves no score by 0.001, while 8 points a condition
+    are caught; and gradient boosting (the two-force default) on held-out trials stays
+    below the oracle on the same rows, force and position alike."""
+    from eskin.evaluation.cv import assign_folds
+    from harness import pair_oracle
+
+    sim, conditions, frame = two_contacts
+    coarse = pair_oracle.convergence(frame, sim, *conditions, rows=20,
+                                     sampling=pair_oracle.Sampling(8, 1.5))
+    assert max(coarse.values()) >= CONVERGED, coarse
+    folds = assign_folds(frame, "two_force", "grouped", 3, seed=0)
+    train, test = folds != 0, folds == 0
+    rows = frame[test].reset_index(drop=True)
+    answers = pair_oracle.posterior_predictions(rows, sim, *conditions)
+    moved = pair_oracle.convergence(rows, sim, *conditions, rows=30)
+    assert max(moved.values()) < CONVERGED, moved
+    X = frame[CHANNELS].to_numpy(float)
+    for task_name in ("force", "localise"):
+        task = get_task("two_force", task_name)
+        for target, y in task.target_values(frame).items():
+            model = build_model(task.role, "hist_gradient_boosting", {"seed": 0})
+            predicted = model.fit(X[train], y[train]).predict(X[test])
+            if task_name == "force":
+                assert r2_score(y[test], predicted) < r2_score(y[test], answers[target]), target
+            else:
+                assert np.mean(predicted == y[test]) <= np.mean(answers[target] == y[test]), target

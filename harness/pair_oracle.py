@@ -1,0 +1,326 @@
+"""The Bayes bound of a two-contact scene: the best any model could do, one reading at a time.
+
+The oracle knows the simulator (:mod:`eskin.device.physics`) and the plan's conditions
+(every pair of nodes, every force for each contact; contact 1 is the pair's lower node, as
+the plan labels it), each as likely as the others. Each contact lands with its own
+placement offset (x and y) and seating, six latents in all, which the oracle cannot see
+and integrates out per reading and condition:
+
+* **The mode.** Damped Gauss–Newton finds the latents (in SD units, standard normal prior;
+  the offsets clipped as the simulator clips them) that best explain the reading, for
+  every condition at once, from a tight and from a loose seating (a seated weight's
+  likelihood is flat in its seating, so one start cannot see the other side). Its Laplace
+  estimate of the marginal ranks the conditions, and those more than
+  e^-:data:`PRUNE_LOG` below a reading's best are dropped.
+* **The integral.** The survivors are integrated by adaptive importance sampling on
+  scrambled Sobol points: from Gaussians around the mode (the inverse Gauss–Newton
+  Hessian widened by ``inflate``, and the same with the seatings at their prior's width),
+  then again with a Gaussian fitted to the first draw's weighted points added. Unlike a
+  product grid (6 dimensions: 5 points an axis is 15,625 a condition, and the likelihood
+  of a heavy weight's placement is about a fifth of an SD wide) its cost does not grow
+  with the dimension, and doubling the points (:func:`convergence`) measures what it has
+  not resolved.
+* **The reading.** Given the latents, a reading (in pF) is Gaussian per channel, as in
+  :mod:`harness.oracle` (noise, the trial's baseline offset, the random walk up to the
+  sample's index, the ADC step).
+
+Its decisions are Bayes-optimal for each metric — the posterior mean of each force (least
+squares), the most probable value of each of x1, y1, x2, y2 — so where its integrals have
+converged, no model predicting one reading at a time can beat it on average. Where they
+have not, the oracle decides from a wrong posterior, and its scores fall *below* the true
+bound: an unconverged bound errs towards models beating it, which `make bench` would show.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+from scipy.special import logsumexp, ndtri
+from scipy.stats import qmc
+
+from eskin.acquisition.plan import two_force_plan
+from eskin.data.schema import CHANNELS
+from eskin.device.physics import NODES, SkinModel, SkinParams, spread_kernel
+from harness.oracle import counts_to_pf, reading_variance
+
+LATENTS = 6        # per contact: placement offset x, y (SDs) and seating (SDs of its log)
+PRUNE_LOG = 25.0   # conditions this far (Laplace, log posterior) below a reading's best drop
+ITERATIONS = 25    # Gauss–Newton steps (each accepted or damped per reading and condition)
+STEP = 1e-4        # forward-difference step of the Jacobian, in SDs
+SEATING_STARTS = (0.0, 1.5)  # SDs: each descent starts from each (see _modes)
+POSITIONS = ("x1", "y1", "x2", "y2")
+
+
+@dataclass(frozen=True)
+class Sampling:
+    """How the survivors are integrated: Sobol points per condition and the widening of the
+    Laplace covariance the points are drawn from."""
+
+    points: int = 16384
+    inflate: float = 1.5
+
+    def doubled(self) -> Sampling:
+        return Sampling(2 * self.points, self.inflate)
+
+
+@dataclass(frozen=True)
+class PairConditions:
+    """The plan's conditions, one row each: stretch, and per contact node and force."""
+
+    stretch: np.ndarray
+    x1: np.ndarray
+    y1: np.ndarray
+    force1: np.ndarray
+    x2: np.ndarray
+    y2: np.ndarray
+    force2: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.stretch)
+
+
+def pair_conditions(stretches, forces, nodes_x, nodes_y) -> PairConditions:
+    """The two-force plan's conditions (:func:`eskin.acquisition.plan.two_force_plan`); each
+    has the same number of samples, so the prior is uniform."""
+    plan = two_force_plan("bound", stretches, forces, nodes_x, nodes_y, 1)
+    rows = [(c.stretch, a.x, a.y, a.force, b.x, b.y, b.force)
+            for c in plan.conditions for a, b in [c.contacts]]
+    columns = [np.array(col) for col in zip(*rows, strict=True)]
+    return PairConditions(*columns)
+
+
+class PairSkin:
+    """The skin's mean reading for many (condition, latents) at once — the arithmetic of
+    :meth:`SkinModel.capacitance`, vectorised (a test holds the two equal)."""
+
+    def __init__(self, model: SkinModel) -> None:
+        self.model, self.params = model, model.params
+
+    def _peak(self, newtons: np.ndarray, stretch: np.ndarray, seating: np.ndarray) -> np.ndarray:
+        p = self.params
+        half = p.force_half_n * stretch ** p.stretch_stiffening
+        ratio = (np.maximum(newtons, 0.0) / half) ** p.force_hill
+        if p.seating_force_n > 0:
+            pressing = np.minimum(1.0, (newtons / (p.seating_force_n * seating)) ** (2 / 3))
+        else:
+            pressing = np.ones_like(newtons)
+        return np.where(newtons > 0, p.strain_max * pressing * ratio / (1 + ratio), 0.0)
+
+    def _field(self, x, y, newtons, stretch, latents) -> np.ndarray:
+        p = self.params
+        offsets = np.clip(p.placement_sd_nodes * latents[:, :2], -p.placement_max_nodes,
+                          p.placement_max_nodes)
+        seating = np.exp(p.seating_variation * latents[:, 2])
+        peak = self._peak(newtons, stretch, seating)
+        wx = spread_kernel(NODES[None, :] - (x + offsets[:, 0])[:, None], p.reach_nodes)
+        wy = spread_kernel(NODES[None, :] - (y + offsets[:, 1])[:, None], p.reach_nodes)
+        return peak[:, None, None] * wx[:, :, None] * wy[:, None, :]
+
+    def means(self, cond: PairConditions, which: np.ndarray, latents: np.ndarray) -> np.ndarray:
+        """Mean readings in pF, (len(which), 20), for condition ``which[k]`` with latents
+        ``latents[k]`` (contact 1's three, then contact 2's)."""
+        p, m = self.params, self.model
+        stretch = cond.stretch[which]
+        field = (self._field(cond.x1[which], cond.y1[which], cond.force1[which], stretch,
+                             latents[:, :3])
+                 + self._field(cond.x2[which], cond.y2[which], cond.force2[which], stretch,
+                               latents[:, 3:]))
+        field = np.minimum(field * m.node_sensitivity, p.strain_max)
+        gain = 1.0 / (1.0 - field) - 1.0
+        indentation = np.concatenate([gain.mean(axis=2), gain.mean(axis=1)], axis=1)
+        stretched = m.baseline_pf * (1 + m.stretch_sensitivity * (stretch[:, None] - 1))
+        return stretched * (1 + indentation)
+
+
+def _log_likelihood(reading: np.ndarray, inverse: np.ndarray, means: np.ndarray) -> np.ndarray:
+    """log p(reading | mean) up to the constant every condition shares."""
+    return -0.5 * (((reading - means) ** 2) * inverse).sum(axis=-1)
+
+
+def _descend(skin: PairSkin, cond: PairConditions, which: np.ndarray, reading: np.ndarray,
+             scale: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Damped Gauss–Newton from ``t``: (mode, cost there, Hessian), one per item."""
+    damping = np.full(len(which), 1e-3)
+    eye = np.eye(LATENTS)
+
+    def objective(latents: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        residual = (reading - skin.means(cond, which, latents)) * scale
+        return residual, 0.5 * ((residual ** 2).sum(1) + (latents ** 2).sum(1))
+
+    def hessian(residual: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        jac = np.stack([(objective(t + STEP * eye[k])[0] - residual) / STEP
+                        for k in range(LATENTS)], axis=2)  # d residual / d t: (M, 20, 6)
+        return np.einsum("mci,mcj->mij", jac, jac) + eye, jac
+
+    t = t.copy()
+    residual, cost = objective(t)
+    for _ in range(ITERATIONS):
+        h, jac = hessian(residual)
+        gradient = np.einsum("mci,mc->mi", jac, residual) + t
+        step = np.linalg.solve(h + damping[:, None, None] * eye, -gradient[..., None])[..., 0]
+        trial_residual, trial_cost = objective(t + step)
+        better = trial_cost < cost
+        t[better] += step[better]
+        residual[better], cost[better] = trial_residual[better], trial_cost[better]
+        damping = np.where(better, damping / 3, damping * 10)
+    return t, cost, hessian(residual)[0]
+
+
+def _modes(skin: PairSkin, cond: PairConditions, readings: np.ndarray, inverse: np.ndarray
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per start of :data:`SEATING_STARTS`, reading and condition: where the descent ended
+    (S, R, C, 6), the log posterior there (S, R, C) and the Gauss–Newton Hessian
+    (S, R, C, 6, 6), prior included.
+
+    A seated weight's likelihood is flat in its seating below the load that seats it, so
+    a descent that starts there cannot tell whether a looser seating explains the reading
+    better, and one that starts loose may stop short of the flat side: both are kept."""
+    n_rows, n_cond = len(readings), len(cond)
+    which = np.tile(np.arange(n_cond), n_rows)
+    reading = np.repeat(readings, n_cond, axis=0)
+    scale = np.sqrt(np.repeat(inverse, n_cond, axis=0))
+    ends = []
+    for seating in SEATING_STARTS:
+        start = np.zeros((len(which), LATENTS))
+        start[:, [2, 5]] = seating
+        mode, cost, hessian = _descend(skin, cond, which, reading, scale, start)
+        ends.append((mode.reshape(n_rows, n_cond, LATENTS), -cost.reshape(n_rows, n_cond),
+                     hessian.reshape(n_rows, n_cond, LATENTS, LATENTS)))
+    return tuple(np.stack(part) for part in zip(*ends, strict=True))
+
+
+def _mixture_draw(skin: PairSkin, cond: PairConditions, i: int, reading: np.ndarray,
+                  inverse: np.ndarray, components: list[tuple[np.ndarray, np.ndarray]],
+                  normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Equal shares of ``normals`` through each Gaussian (mean, Cholesky factor): the
+    latents and their log importance weights against the components' mixture."""
+    shares = np.array_split(np.arange(len(normals)), len(components))
+    latents = np.concatenate([mean + normals[share] @ chol.T
+                              for (mean, chol), share in zip(components, shares, strict=True)])
+    log_q = [-0.5 * (np.linalg.solve(chol, (latents - mean).T) ** 2).sum(0)
+             - np.log(np.diag(chol)).sum() for mean, chol in components]
+    log_proposal = logsumexp(np.stack(log_q), axis=0) - np.log(len(components))
+    means = skin.means(cond, np.full(len(latents), i), latents)
+    log_prior = -0.5 * (latents ** 2).sum(1)  # the 2π terms cancel against the proposal's
+    return latents, _log_likelihood(reading, inverse, means) + log_prior - log_proposal
+
+
+def _importance(skin: PairSkin, cond: PairConditions, i: int, reading: np.ndarray,
+                inverse: np.ndarray, modes: np.ndarray, hessians: np.ndarray,
+                normals: np.ndarray, inflate: float) -> float:
+    """log ∫ p(reading | condition i, t) φ(t) dt by importance sampling around the modes.
+
+    First from two Gaussians at each descent's end: N(mode, inflate² H⁻¹), and the same
+    with each seating decoupled and given its prior's unit variance (a seated weight's
+    likelihood is flat in its seating below the load that seats it and steep above, and a
+    Hessian at that kink sees only the steep side). Then, as adaptive importance sampling
+    does, from those and a Gaussian fitted to the first draw's weighted points (offsets
+    and seating trade off along curved ridges that a Hessian does not see). Every point is
+    weighted against its draw's mixture (the balance heuristic), the prior among them
+    (defensive sampling: no weight exceeds the likelihood over the prior's share); the
+    estimate is the second draw's."""
+    seating = [2, 5]
+    components = []
+    for mode, hessian in zip(modes, hessians, strict=True):
+        wide = hessian.copy()
+        wide[seating, :] = 0.0
+        wide[:, seating] = 0.0
+        wide[seating, seating] = 1.0
+        components += [(mode, np.linalg.cholesky(np.linalg.inv(h)) * inflate)
+                       for h in (hessian, wide)]
+    # the prior too, defensively: no weight can exceed the likelihood over its share
+    components.append((np.zeros(LATENTS), np.eye(LATENTS)))
+    # the first draw only places the fitted Gaussian: a quarter of the points
+    latents, weights = _mixture_draw(skin, cond, i, reading, inverse, components,
+                                     normals[:len(normals) // 4])
+    share = np.exp(weights - logsumexp(weights))
+    mean = share @ latents
+    spread = latents - mean
+    cov = (spread * share[:, None]).T @ spread + 1e-6 * np.eye(LATENTS)
+    components.append((mean, np.linalg.cholesky(cov) * inflate))
+    _, weights = _mixture_draw(skin, cond, i, reading, inverse, components, normals)
+    return float(logsumexp(weights) - np.log(len(normals)))
+
+
+def _laplace(log_post: np.ndarray, hessian: np.ndarray) -> np.ndarray:
+    """Laplace's log marginal, up to a constant: log posterior at the mode − ½ log det H
+    (the prior's normalisation is the same for every condition)."""
+    return log_post - 0.5 * np.linalg.slogdet(hessian)[1]
+
+
+def _log_posterior(skin: PairSkin, cond: PairConditions, readings: np.ndarray,
+                   inverse: np.ndarray, normals: np.ndarray, inflate: float) -> np.ndarray:
+    """log p(condition | reading), unnormalised, for a few readings: (R, C)."""
+    modes, at_mode, hessians = _modes(skin, cond, readings, inverse)
+    laplace = _laplace(at_mode, hessians).max(axis=0)  # the better descent's
+    log_post = np.full(laplace.shape, -np.inf)
+    for r in range(len(readings)):
+        for i in np.flatnonzero(laplace[r] >= laplace[r].max() - PRUNE_LOG):
+            log_post[r, i] = _importance(skin, cond, i, readings[r], inverse[r],
+                                         modes[:, r, i], hessians[:, r, i], normals, inflate)
+    return log_post
+
+
+def posterior_predictions(frame: pd.DataFrame, params: SkinParams, stretches, forces,
+                          nodes_x, nodes_y, *, sampling: Sampling = Sampling(),
+                          seed: int = 0, chunk: int = 8, n_jobs: int = -1,
+                          progress=None) -> pd.DataFrame:
+    """The oracle's answers for each row: stretch, force1 and force2 (posterior means), and
+    x1, y1, x2, y2 (each its most probable value). Chunks of rows run in parallel
+    (joblib's ``n_jobs``); each row's answer is the same however they are run."""
+    from joblib import Parallel, delayed
+
+    skin = PairSkin(SkinModel(params))
+    cond = pair_conditions(stretches, forces, nodes_x, nodes_y)
+    readings = counts_to_pf(skin.model, frame[CHANNELS].to_numpy(dtype=float))
+    inverse = 1.0 / reading_variance(skin.model, frame["sample"].to_numpy())
+    normals = ndtri(qmc.Sobol(LATENTS, scramble=True, seed=seed).random(sampling.points))
+    starts = range(0, len(frame), chunk)
+    parts = Parallel(n_jobs=n_jobs, return_as="generator")(
+        delayed(_log_posterior)(skin, cond, readings[s:s + chunk], inverse[s:s + chunk],
+                                normals, sampling.inflate) for s in starts)
+    blocks = []
+    for start, block in zip(starts, parts, strict=True):
+        blocks.append(block)
+        if progress is not None:
+            progress(min(start + chunk, len(frame)), len(frame))
+    log_post = np.concatenate(blocks) if blocks else np.empty((0, len(cond)))
+    log_post -= logsumexp(log_post, axis=1, keepdims=True)
+    post = np.exp(log_post)
+    out = {"stretch": post @ cond.stretch, "force1": post @ cond.force1,
+           "force2": post @ cond.force2}
+    for name in POSITIONS:
+        values = getattr(cond, name)
+        onehot = values[:, None] == NODES[None, :].astype(int)
+        out[name] = np.argmax(post @ onehot, axis=1) + 1
+    return pd.DataFrame(out)
+
+
+def oracle_scores(answers: pd.DataFrame, frame: pd.DataFrame) -> dict[str, float]:
+    """The oracle's scores on ``frame``'s rows: force1 and force2 as MSE over the target's
+    variance (a move in R²), and the accuracy of each of x1, y1, x2, y2."""
+    from eskin.tasks import get_task
+
+    out = {}
+    for name, truth in get_task("two_force", "force").target_values(frame).items():
+        spread = float(np.var(truth))
+        out[f"{name}_mse"] = (float(np.mean((truth - answers[name].to_numpy()) ** 2)) / spread
+                              if spread > 0 else 0.0)
+    for name in POSITIONS:
+        out[f"{name}_accuracy"] = float(np.mean(answers[name].to_numpy()
+                                                == frame[name].to_numpy()))
+    return out
+
+
+def convergence(frame: pd.DataFrame, params: SkinParams, stretches, forces, nodes_x, nodes_y,
+                *, sampling: Sampling = Sampling(), rows: int = 200, seed: int = 0
+                ) -> dict[str, float]:
+    """How far each score moves when the Sobol points are doubled (and redrawn), on ``rows``
+    seeded rows of ``frame``: the bound has converged when no move reaches 0.001."""
+    sample = frame.sample(min(rows, len(frame)), random_state=seed).reset_index(drop=True)
+    scores = [oracle_scores(posterior_predictions(sample, params, stretches, forces, nodes_x,
+                                                  nodes_y, sampling=s, seed=seed + k), sample)
+              for k, s in enumerate((sampling, sampling.doubled()))]
+    return {name: abs(scores[0][name] - scores[1][name]) for name in scores[0]}
