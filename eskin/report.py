@@ -1,4 +1,4 @@
-"""Pipeline step of reporting: figures, DVC plot data, the report page, the README table.
+"""Pipeline step of reporting: figures, DVC plot data, the report page, the results page.
 
 Reads only the training stages' predictions and metrics, the scene list
 (``scenes:``, names and kinds) and its own params (``report:``), so a change
@@ -20,7 +20,7 @@ from eskin.catalog import SCORED_TASKS
 from eskin.config import section
 from eskin.data.schema import force_columns, node_columns
 from eskin.reporting import figures as fig
-from eskin.reporting.page import readme_section, render_page, replace_readme_results
+from eskin.reporting.page import render_page, results_markdown
 
 # (figure id, task, caption, builder(oof, kind)), by kind; a figure is drawn when its task
 # has predictions.
@@ -83,7 +83,7 @@ def plot_data(kind: str, predictions: dict[str, pd.DataFrame]
 
 
 def report(params: dict[str, Any], *, metrics_dir: Path, predictions_dir: Path,
-           figures_dir: Path, plots_dir: Path, page_path: Path, readme_path: Path) -> str:
+           figures_dir: Path, plots_dir: Path, page_path: Path, results_path: Path) -> str:
     settings = section(params, "report")
     kinds = {name: scene["kind"] for name, scene in section(params, "scenes").items()}
     metrics = {scene: _task_files(metrics_dir, scene, ".json", lambda p: json.loads(p.read_text()))
@@ -123,8 +123,7 @@ def report(params: dict[str, Any], *, metrics_dir: Path, predictions_dir: Path,
 
     scenes = [(scene, kinds[scene], metrics[scene]) for scene in kinds]
     Path(page_path).write_text(render_page(scenes, page_figures))
-    readme = Path(readme_path)
-    readme.write_text(replace_readme_results(readme.read_text(), readme_section(scenes)))
+    Path(results_path).write_text(results_markdown(scenes))
     return (f"report: {len(kinds)} scene(s), {written} figures (PNG + SVG) in {figures_dir}, "
-            f"plot data in {plots_dir}, {page_path}, results in {readme_path}")
+            f"plot data in {plots_dir}, {page_path}, results in {results_path}")
 

@@ -106,22 +106,37 @@ def pipeline_key(params_text: str, commit: str) -> str:
     return f"repro:{digest}"
 
 
+# MLflow 3's UI opens an experiment in its GenAI view (traces, token usage) unless told
+# that the experiment trains models.
+EXPERIMENT_KIND, MODEL_TRAINING = "mlflow.experimentKind", "custom_model_development"
+
+
+def variant_name(key: str) -> str:
+    """A pipeline run's name: the DVC experiment's, or for a plain ``dvc repro`` the first
+    8 hex digits of its key (commit and params)."""
+    return dvc_experiment() or f"repro-{key.split(':', 1)[1][:8]}"
+
+
 def _experiment_id(client: MlflowClient, name: str) -> str:
     experiment = client.get_experiment_by_name(name)
     if experiment is not None:
+        if experiment.tags.get(EXPERIMENT_KIND) != MODEL_TRAINING:  # made by an older eskin
+            client.set_experiment_tag(experiment.experiment_id, EXPERIMENT_KIND, MODEL_TRAINING)
         return experiment.experiment_id
     location = None
     if not os.environ.get("MLFLOW_TRACKING_URI"):
         location = (project_root() / "mlruns").as_uri()
     try:
-        return client.create_experiment(name, artifact_location=location)
+        return client.create_experiment(name, artifact_location=location,
+                                        tags={EXPERIMENT_KIND: MODEL_TRAINING})
     except mlflow.exceptions.MlflowException:
         # Another stage created it between our lookup and create.
         return client.get_experiment_by_name(name).experiment_id
 
 
 def parent_run(client: MlflowClient, experiment_id: str, key: str,
-               tags: Mapping[str, str], params: Mapping[str, Any] | None = None) -> str:
+               tags: Mapping[str, str], params: Mapping[str, Any] | None = None,
+               start_time: int | None = None) -> str:
     """The id of the pipeline run keyed ``key``, created on first use.
 
     It carries the whole params file, flattened, so that variants can be told
@@ -131,8 +146,7 @@ def parent_run(client: MlflowClient, experiment_id: str, key: str,
                                " and tags.`eskin.kind` = 'pipeline'", max_results=1)
     if found:
         return found[0].info.run_id
-    name = dvc_experiment() or f"repro {key.split(':', 1)[1]}"
-    run = client.create_run(experiment_id, run_name=name,
+    run = client.create_run(experiment_id, run_name=variant_name(key), start_time=start_time,
                             tags={**tags, PIPELINE_TAG: key, "eskin.kind": "pipeline"})
     entries = [Param(k, str(v)) for k, v in flatten(params or {}).items()]
     for start in range(0, len(entries), 100):  # the REST API takes 100 params per batch
@@ -187,8 +201,10 @@ def settle_stale_runs(client: MlflowClient, experiment_ids: list[str]) -> list[s
     return settled
 
 
-def _pipeline(scene: str, params_text: str) -> tuple[str, str, str, dict[str, str]]:
-    """(experiment id, parent run id, pipeline key, common tags) for a stage's run."""
+def _pipeline(scene: str, params_text: str, start_time: int | None = None
+              ) -> tuple[str, str, str, dict[str, str]]:
+    """(experiment id, parent run id, pipeline key, common tags) for a stage's run; a parent
+    made now starts at ``start_time`` (ms since the epoch: the stage's start)."""
     client = connect()
     experiment_id = _experiment_id(client, EXPERIMENT)
     settle_stale_runs(client, [experiment_id])
@@ -197,8 +213,23 @@ def _pipeline(scene: str, params_text: str) -> tuple[str, str, str, dict[str, st
     tags = {"eskin.git_commit": commit, "mlflow.source.git.commit": commit,
             "eskin.dvc_experiment": dvc_experiment(), "eskin.scene": scene}
     params = yaml.safe_load(params_text) if params_text else {}
-    return (experiment_id, parent_run(client, experiment_id, key, tags, params or {}), key,
-            tags)
+    return (experiment_id, parent_run(client, experiment_id, key, tags, params or {},
+                                      start_time), key, tags)
+
+
+def _epoch_ms(perf_counter_start: float | None) -> int | None:
+    """A ``time.perf_counter()`` reading as milliseconds since the epoch."""
+    if perf_counter_start is None:
+        return None
+    return int(1000 * (time.time() - (time.perf_counter() - perf_counter_start)))
+
+
+def _extend_parent(client: MlflowClient, parent: str) -> None:
+    """The pipeline run ends when its last task run does (runs of parallel stages end in
+    any order: the latest end is kept)."""
+    now = int(1000 * time.time())
+    if (client.get_run(parent).info.end_time or 0) < now:
+        client.set_terminated(parent, end_time=now)
 
 
 def log_task_run(*, scene: str, task: str, params: Mapping[str, Any], params_text: str,
@@ -220,7 +251,7 @@ def log_task_run(*, scene: str, task: str, params: Mapping[str, Any], params_tex
 
 def _log_task_run(scene, task, params, params_text, results, models, dataset, dataset_digest,
                   dataset_source, started, extra_tags) -> TrackedRun:
-    experiment_id, parent, key, tags = _pipeline(scene, params_text)
+    experiment_id, parent, key, tags = _pipeline(scene, params_text, _epoch_ms(started))
     run_tags = {**tags, **(extra_tags or {}), **process_tags(), "eskin.task": task,
                 "eskin.kind": "task",
                 "eskin.cv_schemes": ",".join(r.scheme for r in results),
@@ -231,8 +262,11 @@ def _log_task_run(scene, task, params, params_text, results, models, dataset, da
         # a plain local path, and integer node labels never carry missing values.
         warnings.filterwarnings("ignore", message="The specified dataset source can be")
         warnings.filterwarnings("ignore", message="Hint: Inferred schema contains integer")
-        return _log_run(experiment_id, parent, scene, task, run_tags, params, results, models,
-                         dataset, dataset_digest, dataset_source, started)
+        tracked = _log_run(experiment_id, parent, scene, task, run_tags, params, results,
+                           models, dataset, dataset_digest, dataset_source, started,
+                           variant_name(key))
+        _extend_parent(MlflowClient(), parent)
+        return tracked
 
 
 class _quiet:
@@ -254,21 +288,23 @@ class _quiet:
 
 
 def _log_run(experiment_id, parent, scene, task, run_tags, params, results, models, dataset,
-             dataset_digest, dataset_source, started) -> TrackedRun:
-    with mlflow.start_run(experiment_id=experiment_id, run_name=f"{scene}/{task}",
-                          parent_run_id=parent, tags=run_tags) as run:
+             dataset_digest, dataset_source, started, variant) -> TrackedRun:
+    # Created with the step's start, so that the UI's duration is the training's; named
+    # so that Compare tells variants and models apart.
+    created = MlflowClient().create_run(
+        experiment_id, start_time=_epoch_ms(started),
+        run_name=f"{scene}/{task} {run_tags.get('eskin.model', '')} @{variant}",
+        tags={**run_tags, "mlflow.parentRunId": parent})
+    with mlflow.start_run(run_id=created.info.run_id) as run:
         mlflow.log_params({k: str(v) for k, v in flatten(params).items()})
         mlflow.log_input(mlflow.data.from_pandas(dataset, source=dataset_source,
                                                  targets=None, name=scene,
                                                  digest=dataset_digest),
                          context="training")
         for result in results:
-            for target, folds in result.per_fold.items():
-                for fold, scores in enumerate(folds):
-                    # Its own key: under the mean's key, MLflow's "latest" value (the
-                    # highest step) would be the last fold's score, not the mean.
-                    mlflow.log_metrics({f"{result.scheme}.fold.{target}.{k}": v
-                                        for k, v in scores.items()}, step=fold)
+            # Per fold as an artifact, not as metrics: the UI's charts and parallel
+            # coordinates took a fold's score for the run's.
+            mlflow.log_dict(result.per_fold, f"scores/per_fold_{result.scheme}.json")
             mlflow.log_metrics(flatten({result.scheme: result.summary}))
             mlflow.log_metrics({f"{result.scheme}.fit_seconds": result.fit_seconds,
                                 f"{result.scheme}.predict_seconds": result.predict_seconds})
@@ -286,7 +322,8 @@ def _log_run(experiment_id, parent, scene, task, run_tags, params, results, mode
         registered = []
         for target, model in models.items():
             info = mlflow.sklearn.log_model(
-                model, name=f"{task}_{target}", input_example=example,
+                model, name=task if target == task else f"{task}-{target}",
+                input_example=example,
                 signature=infer_signature(example, model.predict(example)),
                 pip_requirements=_requirements(), serialization_format="cloudpickle")
             # Registered with the run's lineage: `eskin reproduce` finds the dataset
@@ -338,10 +375,11 @@ def log_scores_run(*, scene: str, task: str, scores: Mapping[str, Any], params_t
 
 def _log_scores_run(scene, task, scores, params_text, dataset_digest) -> str:
     experiment_id, parent, key, tags = _pipeline(scene, params_text)
-    with mlflow.start_run(experiment_id=experiment_id, run_name=f"{scene}/{task}",
-                          parent_run_id=parent,
+    with mlflow.start_run(experiment_id=experiment_id,
+                          run_name=f"{scene}/{task} @{variant_name(key)}", parent_run_id=parent,
                           tags={**tags, "eskin.task": task, "eskin.kind": "scores",
                                 PIPELINE_TAG: key, "eskin.dataset_digest": dataset_digest}) as run:
         mlflow.log_metrics({k: v for k, v in flatten(scores).items()
                             if isinstance(v, (int, float))})
-        return run.info.run_id
+    _extend_parent(MlflowClient(), parent)
+    return run.info.run_id

@@ -1,4 +1,4 @@
-"""DVC stage: predictions + metrics → figures, plot data, reports/index.html, README table."""
+"""DVC stage: predictions + metrics → figures, plot data, reports/index.html, reports/results.md."""
 
 import sys
 
@@ -11,4 +11,4 @@ if __name__ == "__main__":
     sys.exit(run_friendly(lambda: print(report.report(
         load_params(), metrics_dir=METRICS_DIR, predictions_dir=PREDICTIONS_DIR,
         figures_dir="reports/figures", plots_dir="reports/plots",
-        page_path="reports/index.html", readme_path="README.md"))))
+        page_path="reports/index.html", results_path="reports/results.md"))))

@@ -179,9 +179,9 @@ def test_the_report_has_a_section_and_figures_per_scene(project):
             "lab_pairs/two_force_parity_grouped.png", "board_day1/force_parity_grouped.png",
             "board_day1/detection_grouped.png"} <= figures
     assert not any(f.startswith("board_day1/stretch") for f in figures)
-    readme = (root / "README.md").read_text()
-    assert "#### board_day1 (single force)" in readme
-    assert "board_day1/stretch skipped: stretch regression needs two or more" in readme
+    results = (root / "reports" / "results.md").read_text()
+    assert "## board_day1 (single force)" in results
+    assert "board_day1/stretch skipped: stretch regression needs two or more" in results
     plots = json.loads(run(["dvc", "plots", "show", "--json"], root, project[1]).stdout)
     assert any("lab_pairs_force1.csv" in key for key in json.dumps(plots).split('"'))
 

@@ -99,10 +99,19 @@ def test_a_second_force_model_is_a_second_mlflow_run_on_the_same_dataset(scratch
     assert digest in {o["md5"] for o in outs}
 
 
-def test_the_report_stage_writes_the_readme_table_and_dvc_plots_render(scratch):
+def test_the_report_stage_writes_the_results_page_and_dvc_plots_render(scratch):
     root, env = scratch
-    readme = (root / "README.md").read_text()
-    assert "| stretch R² [paper] | 0." in readme
+    results = (root / "reports" / "results.md").read_text()
+    assert "| stretch R² [paper] | 0." in results
+    # The README is prose, not an output: editing it leaves the pipeline up to date.
+    readme = root / "README.md"
+    prose = readme.read_text()
+    readme.write_text(prose + "\nA sentence a user added.\n")
+    try:
+        assert "Data and pipelines are up to date." in run(["dvc", "status", "dvc.yaml"],
+                                                           root, env)
+    finally:
+        readme.write_text(prose)
     assert (root / "reports" / "index.html").stat().st_size > 10_000
     run(["dvc", "plots", "show", "-o", str(root / "dvc_plots")], root, env)
     assert (root / "dvc_plots" / "index.html").exists()
@@ -120,6 +129,19 @@ def test_a_repro_groups_its_task_runs_under_one_pipeline_run(scratch):
         *(f"single_force/{t}" for t in ("detect", "force", "localise", "stretch")),
         "two_force/force", "two_force/localise"]
     assert runs["tags.mlflow.parentRunId"].nunique() == 1
+    # The UI: the training view, runs named by scene, task, model and variant, and
+    # durations that are the training's (the run starts when the step did).
+    experiment = mlflow.MlflowClient().get_experiment_by_name("eskin")
+    assert experiment.tags["mlflow.experimentKind"] == "custom_model_development"
+    parent = mlflow.MlflowClient().get_run(runs["tags.mlflow.parentRunId"].iloc[0])
+    for _, task_run in runs.iterrows():
+        assert task_run["tags.mlflow.runName"] == (
+            f"{task_run['tags.eskin.scene']}/{task_run['tags.eskin.task']} "
+            f"{task_run['tags.eskin.model']} @{parent.info.run_name}")
+    assert parent.info.run_name.startswith("repro-")
+    seconds = (runs["end_time"] - runs["start_time"]).dt.total_seconds()
+    assert (seconds >= runs["metrics.wall_seconds"] - 0.01).all()
+    assert parent.info.end_time >= runs["end_time"].max().timestamp() * 1000 - 1
     # Artifacts go through the server: predictions and models come back from it.
     run_id = runs[runs["tags.eskin.task"] == "detect"].iloc[0]["run_id"]
     listed = {a.path for a in mlflow.MlflowClient().list_artifacts(run_id, "predictions")}
@@ -130,9 +152,10 @@ def test_a_repro_groups_its_task_runs_under_one_pipeline_run(scratch):
     written = json.loads((root / "reports" / "metrics" / "single_force" / "detect.json")
                          .read_text())
     assert logged["grouped.contact.accuracy"] == written["grouped"]["contact"]["accuracy"]
-    history = mlflow.MlflowClient().get_metric_history(run_id, "grouped.fold.contact.accuracy")
-    assert sorted(m.step for m in history) == [0, 1, 2, 3, 4]
-    model = mlflow.sklearn.load_model(f"runs:/{run_id}/detect_contact")
+    per_fold = mlflow.artifacts.load_dict(f"runs:/{run_id}/scores/per_fold_grouped.json")
+    assert len(per_fold["contact"]) == 5
+    assert "grouped.fold.contact.accuracy" not in logged
+    model = mlflow.sklearn.load_model(f"runs:/{run_id}/detect-contact")
     features = pd.read_parquet(root / "data" / "features" / "single_force.parquet")
     assert set(model.predict(features[CHANNELS].head(50))) <= {False, True}
     # The pipeline run carries the whole params file, for `eskin compare`.

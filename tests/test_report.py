@@ -1,4 +1,4 @@
-"""The report: figures, plot data, the page (opened in headless Chromium), the README table."""
+"""The report: figures, plot data, the page (opened in headless Chromium), the results page."""
 
 import json
 import shutil
@@ -8,13 +8,7 @@ import pandas as pd
 import pytest
 
 from eskin import report
-from eskin.reporting.page import (
-    HEADLINES,
-    README_BEGIN,
-    README_END,
-    headline_rows,
-    replace_readme_results,
-)
+from eskin.reporting.page import HEADLINES, headline_rows
 
 CHROMIUM = shutil.which("chromium")
 
@@ -69,7 +63,6 @@ def fake_outputs(root):
     (root / "metrics" / "two_force" / "stretch.json").write_text(json.dumps(
         {"scene": "two_force", "kind": "two_force", "task": "stretch", "status": "skipped",
          "reason": "stretch regression needs two or more stretch levels; this scene has one"}))
-    (root / "README.md").write_text(f"# x\n\n{README_BEGIN}\nstale table\n{README_END}\n\nkept\n")
     return root
 
 
@@ -83,7 +76,7 @@ def built(tmp_path_factory):
     summary = report.report(params, metrics_dir=root / "metrics",
                             predictions_dir=root / "predictions",
                             figures_dir=root / "figures", plots_dir=root / "plots",
-                            page_path=root / "index.html", readme_path=root / "README.md")
+                            page_path=root / "index.html", results_path=root / "results.md")
     return root, summary
 
 
@@ -115,16 +108,14 @@ def test_dvc_plot_data_has_the_columns_dvc_yaml_names(built):
         *(f"two_force_{t}" for t in ("x1", "y1", "x2", "y2"))}
 
 
-def test_readme_table_replaces_only_its_section(built):
+def test_results_page_has_each_scene_in_order(built):
     root, _ = built
-    readme = (root / "README.md").read_text()
-    assert "stale table" not in readme and readme.endswith("kept\n")
-    assert "| force R² [paper] | 0.900 ± 0.010 | 0.900 ± 0.010 | 0.827 |" in readme
-    assert readme.index("#### single_force (single force)") < readme.index(
-        "#### two_force (two force)")
-    assert "two_force/stretch skipped: stretch regression needs two or more" in readme
-    with pytest.raises(ValueError, match="lacks the results markers"):
-        replace_readme_results("# no markers\n", "table")
+    results = (root / "results.md").read_text()
+    assert results.startswith("# Results\n")
+    assert "| force R² [paper] | 0.900 ± 0.010 | 0.900 ± 0.010 | 0.827 |" in results
+    assert results.index("## single_force (single force)") < results.index(
+        "## two_force (two force)")
+    assert "two_force/stretch skipped: stretch regression needs two or more" in results
 
 
 def test_missing_and_skipped_tasks_say_so_in_the_table():

@@ -1,4 +1,4 @@
-"""The headline table, the report page and the README's results section.
+"""The headline table, the report page and the results page (``reports/results.md``).
 
 Inputs are the metrics documents of the training and scoring stages; outputs
 are strings, so that everything here is tested without files.
@@ -16,8 +16,6 @@ from eskin.catalog import SCHEMES
 
 # (scene, kind, {task: metrics document}) for each scene of params.yaml, in its order.
 Scenes = list[tuple[str, str, Mapping[str, Mapping]]]
-README_BEGIN = "<!-- results:begin (written by the report stage; edits here are overwritten) -->"
-README_END = "<!-- results:end -->"
 
 
 @dataclass(frozen=True)
@@ -124,27 +122,24 @@ def skipped(metrics: Mapping[str, Mapping]) -> list[tuple[str, str]]:
             for task, document in metrics.items() if document.get("status") == "skipped"]
 
 
-def replace_readme_results(readme: str, section: str) -> str:
-    """The README with the text between the results markers replaced by ``section``."""
-    if README_BEGIN not in readme or README_END not in readme:
-        raise ValueError(f"README.md lacks the results markers {README_BEGIN!r} … {README_END!r}")
-    head, rest = readme.split(README_BEGIN, 1)
-    _, tail = rest.split(README_END, 1)
-    return f"{head}{README_BEGIN}\n{section.strip()}\n{README_END}{tail}"
+def results_markdown(scenes: Scenes) -> str:
+    """The results page: each scene's dataset version and headline table beside the paper.
 
-
-def readme_section(scenes: Scenes) -> str:
-    parts = []
+    A file of its own, not a section of the README: written into the README, every
+    experiment rewrote it, and a prose edit made `dvc status` report a changed output."""
+    parts = ["# Results",
+             "Written by the report stage from the metrics of this commit (`dvc metrics show` "
+             "has every number; the figures and the model hashes are in "
+             "`reports/index.html`)."]
     for scene, kind, metrics in scenes:
         data = dataset(metrics)
         about = (f"{data[1]} rows, {data[2]}, DVC md5 `{data[0]}`" if data
                  else "no trained task")
         skips = "".join(f"\n- {scene}/{task} skipped: {reason}"
                         for task, reason in skipped(metrics))
-        parts.append(f"#### {scene} ({kind.replace('_', ' ')})\n\n{about}.\n\n"
+        parts.append(f"## {scene} ({kind.replace('_', ' ')})\n\n{about}.\n\n"
                      f"{headline_markdown(kind, metrics)}" + (f"\n{skips}" if skips else ""))
-    return ("\n\n".join(parts) + "\n\nMean ± std over folds. Figures and model hashes: "
-            "`reports/index.html`.")
+    return "\n\n".join(parts) + "\n\nMean ± std over folds.\n"
 
 
 def _table(header: list[str], rows: list[list[str]]) -> str:
