@@ -130,7 +130,7 @@ def test_oracle_bound_drops_when_the_simulator_is_noisier(small_dataset):
     sim = SkinParams.from_mapping(params["sim"])
     # 15× the noise: every condition within reach stays a candidate, which costs time
     noisy = SkinParams.from_mapping({**params["sim"], "noise_pf": 0.3})
-    rows = frame.iloc[::40].reset_index(drop=True)
+    rows = frame.iloc[::120].reset_index(drop=True)
     errors = [oracle_scores(posterior_predictions(rows, skin, scene["stretches"],
                                                   scene["forces"]), rows)["force_mse"]
               for skin in (sim, noisy)]
@@ -216,8 +216,8 @@ def test_doubling_the_grid_catches_a_bound_that_has_not_converged(light_and_heav
     23). Grids too coarse (one cell per box) must be caught; the default grids converge."""
     sim, frame, _ = light_and_heavy
     forces = [0.0, 1.2936, 3.2536, 5.2136]
-    coarse = convergence(frame, sim, [1.0], forces, grid=Grid(3, 9, 1), rows=60)
-    fine = convergence(frame, sim, [1.0], forces, rows=60)
+    coarse = convergence(frame, sim, [1.0], forces, grid=Grid(3, 9, 1), rows=30)
+    fine = convergence(frame, sim, [1.0], forces, rows=30)
     assert max(coarse.values()) >= CONVERGED, coarse
     assert max(fine.values()) < CONVERGED, fine
     assert set(coarse) == {"force_mse", "stretch_mse", "contact_accuracy", "x_accuracy",
@@ -289,14 +289,14 @@ def test_the_pair_bound_converges_and_no_strong_model_beats_it(two_contacts):
     from harness import pair_oracle
 
     sim, conditions, frame = two_contacts
-    coarse = pair_oracle.convergence(frame, sim, *conditions, rows=20,
+    coarse = pair_oracle.convergence(frame, sim, *conditions, rows=12,
                                      sampling=pair_oracle.Sampling(8, 1.5))
     assert max(coarse.values()) >= CONVERGED, coarse
-    folds = assign_folds(frame, "two_force", "grouped", 3, seed=0)
+    folds = assign_folds(frame, "two_force", "grouped", 5, seed=0)
     train, test = folds != 0, folds == 0
     rows = frame[test].reset_index(drop=True)
     answers = pair_oracle.posterior_predictions(rows, sim, *conditions)
-    moved = pair_oracle.convergence(rows, sim, *conditions, rows=30)
+    moved = pair_oracle.convergence(rows, sim, *conditions, rows=12)
     assert max(moved.values()) < CONVERGED, moved
     X = frame[CHANNELS].to_numpy(float)
     for task_name in ("force", "localise"):

@@ -187,7 +187,9 @@ def test_out_of_fold_predictions_cover_each_row_once(project):
 
 
 def test_same_params_and_seed_give_identical_metrics_files(project, tmp_path):
-    for task in ("force", "localise"):  # the seeded ones: subsample and forest
+    # force: the seeded default (gradient boosting's random_state); localise's default,
+    # logistic regression, draws nothing
+    for task in ("force",):
         train(project, "single_force", task, tmp_path / "a" / task)
         train(project, "single_force", task, tmp_path / "b" / task)
         first = (tmp_path / "a" / task / "metrics.json").read_bytes()
