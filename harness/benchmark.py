@@ -245,15 +245,18 @@ def bayes_bound(params: Mapping[str, Any], scene: str, dataset_path: Path, out_p
     # The plan's conditions: one contact (stretch, force, node) or two (a pair of nodes
     # from nodes_x × nodes_y, a force each).
     conditions = [settings["stretches"], settings["forces"]]
-    oracle_module = oracle
-    if meta.get("kind") == "two_force":
-        conditions += [settings["nodes_x"], settings["nodes_y"]]
-        oracle_module = pair_oracle
     sim = skin_params(params)
-    answers = oracle_module.posterior_predictions(frame, sim, *conditions, progress=progress)
+    if meta.get("kind") == "two_force":
+        # importance sampling: every sample's answer from each half of the points too
+        found = pair_oracle.posterior_predictions(
+            frame, sim, *conditions, settings["nodes_x"], settings["nodes_y"],
+            seed=int(section(params, "bench.seed")), progress=progress)
+        answers, moves = found.all, pair_oracle.convergence(found, frame)
+    else:
+        answers = oracle.posterior_predictions(frame, sim, *conditions, progress=progress)
+        log(f"  {scene} Bayes bound: doubling the grid on {CONVERGENCE_ROWS} samples")
+        moves = oracle.convergence(frame, sim, *conditions, rows=CONVERGENCE_ROWS)
     answers = pd.concat([keys, answers.reset_index(drop=True)], axis=1)
-    log(f"  {scene} Bayes bound: doubling the integration on {CONVERGENCE_ROWS} samples")
-    moves = oracle_module.convergence(frame, sim, *conditions, rows=CONVERGENCE_ROWS)
     answers.attrs["convergence"] = json.dumps(moves, sort_keys=True)
     answers.to_parquet(out_path, index=False)
     worst = max(moves, key=moves.get)

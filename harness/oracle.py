@@ -309,6 +309,15 @@ def posterior_predictions(frame: pd.DataFrame, params: SkinParams, stretches, fo
 CONVERGED = 1e-3  # largest move of any score, when the grid is doubled, of a converged bound
 
 
+def mse_over_variance(truth, predicted) -> float:
+    """The mean squared error over the target's variance, so that a move reads as a move in
+    R² (the MSE itself where the target is constant)."""
+    truth = np.asarray(truth, dtype=float)
+    error = float(np.mean((truth - np.asarray(predicted, dtype=float)) ** 2))
+    spread = float(np.var(truth))
+    return error / spread if spread > 0 else error
+
+
 def oracle_scores(answers: pd.DataFrame, frame: pd.DataFrame) -> dict[str, float]:
     """The oracle's headline scores on ``frame``'s rows: force and stretch R² (the MSE,
     where a level is constant), contact accuracy, x and y accuracy over contacts."""
@@ -317,12 +326,8 @@ def oracle_scores(answers: pd.DataFrame, frame: pd.DataFrame) -> dict[str, float
     force = get_task("single_force", "force").target_values(frame)["force"]
     stretch = frame["stretch"].to_numpy()
     touching = contact_mask(frame)
-    out = {}
-    # MSE over the target's spread, so that a move reads as a move in R²
-    for name, truth in (("force", force), ("stretch", stretch)):
-        spread = float(np.var(truth))
-        out[f"{name}_mse"] = (float(np.mean((truth - answers[name].to_numpy()) ** 2)) / spread
-                              if spread > 0 else 0.0)
+    out = {f"{name}_mse": mse_over_variance(truth, answers[name].to_numpy())
+           for name, truth in (("force", force), ("stretch", stretch))}
     out["contact_accuracy"] = float(np.mean(answers["contact"].to_numpy() == touching))
     for axis in ("x", "y"):
         out[f"{axis}_accuracy"] = (float(np.mean(answers[axis].to_numpy()[touching]

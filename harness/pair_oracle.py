@@ -15,11 +15,12 @@ and integrates out per reading and condition:
 * **The integral.** The survivors are integrated by adaptive importance sampling on
   scrambled Sobol points: from Gaussians around the mode (the inverse Gauss–Newton
   Hessian widened by ``inflate``, and the same with the seatings at their prior's width),
-  then again with a Gaussian fitted to the first draw's weighted points added. Unlike a
+  and from Gaussians fitted, round by round, to the weighted points drawn so far. Unlike a
   product grid (6 dimensions: 5 points an axis is 15,625 a condition, and the likelihood
   of a heavy weight's placement is about a fifth of an SD wide) its cost does not grow
-  with the dimension, and doubling the points (:func:`convergence`) measures what it has
-  not resolved.
+  with the dimension. Every answer is also made from each half of the points
+  (:func:`convergence`): how far a score moves from half the points to all of them, over
+  every sample, is what the integral has not resolved.
 * **The reading.** Given the latents, a reading (in pF) is Gaussian per channel, as in
   :mod:`harness.oracle` (noise, the trial's baseline offset, the random walk up to the
   sample's index, the ADC step).
@@ -43,13 +44,16 @@ from scipy.stats import qmc
 from eskin.acquisition.plan import two_force_plan
 from eskin.data.schema import CHANNELS
 from eskin.device.physics import NODES, SkinModel, SkinParams, spread_kernel
-from harness.oracle import counts_to_pf, reading_variance
+from harness.oracle import counts_to_pf, mse_over_variance, reading_variance
 
 LATENTS = 6        # per contact: placement offset x, y (SDs) and seating (SDs of its log)
 PRUNE_LOG = 25.0   # conditions this far (Laplace, log posterior) below a reading's best drop
 ITERATIONS = 25    # Gauss–Newton steps (each accepted or damped per reading and condition)
 STEP = 1e-4        # forward-difference step of the Jacobian, in SDs
 SEATING_STARTS = (0.0, 1.5)  # SDs: each descent starts from each (see _modes)
+SEATINGS = [2, 5]  # the seating latents' columns (each contact's offset x, y, then seating)
+ADAPTATIONS = 4    # rounds of fitting a Gaussian to the weighted points (see _importance)
+HALVES = ("all", "first half", "second half")  # the points each estimate uses
 POSITIONS = ("x1", "y1", "x2", "y2")
 
 
@@ -184,7 +188,7 @@ def _modes(skin: PairSkin, cond: PairConditions, readings: np.ndarray, inverse: 
     ends = []
     for seating in SEATING_STARTS:
         start = np.zeros((len(which), LATENTS))
-        start[:, [2, 5]] = seating
+        start[:, SEATINGS] = seating
         mode, cost, hessian = _descend(skin, cond, which, reading, scale, start)
         ends.append((mode.reshape(n_rows, n_cond, LATENTS), -cost.reshape(n_rows, n_cond),
                      hessian.reshape(n_rows, n_cond, LATENTS, LATENTS)))
@@ -193,55 +197,70 @@ def _modes(skin: PairSkin, cond: PairConditions, readings: np.ndarray, inverse: 
 
 def _mixture_draw(skin: PairSkin, cond: PairConditions, i: int, reading: np.ndarray,
                   inverse: np.ndarray, components: list[tuple[np.ndarray, np.ndarray]],
-                  normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                  normals: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Equal shares of ``normals`` through each Gaussian (mean, Cholesky factor): the
-    latents and their log importance weights against the components' mixture."""
+    latents, their log importance weights against the components' mixture, and which
+    points are in the first half of their component's share (:data:`HALVES`)."""
     shares = np.array_split(np.arange(len(normals)), len(components))
     latents = np.concatenate([mean + normals[share] @ chol.T
                               for (mean, chol), share in zip(components, shares, strict=True)])
+    first = np.concatenate([np.arange(len(share)) < len(share) // 2 for share in shares])
     log_q = [-0.5 * (np.linalg.solve(chol, (latents - mean).T) ** 2).sum(0)
              - np.log(np.diag(chol)).sum() for mean, chol in components]
     log_proposal = logsumexp(np.stack(log_q), axis=0) - np.log(len(components))
     means = skin.means(cond, np.full(len(latents), i), latents)
     log_prior = -0.5 * (latents ** 2).sum(1)  # the 2π terms cancel against the proposal's
-    return latents, _log_likelihood(reading, inverse, means) + log_prior - log_proposal
+    return latents, _log_likelihood(reading, inverse, means) + log_prior - log_proposal, first
+
+
+def _fitted(latents: np.ndarray, log_weights: np.ndarray, inflate: float
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """A Gaussian (mean, Cholesky factor widened by ``inflate``) fitted to weighted points."""
+    share = np.exp(log_weights - logsumexp(log_weights))
+    mean = share @ latents
+    spread = latents - mean
+    cov = (spread * share[:, None]).T @ spread + 1e-6 * np.eye(LATENTS)
+    return mean, np.linalg.cholesky(cov) * inflate
 
 
 def _importance(skin: PairSkin, cond: PairConditions, i: int, reading: np.ndarray,
                 inverse: np.ndarray, modes: np.ndarray, hessians: np.ndarray,
-                normals: np.ndarray, inflate: float) -> float:
-    """log ∫ p(reading | condition i, t) φ(t) dt by importance sampling around the modes.
+                normals: np.ndarray, inflate: float) -> np.ndarray:
+    """log ∫ p(reading | condition i, t) φ(t) dt by importance sampling around the modes:
+    from all of ``normals``, and from each half of them (:data:`HALVES`).
 
     First from two Gaussians at each descent's end: N(mode, inflate² H⁻¹), and the same
     with each seating decoupled and given its prior's unit variance (a seated weight's
     likelihood is flat in its seating below the load that seats it and steep above, and a
     Hessian at that kink sees only the steep side). Then, as adaptive importance sampling
-    does, from those and a Gaussian fitted to the first draw's weighted points (offsets
-    and seating trade off along curved ridges that a Hessian does not see). Every point is
-    weighted against its draw's mixture (the balance heuristic), the prior among them
-    (defensive sampling: no weight exceeds the likelihood over the prior's share); the
-    estimate is the second draw's."""
-    seating = [2, 5]
+    does, in :data:`ADAPTATIONS` rounds of a sixteenth of the points, a Gaussian fitted to
+    all the weighted points so far joins the mixture (offsets and seating trade off along
+    curved ridges that a Hessian does not see; one round left 11 effective points of
+    16,384 on a reading whose contacts share a row). Every point is weighted against its
+    draw's mixture (the balance heuristic), the prior among them (defensive sampling: no
+    weight exceeds the likelihood over the prior's share); the estimate is the last draw's,
+    over all the points."""
     components = []
     for mode, hessian in zip(modes, hessians, strict=True):
         wide = hessian.copy()
-        wide[seating, :] = 0.0
-        wide[:, seating] = 0.0
-        wide[seating, seating] = 1.0
+        wide[SEATINGS, :] = 0.0
+        wide[:, SEATINGS] = 0.0
+        wide[SEATINGS, SEATINGS] = 1.0
         components += [(mode, np.linalg.cholesky(np.linalg.inv(h)) * inflate)
                        for h in (hessian, wide)]
     # the prior too, defensively: no weight can exceed the likelihood over its share
     components.append((np.zeros(LATENTS), np.eye(LATENTS)))
-    # the first draw only places the fitted Gaussian: a quarter of the points
-    latents, weights = _mixture_draw(skin, cond, i, reading, inverse, components,
-                                     normals[:len(normals) // 4])
-    share = np.exp(weights - logsumexp(weights))
-    mean = share @ latents
-    spread = latents - mean
-    cov = (spread * share[:, None]).T @ spread + 1e-6 * np.eye(LATENTS)
-    components.append((mean, np.linalg.cholesky(cov) * inflate))
-    _, weights = _mixture_draw(skin, cond, i, reading, inverse, components, normals)
-    return float(logsumexp(weights) - np.log(len(normals)))
+    block = len(normals) // (4 * ADAPTATIONS)
+    drawn, weights = [], []
+    for k in range(ADAPTATIONS):
+        latents, log_weights, _ = _mixture_draw(skin, cond, i, reading, inverse, components,
+                                                normals[k * block:(k + 1) * block])
+        drawn.append(latents)
+        weights.append(log_weights)
+        components.append(_fitted(np.concatenate(drawn), np.concatenate(weights), inflate))
+    _, log_weights, first = _mixture_draw(skin, cond, i, reading, inverse, components, normals)
+    return np.array([logsumexp(w) - np.log(len(w))
+                     for w in (log_weights, log_weights[first], log_weights[~first])])
 
 
 def _laplace(log_post: np.ndarray, hessian: np.ndarray) -> np.ndarray:
@@ -252,24 +271,47 @@ def _laplace(log_post: np.ndarray, hessian: np.ndarray) -> np.ndarray:
 
 def _log_posterior(skin: PairSkin, cond: PairConditions, readings: np.ndarray,
                    inverse: np.ndarray, normals: np.ndarray, inflate: float) -> np.ndarray:
-    """log p(condition | reading), unnormalised, for a few readings: (R, C)."""
+    """log p(condition | reading), unnormalised, for a few readings, from all the points and
+    from each half of them (:data:`HALVES`): (3, R, C)."""
     modes, at_mode, hessians = _modes(skin, cond, readings, inverse)
     laplace = _laplace(at_mode, hessians).max(axis=0)  # the better descent's
-    log_post = np.full(laplace.shape, -np.inf)
+    log_post = np.full((len(HALVES), *laplace.shape), -np.inf)
     for r in range(len(readings)):
         for i in np.flatnonzero(laplace[r] >= laplace[r].max() - PRUNE_LOG):
-            log_post[r, i] = _importance(skin, cond, i, readings[r], inverse[r],
-                                         modes[:, r, i], hessians[:, r, i], normals, inflate)
+            log_post[:, r, i] = _importance(skin, cond, i, readings[r], inverse[r],
+                                            modes[:, r, i], hessians[:, r, i], normals, inflate)
     return log_post
+
+
+@dataclass(frozen=True)
+class Answers:
+    """The oracle's answers from all its points, and from each half of them."""
+
+    all: pd.DataFrame
+    halves: tuple[pd.DataFrame, pd.DataFrame]
+
+
+def _decide(log_post: np.ndarray, cond: PairConditions) -> pd.DataFrame:
+    """Bayes decisions from log posteriors (R, C): posterior means of stretch and forces,
+    the most probable value of each position."""
+    log_post = log_post - logsumexp(log_post, axis=1, keepdims=True)
+    post = np.exp(log_post)
+    out = {"stretch": post @ cond.stretch, "force1": post @ cond.force1,
+           "force2": post @ cond.force2}
+    for name in POSITIONS:
+        onehot = getattr(cond, name)[:, None] == NODES[None, :].astype(int)
+        out[name] = np.argmax(post @ onehot, axis=1) + 1
+    return pd.DataFrame(out)
 
 
 def posterior_predictions(frame: pd.DataFrame, params: SkinParams, stretches, forces,
                           nodes_x, nodes_y, *, sampling: Sampling = Sampling(),
                           seed: int = 0, chunk: int = 8, n_jobs: int = -1,
-                          progress=None) -> pd.DataFrame:
+                          progress=None) -> Answers:
     """The oracle's answers for each row: stretch, force1 and force2 (posterior means), and
-    x1, y1, x2, y2 (each its most probable value). Chunks of rows run in parallel
-    (joblib's ``n_jobs``); each row's answer is the same however they are run."""
+    x1, y1, x2, y2 (each its most probable value); and the same from each half of the
+    points, which :func:`convergence` compares. Chunks of rows run in parallel (joblib's
+    ``n_jobs``); each row's answer is the same however they are run."""
     from joblib import Parallel, delayed
 
     skin = PairSkin(SkinModel(params))
@@ -286,16 +328,10 @@ def posterior_predictions(frame: pd.DataFrame, params: SkinParams, stretches, fo
         blocks.append(block)
         if progress is not None:
             progress(min(start + chunk, len(frame)), len(frame))
-    log_post = np.concatenate(blocks) if blocks else np.empty((0, len(cond)))
-    log_post -= logsumexp(log_post, axis=1, keepdims=True)
-    post = np.exp(log_post)
-    out = {"stretch": post @ cond.stretch, "force1": post @ cond.force1,
-           "force2": post @ cond.force2}
-    for name in POSITIONS:
-        values = getattr(cond, name)
-        onehot = values[:, None] == NODES[None, :].astype(int)
-        out[name] = np.argmax(post @ onehot, axis=1) + 1
-    return pd.DataFrame(out)
+    log_post = (np.concatenate(blocks, axis=1) if blocks
+                else np.empty((len(HALVES), 0, len(cond))))
+    everything, *halves = (_decide(part, cond) for part in log_post)
+    return Answers(everything, tuple(halves))
 
 
 def oracle_scores(answers: pd.DataFrame, frame: pd.DataFrame) -> dict[str, float]:
@@ -303,24 +339,19 @@ def oracle_scores(answers: pd.DataFrame, frame: pd.DataFrame) -> dict[str, float
     variance (a move in R²), and the accuracy of each of x1, y1, x2, y2."""
     from eskin.tasks import get_task
 
-    out = {}
-    for name, truth in get_task("two_force", "force").target_values(frame).items():
-        spread = float(np.var(truth))
-        out[f"{name}_mse"] = (float(np.mean((truth - answers[name].to_numpy()) ** 2)) / spread
-                              if spread > 0 else 0.0)
+    out = {f"{name}_mse": mse_over_variance(truth, answers[name].to_numpy())
+           for name, truth in get_task("two_force", "force").target_values(frame).items()}
     for name in POSITIONS:
         out[f"{name}_accuracy"] = float(np.mean(answers[name].to_numpy()
                                                 == frame[name].to_numpy()))
     return out
 
 
-def convergence(frame: pd.DataFrame, params: SkinParams, stretches, forces, nodes_x, nodes_y,
-                *, sampling: Sampling = Sampling(), rows: int = 200, seed: int = 0
-                ) -> dict[str, float]:
-    """How far each score moves when the Sobol points are doubled (and redrawn), on ``rows``
-    seeded rows of ``frame``: the bound has converged when no move reaches 0.001."""
-    sample = frame.sample(min(rows, len(frame)), random_state=seed).reset_index(drop=True)
-    scores = [oracle_scores(posterior_predictions(sample, params, stretches, forces, nodes_x,
-                                                  nodes_y, sampling=s, seed=seed + k), sample)
-              for k, s in enumerate((sampling, sampling.doubled()))]
-    return {name: abs(scores[0][name] - scores[1][name]) for name in scores[0]}
+def convergence(answers: Answers, frame: pd.DataFrame) -> dict[str, float]:
+    """How far each score on ``frame``'s rows moves from either half of the points to all of
+    them — a doubling of the importance sample, on every row; the bound has converged when
+    no move reaches :data:`harness.oracle.CONVERGED`. (Each half is a net of the scrambled
+    Sobol sequence through every component, so each is an estimate of its own.)"""
+    scores = oracle_scores(answers.all, frame)
+    moves = [oracle_scores(half, frame) for half in answers.halves]
+    return {name: max(abs(m[name] - value) for m in moves) for name, value in scores.items()}
