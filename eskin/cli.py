@@ -157,8 +157,29 @@ def _export(args: argparse.Namespace) -> int:
     return 0
 
 
+DESCRIPTION = """\
+Acquire, train on and use a soft capacitive e-skin. The pipeline's steps are DVC
+stages (dvc repro runs them all); these commands run one step, or work beside it.
+A mistake you can fix is one line and exit code 1; --debug shows the traceback."""
+
+EXAMPLES = """\
+examples:
+  eskin device simulate                 serve the simulated skin; prints its port
+  eskin acquire single_force            acquire a scene of params.yaml (resumes)
+  eskin train single_force force        cross-validate one task, log it to MLflow
+  eskin live single_force --simulated --frames 10
+                                        the trained stack on a board's stream
+  eskin compare --last 2                two variants' headline scores side by side
+  eskin audit                           which dataset version trained which run
+
+eskin COMMAND --help describes a command."""
+
+PARAMS_HELP = "the parameters file (default params.yaml)"
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="eskin", description=__doc__)
+    parser = argparse.ArgumentParser(prog="eskin", description=DESCRIPTION, epilog=EXAMPLES,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version", version=f"eskin {__version__}")
     parser.add_argument("--debug", action="store_true", help="show tracebacks")
     commands = parser.add_subparsers(dest="command", required=True)
@@ -171,7 +192,8 @@ def build_parser() -> argparse.ArgumentParser:
     simulate = device_commands.add_parser(
         "simulate", help="serve the simulated skin on a pseudo-terminal (or a loopback socket) "
         "and print the port to open")
-    simulate.add_argument("--params", type=Path, default=Path("params.yaml"))
+    simulate.add_argument("--params", type=Path, default=Path("params.yaml"),
+                          help=PARAMS_HELP + "; its sim and sim_board sections")
     simulate.add_argument("--socket", type=int, metavar="PORT",
                           help="serve on socket://127.0.0.1:PORT instead (0: any free port)")
     simulate.add_argument("--corrupt", type=float, metavar="FRACTION",
@@ -191,19 +213,20 @@ def build_parser() -> argparse.ArgumentParser:
                            ("ingest", "build data/processed/<scene>.parquet from the raw data")):
         sub = commands.add_parser(name, help=helptext)
         sub.add_argument("scene", help="a scene of params.yaml, e.g. single_force")
-        sub.add_argument("--params", type=Path, default=Path("params.yaml"))
+        sub.add_argument("--params", type=Path, default=Path("params.yaml"), help=PARAMS_HELP)
         if name == "acquire":
             sub.add_argument("--source", choices=SOURCES,
                              help="override scenes.<scene>.source")
             sub.add_argument("--port", help="override scenes.<scene>.port (serial source)")
-            sub.add_argument("--no-progress", action="store_true")
+            sub.add_argument("--no-progress", action="store_true",
+                             help="no progress bar (for logs and CI)")
         sub.set_defaults(run=_pipeline_step)
 
     live = commands.add_parser(
         "live", help="run a scene's trained stack on a board's stream: one JSON line per "
         "frame on stdout (seq, t_ms, stretch, contact, x, y, force)")
     live.add_argument("scene", help="the scene whose trained models to use")
-    live.add_argument("--params", type=Path, default=Path("params.yaml"))
+    live.add_argument("--params", type=Path, default=Path("params.yaml"), help=PARAMS_HELP)
     where = live.add_mutually_exclusive_group(required=True)
     where.add_argument("--port", help="the board's port, e.g. /dev/ttyACM0")
     where.add_argument("--simulated", action="store_true",
@@ -236,23 +259,23 @@ def build_parser() -> argparse.ArgumentParser:
 
     featurize = commands.add_parser("featurize", help="build data/features/<scene>.parquet "
                                     "and the fitted transform (featurize.method)")
-    featurize.add_argument("scene")
-    featurize.add_argument("--params", type=Path, default=Path("params.yaml"))
+    featurize.add_argument("scene", help="a scene of params.yaml, e.g. single_force")
+    featurize.add_argument("--params", type=Path, default=Path("params.yaml"), help=PARAMS_HELP)
     featurize.set_defaults(run=_learning_step)
     train = commands.add_parser("train", help="cross-validate, refit and log one task "
                                 "of a scene (train.<task> in params.yaml)")
-    train.add_argument("scene")
+    train.add_argument("scene", help="a scene of params.yaml, e.g. single_force")
     train.add_argument("task", choices=TASK_NAMES,
                        help="a task (train.<task> in params.yaml); one a scene's data cannot "
                        "support is skipped, with the reason in its metrics file")
-    train.add_argument("--params", type=Path, default=Path("params.yaml"))
+    train.add_argument("--params", type=Path, default=Path("params.yaml"), help=PARAMS_HELP)
     train.add_argument("--no-track", action="store_true", help="do not log to MLflow")
     train.set_defaults(run=_learning_step)
 
     export = commands.add_parser(
         "export", help="write a scene's trained stack as one ONNX file "
         "(models/<scene>/stack.onnx) and check it against the scikit-learn stack")
-    export.add_argument("scene")
+    export.add_argument("scene", help="a scene whose models dvc repro has trained")
     export.set_defaults(run=_export)
 
     compare = commands.add_parser(
@@ -283,7 +306,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _table_options(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--format", choices=["table", "markdown", "csv"], default="table")
+    parser.add_argument("--format", choices=["table", "markdown", "csv"], default="table",
+                        help="how to print the table (default: table)")
     parser.add_argument("--output", type=Path, help="write the table here instead of printing")
 
 

@@ -249,6 +249,15 @@ REGISTRY: dict[str, dict[str, Factory]] = {
                 ForceProfile(quiet), HistGradientBoostingRegressor(
                     max_iter=max_iter, learning_rate=learning_rate, random_state=seed,
                     monotonic_cst=ForceProfile.MONOTONE if monotone else None)),
+        # Two contacts: each pressed terminal's place and amplitude (ActiveTerminals), so
+        # that one model serves every pair of nodes; large leaves, as a new trial's
+        # placement and seating are unlike any one trial seen.
+        "active_terminals": lambda max_iter=200, learning_rate=0.1, min_samples_leaf=20,
+            seed=0: make_pipeline(
+                ActiveTerminals(), FunctionTransformer(np.round, kw_args={"decimals": 6}),
+                HistGradientBoostingRegressor(max_iter=max_iter, learning_rate=learning_rate,
+                                              min_samples_leaf=min_samples_leaf,
+                                              random_state=seed)),
     },
     "detect": {
         "paper": lambda C=1.0, gamma="scale", class_weight="balanced":
