@@ -8,7 +8,9 @@ MLflow run; ``score_pairs`` scores a two-force scene's contacts as sets.
 from __future__ import annotations
 
 import json
+import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -25,8 +27,11 @@ from eskin.tasks import Task, get_task
 
 def train(params: dict[str, Any], scene: str, task_name: str, features_dir: Path, *,
           metrics_path: Path, predictions_path: Path, model_path: Path,
-          lineage_path: Path | None = None, params_text: str = "", track: bool = True) -> str:
-    """Cross-validate one task under each CV scheme, refit, save, and log to MLflow.
+          lineage_path: Path | None = None, params_text: str = "", track: bool = True,
+          log: Callable[[str], None] = lambda message: print(message, file=sys.stderr,
+                                                               flush=True)) -> str:
+    """Cross-validate one task under each CV scheme (a progress bar per scheme), refit,
+    save, and log to MLflow.
 
     ``lineage_path`` (uncached in dvc.yaml, which turns DVC's run cache off for the
     stage): what trained the model. With the run cache on, a queued experiment whose
@@ -64,8 +69,10 @@ def train(params: dict[str, Any], scene: str, task_name: str, features_dir: Path
                 folds = assign_folds(frame, kind, scheme, int(cv["folds"]), int(cv["seed"]))
             except ValueError as err:  # before any fold runs: name the scene
                 raise ValueError(f"scenes.{scene} ({source}): {err}") from None
-            results.append(cross_validate(task, frame, folds, estimator, scheme,
-                                          n_jobs=int(cv.get("n_jobs", 1))))
+            results.append(cross_validate(
+                task, frame, folds, estimator, scheme, n_jobs=int(cv.get("n_jobs", 1)),
+                progress=f"{scene}/{task_name} [{model_name}] {scheme} CV"))
+    log(f"{scene}/{task_name} [{model_name}]: refitting on all {len(frame):,} rows …")
     models = fit_final(task, frame, estimator)
     save_models(models, model_path)
     # The model file's md5 (as in dvc.lock) links metrics, DVC and the MLflow run.

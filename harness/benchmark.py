@@ -205,7 +205,7 @@ def benchmark_task(task: Task, frame: pd.DataFrame, kind: str, variants: Mapping
 
 # ---------------------------------------------------------------- pipeline steps
 
-CONVERGENCE_ROWS = 200  # samples on which the bound stage doubles its grid
+CONVERGENCE_ROWS = 200  # samples on which the one-contact bound doubles its grid (two: all)
 
 
 def bayes_bound(params: Mapping[str, Any], scene: str, dataset_path: Path, out_path: Path, *,

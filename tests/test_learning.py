@@ -171,12 +171,15 @@ def test_baseline_features_are_zero_mean_on_rest_samples(project):
 
 # ------------------------------------------------------------------ cross-validation and metrics
 
-def test_out_of_fold_predictions_cover_each_row_once(project):
+def test_out_of_fold_predictions_cover_each_row_once(project, capsys):
+    """… and the folds' progress is shown as they finish (issue 21: training was silent)."""
     frame = features(project)
     task = get_task("single_force", "localise")
     folds = assign_folds(frame, "single_force", "stratified", 10, seed=42)
     result = cross_validate(task, frame, folds, build_model("localise", "paper",
-                                                            {"n_estimators": 10}), "stratified")
+                                                            {"n_estimators": 10}), "stratified",
+                            progress="scene/localise CV")
+    assert "scene/localise CV" in capsys.readouterr().err
     assert len(result.predictions) == task.rows(frame).sum()
     assert result.predictions[["x_pred", "y_pred"]].notna().all().all()
     assert len(result.per_fold["x"]) == 10

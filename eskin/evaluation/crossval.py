@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import sys
 import time
 from collections import Counter
 from collections.abc import Callable
@@ -18,6 +19,7 @@ import numpy as np
 import pandas as pd
 from joblib import Parallel, delayed, parallel_config
 from sklearn.base import BaseEstimator, clone
+from tqdm import tqdm
 
 from eskin.data.schema import CHANNELS
 from eskin.evaluation import metrics
@@ -133,8 +135,10 @@ def _fit_predict_fold(estimator: BaseEstimator, X: np.ndarray, targets: pd.DataF
 
 
 def cross_validate(task: Task, frame: pd.DataFrame, folds: np.ndarray, estimator: BaseEstimator,
-                   scheme: str, *, n_jobs: int = 1) -> CVResult:
-    """Score ``estimator`` on ``task`` over the given fold assignment of ``frame``'s rows."""
+                   scheme: str, *, n_jobs: int = 1, progress: str | None = None) -> CVResult:
+    """Score ``estimator`` on ``task`` over the given fold assignment of ``frame``'s rows.
+
+    ``progress``: a label, and a progress bar of the folds on stderr (as they finish)."""
     rows = task.rows(frame)
     data = frame[rows].reset_index(drop=True)
     fold_of = np.asarray(folds)[rows]
@@ -147,10 +151,15 @@ def cross_validate(task: Task, frame: pd.DataFrame, folds: np.ndarray, estimator
     # fold number): the targets as one frame, not a dict, which joblib would send with
     # every task.
     target_frame = pd.DataFrame(targets)
-    with _shared_with_cluster(X, target_frame, fold_of):
-        outcomes = Parallel(n_jobs=n_jobs)(
-            delayed(_fit_predict_fold)(estimator, X, target_frame, fold_of, fold, binary)
-            for fold in fold_ids)
+    with (_shared_with_cluster(X, target_frame, fold_of),
+          tqdm(total=len(fold_ids), desc=progress, unit="fold", disable=progress is None,
+               file=sys.stderr, leave=False) as bar):
+        outcomes = []
+        for outcome in Parallel(n_jobs=n_jobs, return_as="generator")(
+                delayed(_fit_predict_fold)(estimator, X, target_frame, fold_of, fold, binary)
+                for fold in fold_ids):
+            outcomes.append(outcome)
+            bar.update()
 
     score: Callable = metrics.SCORERS[task.scorer]
     predictions = data.drop(columns=CHANNELS).assign(fold=fold_of)
