@@ -350,8 +350,9 @@ def oracle_scores(answers: pd.DataFrame, frame: pd.DataFrame) -> dict[str, float
 def convergence(answers: Answers, frame: pd.DataFrame) -> dict[str, float]:
     """How far each score on ``frame``'s rows moves from either half of the points to all of
     them — a doubling of the importance sample, on every row; the bound has converged when
-    no move reaches :data:`harness.oracle.CONVERGED`. (Each half is a net of the scrambled
-    Sobol sequence through every component, so each is an estimate of its own.)"""
+    no move reaches :data:`harness.oracle.CONVERGED`. (A half is the first, or the second,
+    half of every component's share of the points: an importance sample of its own from
+    the same mixture.)"""
     scores = oracle_scores(answers.all, frame)
     moves = [oracle_scores(half, frame) for half in answers.halves]
     return {name: max(abs(m[name] - value) for m in moves) for name, value in scores.items()}
