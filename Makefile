@@ -83,7 +83,7 @@ stress: setup
 	@cat reports/stress/*.md
 
 test: setup browser firmware postgres
-	pytest -q
+	pytest -q --durations=15
 
 lint: setup
 	ruff check eskin stages tests

@@ -32,7 +32,8 @@ FIGURES = {
          "and stretch (paper Fig. 6)", lambda oof: fig.force_parity(oof)),
         ("localisation_confusion", "localise", "Localisation of a single contact: rows (x) "
          "and columns (y); counts, colour normalised per true row (paper Fig. 7)",
-         lambda oof: fig.confusion_grid(oof, ["x", "y"], ["x terminal", "y terminal"])),
+         lambda oof: fig.confusion_grid(oof, ["x", "y"], ["x terminal", "y terminal"],
+                                        title="localisation, one contact")),
         ("detection", "detect", "Contact detection: confusion matrix and ROC curve",
          lambda oof: fig.detection(oof)),
     ),
@@ -43,7 +44,8 @@ FIGURES = {
          "contact 2 (bottom) (paper Fig. 8)",
          lambda oof: fig.confusion_grid(oof, ["x1", "y1", "x2", "y2"],
                                         ["x1 terminal", "y1 terminal", "x2 terminal",
-                                         "y2 terminal"])),
+                                         "y2 terminal"],
+                                        title="localisation, two contacts")),
         ("two_force_parity", "force", "Two contacts: force of contact 1 and contact 2, "
          "mean ± std per level (paper Fig. 9)", lambda oof: fig.two_force_parity(oof)),
     ),
@@ -98,8 +100,9 @@ def report(params: dict[str, Any], *, metrics_dir: Path, predictions_dir: Path,
     page_figures: dict[str, list[tuple[str, str, bytes]]] = {scene: [] for scene in kinds}
     written = 0
     for scene, kind in kinds.items():
-        for scheme in settings["schemes"]:
-            for fid, task, caption, build in FIGURES[kind]:
+        # each figure under every scheme, one after the other on the page
+        for fid, task, caption, build in FIGURES[kind]:
+            for scheme in settings["schemes"]:
                 frame = predictions[scene].get(task)
                 if frame is None or frame.empty:
                     continue
