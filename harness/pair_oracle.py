@@ -65,9 +65,6 @@ class Sampling:
     points: int = 16384
     inflate: float = 1.5
 
-    def doubled(self) -> Sampling:
-        return Sampling(2 * self.points, self.inflate)
-
 
 @dataclass(frozen=True)
 class PairConditions:
