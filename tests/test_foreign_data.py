@@ -104,7 +104,7 @@ def project(tmp_path_factory, repo_params, mlflow_server):
         params["scenes"] = scenes(files / "lab_single.csv", files / "lab_pairs.csv", served.port)
         params["acquire"]["indenters"] = "board"
         # Grouped CV only: the plumbing, not the paper's scheme, is under test (CI time).
-        params["cv"].update(n_jobs=1, folds=5, schemes=["grouped"])
+        params["cv"].update(n_jobs=1, folds=3, schemes=["grouped"])
         params["report"].update(dpi=60, page_dpi=50, schemes=["grouped"],
                                 plots_scheme="grouped")
         params["train"]["localise"]["paper"]["n_estimators"] = 20

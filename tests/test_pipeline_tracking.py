@@ -30,7 +30,7 @@ def run(args, cwd, env):
 def scratch(tmp_path_factory, repo_params, lab):
     root = tmp_path_factory.mktemp("pipeline")
     params = small_scenes(repo_params)
-    params["cv"].update(n_jobs=1, folds=5)
+    params["cv"].update(n_jobs=1, folds=3)  # the plumbing is under test, not the scores (CI time)
     params["report"].update(dpi=60, page_dpi=50)
     params["train"]["force"]["paper"]["subsample"] = 200
     params["train"]["localise"]["paper"]["n_estimators"] = 20
@@ -153,7 +153,7 @@ def test_a_repro_groups_its_task_runs_under_one_pipeline_run(scratch):
                          .read_text())
     assert logged["grouped.contact.accuracy"] == written["grouped"]["contact"]["accuracy"]
     per_fold = mlflow.artifacts.load_dict(f"runs:/{run_id}/scores/per_fold_grouped.json")
-    assert len(per_fold["contact"]) == 5
+    assert len(per_fold["contact"]) == 3
     assert "grouped.fold.contact.accuracy" not in logged
     model = mlflow.sklearn.load_model(f"runs:/{run_id}/detect-contact")
     features = pd.read_parquet(root / "data" / "features" / "single_force.parquet")
