@@ -102,10 +102,10 @@ def report(params: dict[str, Any], *, metrics_dir: Path, predictions_dir: Path,
     for scene, kind in kinds.items():
         # each figure under every scheme, one after the other on the page
         for fid, task, caption, build in FIGURES[kind]:
+            frame = predictions[scene].get(task)
+            if frame is None or frame.empty:
+                continue
             for scheme in settings["schemes"]:
-                frame = predictions[scene].get(task)
-                if frame is None or frame.empty:
-                    continue
                 figure = build(frame[frame["scheme"] == scheme])
                 name = f"{fid}_{scheme}"
                 (figures_dir / scene).mkdir(parents=True, exist_ok=True)
