@@ -82,8 +82,10 @@ stress: setup
 	dvc repro dvc.yaml stress/dvc.yaml
 	@cat reports/stress/*.md
 
+# Two workers, a test file each (its module fixtures, servers and scratch projects stay
+# in one process): most of a pipeline test is starting Python processes on one core.
 test: setup browser firmware postgres
-	pytest -q --durations=15
+	pytest -q -n 2 --dist loadfile --durations=15
 
 lint: setup
 	ruff check eskin stages tests
