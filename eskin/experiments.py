@@ -13,6 +13,7 @@ store, git and the workspace happens in the ``load_*`` and ``check_*`` helpers.
 from __future__ import annotations
 
 import ast
+import io
 import subprocess
 from collections.abc import Mapping
 from pathlib import Path
@@ -226,9 +227,43 @@ def render(table: pd.DataFrame, fmt: str) -> str:
         cells = table.astype(object).where(table.notna(), None)
         return cells.to_markdown(index=False, floatfmt=".4g", missingval="—") + "\n"
     if fmt == "table":
-        return table.to_string(index=False, float_format=lambda v: f"{v:.4g}",
-                               na_rep="—") + "\n"
+        return _rich_table(table)
     raise ValueError(f"format must be table, markdown or csv, got {fmt!r}")
+
+
+def _rich_table(table: pd.DataFrame) -> str:
+    """Aligned text as wide as the terminal (``COLUMNS``): a row per variant where that
+    fits, else turned on its side (a column per variant, a row per field), which is how a
+    few variants of many scores read best; numbers to 4 significant digits, missing as —."""
+    import shutil
+
+    from rich import box
+    from rich.console import Console
+    from rich.table import Table
+
+    def cell(value: Any) -> str:
+        if isinstance(value, float | np.floating):
+            return "—" if np.isnan(value) else f"{value:.4g}"
+        return "—" if value is None or value is pd.NaT else str(value)
+
+    header = [str(c) for c in table.columns]
+    rows = [[cell(v) for v in row] for row in table.itertuples(index=False)]
+    numeric = [pd.api.types.is_numeric_dtype(table[c]) for c in table.columns]
+    width = shutil.get_terminal_size((160, 24)).columns
+    natural = sum(max([len(h), *(len(r[i]) for r in rows)]) + 2
+                  for i, h in enumerate(header))
+    if natural > width and rows:  # on its side: the first column names the variants
+        header, rows = ([header[0], *(r[0] for r in rows)],
+                        [[h, *(r[i] for r in rows)] for i, h in enumerate(header) if i])
+        numeric = [False, *[True] * (len(header) - 1)]
+    shown = Table(box=box.SIMPLE_HEAD, show_edge=False, pad_edge=False)
+    for name, is_number in zip(header, numeric, strict=True):
+        shown.add_column(name, justify="right" if is_number else "left", overflow="fold")
+    for row in rows:
+        shown.add_row(*row)
+    console = Console(file=io.StringIO(), width=width, color_system=None, highlight=False)
+    console.print(shown)
+    return console.file.getvalue()
 
 
 # --- reading the store, git and the workspace --------------------------------------------

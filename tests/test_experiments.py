@@ -104,7 +104,8 @@ def test_audit_groups_runs_by_dataset_version_and_marks_the_workspace(runs):
 
 
 @pytest.mark.parametrize("fmt", ["table", "markdown", "csv"])
-def test_tables_render_in_every_format(runs, fmt):
+def test_tables_render_in_every_format(runs, fmt, monkeypatch):
+    monkeypatch.setenv("COLUMNS", "250")  # a row per variant (narrower: tested below)
     text = experiments.render(experiments.variant_table(runs), fmt)
     assert "force-rf" in text and "2026-11-23 10:07:20" in text
     if fmt == "csv":
@@ -114,6 +115,16 @@ def test_tables_render_in_every_format(runs, fmt):
         assert text.splitlines()[1].startswith("|:")
     if fmt != "csv":
         assert "nan" not in text and "—" in text
+
+
+def test_the_table_fits_the_terminal_and_keeps_every_column(runs, monkeypatch):
+    table = experiments.variant_table(runs)
+    monkeypatch.setenv("COLUMNS", "80")
+    text = experiments.render(table, "table")
+    assert max(len(line) for line in text.splitlines()) <= 80, text
+    for name in ("variant", "commit", "force-rf"):
+        assert name in text  # wrapped to fit, not cut off
+    assert "0.6" in text
 
 
 def test_an_empty_store_is_a_clear_error():
