@@ -25,12 +25,18 @@ SCORED_TASKS: tuple[str, ...] = (*TASK_NAMES, PAIRS)
 
 # The one score a task is summarised by (MLflow compare, stage output, audit), by scorer.
 HEADLINE_METRIC = {"regression": "r2", "detection": "accuracy", "localisation": "accuracy"}
+# The scheme DVC's metrics files hold (the one `make bench` chooses models by); every
+# scheme's scores, with spreads and confusion counts, are in the scores files.
+HEADLINE_SCHEME = "grouped"
+# A two-force scene's contacts scored as sets: the pairs stage's headline scores.
+PAIRS_HEADLINE = ("pair_accuracy", "ghost_share", "force_r2")
 
 RAW_DIR = Path("data/raw")
 PROCESSED_DIR = Path("data/processed")
 FEATURES_DIR = Path("data/features")
 MODELS_DIR = Path("models")
 METRICS_DIR = Path("reports/metrics")
+SCORES_DIR = Path("reports/scores")
 PREDICTIONS_DIR = Path("reports/predictions")
 LINEAGE_DIR = Path("reports/lineage")
 FIGURES_DIR = Path("reports/figures")
@@ -60,7 +66,15 @@ def featurizer_path(scene: str) -> Path:
 
 
 def metrics_path(scene: str, task: str) -> Path:
+    """DVC's metrics file of a task: its headline scores only, so `dvc exp show` stays
+    readable."""
     return METRICS_DIR / scene / f"{task}.json"
+
+
+def scores_path(scene: str, task: str) -> Path:
+    """A task's whole evaluation: every scheme, metric and spread, the confusion counts,
+    and what was trained on what."""
+    return SCORES_DIR / scene / f"{task}.json"
 
 
 def predictions_path(scene: str, task: str) -> Path:
@@ -90,6 +104,7 @@ def bench_dir(scene: str) -> Path:
 def task_outputs(scene: str, task: str) -> dict[str, Path]:
     """Where one task's outputs go (the paths dvc.yaml declares)."""
     return {"metrics_path": metrics_path(scene, task),
+            "scores_path": scores_path(scene, task),
             "predictions_path": predictions_path(scene, task),
             "model_path": model_path(scene, task),
             "lineage_path": LINEAGE_DIR / scene / f"{task}.json"}

@@ -1,8 +1,9 @@
 """Pipeline steps of learning, shared by the DVC stages and the command line.
 
 ``train`` cross-validates one task of a scene under each CV scheme, refits it
-on all the data, saves metrics, out-of-fold predictions and models, and logs an
-MLflow run; ``score_pairs`` scores a two-force scene's contacts as sets.
+on all the data, saves scores (and their headline as DVC metrics), out-of-fold
+predictions and models, and logs an MLflow run; ``score_pairs`` scores a
+two-force scene's contacts as sets.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from typing import Any
 import joblib
 import pandas as pd
 
+from eskin.catalog import HEADLINE_SCHEME, PAIRS_HEADLINE
 from eskin.config import section
 from eskin.data.schema import describe_source, md5_file, read_dataset, read_metadata
 from eskin.evaluation.crossval import cross_validate, fit_final, parallel_backend
@@ -26,7 +28,7 @@ from eskin.tasks import Task, get_task
 
 
 def train(params: dict[str, Any], scene: str, task_name: str, features_dir: Path, *,
-          metrics_path: Path, predictions_path: Path, model_path: Path,
+          metrics_path: Path, scores_path: Path, predictions_path: Path, model_path: Path,
           lineage_path: Path | None = None, params_text: str = "", track: bool = True,
           log: Callable[[str], None] = lambda message: print(message, file=sys.stderr,
                                                                flush=True)) -> str:
@@ -57,7 +59,8 @@ def train(params: dict[str, Any], scene: str, task_name: str, features_dir: Path
     if reason is not None:
         if lineage_path is not None:
             write_json({**header, "status": "skipped"}, lineage_path)
-        write_json({**header, "status": "skipped", "reason": reason}, metrics_path)
+        write_json({**header, "status": "skipped", "reason": reason}, scores_path)
+        write_json({}, metrics_path)
         save_predictions(pd.DataFrame(), predictions_path)
         save_models({"skipped": reason}, model_path)
         return f"{scene}/{task_name}: skipped — {reason}"
@@ -77,12 +80,15 @@ def train(params: dict[str, Any], scene: str, task_name: str, features_dir: Path
     save_models(models, model_path)
     # The model file's md5 (as in dvc.lock) links metrics, DVC and the MLflow run.
     header["model_md5"] = md5_file(model_path)
-    metrics_doc = {**header, "status": "trained", "rows": int(task.rows(frame).sum()),
-                   **{r.scheme: r.summary for r in results}}
+    scores_doc = {**header, "status": "trained", "rows": int(task.rows(frame).sum()),
+                  **{r.scheme: r.summary for r in results}}
     confusion = {r.scheme: r.confusion for r in results if r.confusion}
     if confusion:
-        metrics_doc["confusion"] = confusion  # lists: `dvc metrics show` passes over them
-    write_json(metrics_doc, metrics_path)
+        scores_doc["confusion"] = confusion
+    write_json(scores_doc, scores_path)
+    write_json(headline_metrics({r.scheme: {target: {task.headline_metric: scores[
+        task.headline_metric]} for target, scores in r.summary.items()} for r in results}),
+               metrics_path)
     if lineage_path is not None:
         write_json({**header, "status": "trained", "features_md5": md5_file(source)},
                    lineage_path)
@@ -109,6 +115,14 @@ def train(params: dict[str, Any], scene: str, task_name: str, features_dir: Path
     notes = "".join(f"\n  note ({r.scheme}, {n} of {len(r.per_fold[next(iter(r.per_fold))])} "
                     f"folds): {text}" for r in results for text, n in sorted(r.notes.items()))
     return f"{scene}/{task_name} [{model_name}]: {headline}{run_note}{notes}"
+
+
+def headline_metrics(by_scheme: dict[str, dict]) -> dict[str, dict]:
+    """What DVC's metrics file holds: the headline scheme's headline scores (or, without
+    that scheme, every scheme's), so `dvc exp show --only-changed` fits a terminal."""
+    if HEADLINE_SCHEME in by_scheme:
+        return {HEADLINE_SCHEME: by_scheme[HEADLINE_SCHEME]}
+    return by_scheme
 
 
 def _headline(task: Task, summary: dict[str, dict[str, float]]) -> str:
@@ -150,17 +164,23 @@ def load_models(path: Path, md5: str) -> dict:
     return joblib.load(path)
 
 
-def score_pairs(scene: str, predictions_dir: Path, metrics_path: Path, *,
+def score_pairs(scene: str, predictions_dir: Path, metrics_path: Path, scores_path: Path, *,
                 params_text: str = "", track: bool = True) -> str:
-    """Score a two-force scene's contacts as sets (order-free), from its tasks' predictions."""
+    """Score a two-force scene's contacts as sets (order-free), from its tasks' predictions;
+    the scene's kind and dataset come from the localise task's scores (beside ``scores_path``)."""
     from eskin.evaluation.pairs import score_pairs as score
 
     directory = Path(predictions_dir) / scene
-    metrics_doc: dict[str, Any] = {"scene": scene, "task": "pairs"}
-    localise = json.loads((Path(metrics_path).with_name("localise.json")).read_text())
+    scores_doc: dict[str, Any] = {"scene": scene, "task": "pairs"}
+    localise = json.loads((Path(scores_path).with_name("localise.json")).read_text())
+
+    def skip(reason: str) -> None:
+        write_json({**scores_doc, "status": "skipped", "reason": reason}, scores_path)
+        write_json({}, metrics_path)
+
     if localise.get("kind") != "two_force":
         reason = f"a {localise.get('kind')} scene has one contact; pairs need two"
-        write_json({**metrics_doc, "status": "skipped", "reason": reason}, metrics_path)
+        skip(reason)
         return f"{scene}/pairs: skipped — {reason}"
     frames = {}
     for task in ("localise", "force"):
@@ -170,12 +190,12 @@ def score_pairs(scene: str, predictions_dir: Path, metrics_path: Path, *,
         frames[task] = pd.read_parquet(path)
     if any(frame.empty for frame in frames.values()):
         skipped = [task for task, frame in frames.items() if frame.empty]
-        write_json({**metrics_doc, "status": "skipped",
-                    "reason": f"no predictions from {', '.join(skipped)} (skipped)"}, metrics_path)
+        skip(f"no predictions from {', '.join(skipped)} (skipped)")
         return f"{scene}/pairs: skipped — {', '.join(skipped)} skipped"
     scores = score(frames["localise"], frames["force"])
-    metrics_doc.update(status="scored", **scores)
-    write_json(metrics_doc, metrics_path)
+    write_json({**scores_doc, "status": "scored", **scores}, scores_path)
+    write_json(headline_metrics({scheme: {name: values[name] for name in PAIRS_HEADLINE}
+                                 for scheme, values in scores.items()}), metrics_path)
     run_note = ""
     if track:
         from eskin import tracking

@@ -1,6 +1,6 @@
 """Pipeline step of reporting: figures, DVC plot data, the report page, the results page.
 
-Reads only the training stages' predictions and metrics, the scene list
+Reads only the training stages' predictions and scores, the scene list
 (``scenes:``, names and kinds) and its own params (``report:``), so a change
 of figure style reruns only this step. Every scene gets its own figures,
 plot data and section; what a figure shows follows the scene's kind.
@@ -61,10 +61,25 @@ def _task_files(directory: Path, scene: str, suffix: str, reader) -> dict[str, A
     return found
 
 
-def plot_data(kind: str, predictions: dict[str, pd.DataFrame]
+# What a `dvc plots` panel shows, by target (its title, with the scene's name).
+PANEL_LABEL = {"stretch": "stretch λ", "force": "force (N)", "force1": "force of contact 1 (N)",
+               "force2": "force of contact 2 (N)", "contact": "contact",
+               "x": "x terminal", "y": "y terminal", "x1": "x terminal of contact 1",
+               "y1": "y terminal of contact 1", "x2": "x terminal of contact 2",
+               "y2": "y terminal of contact 2"}
+
+
+# Parity points a `dvc plots` panel draws at most (every k-th prediction beyond): with
+# all 24,240 a panel, DVC's page was 28 MB and took Chromium 13 s to draw.
+PLOT_POINTS = 4000
+
+
+def plot_data(scene: str, kind: str, predictions: dict[str, pd.DataFrame]
               ) -> list[tuple[str, str, pd.DataFrame]]:
     """(template, file stem, frame) behind `dvc plots` for one scene: parity data of every
-    regression target, confusion data of every class target, one CV scheme."""
+    regression target (at most ``PLOT_POINTS``, evenly through the predictions), confusion
+    counts of every class target, one CV scheme; a ``panel`` column names the scene and
+    target (the templates title each panel with it)."""
     out = []
     for task, target in (("stretch", "stretch"), *(("force", t) for t in force_columns(kind))):
         frame = predictions.get(task)
@@ -72,26 +87,31 @@ def plot_data(kind: str, predictions: dict[str, pd.DataFrame]
             columns = {f"{target}_true": "actual", f"{target}_pred": "predicted"}
             if task == "force" and kind == "single_force":
                 columns["stretch"] = "stretch"
-            out.append(("parity", target, frame[list(columns)].rename(columns=columns)))
+            points = frame[list(columns)].rename(columns=columns)
+            step = -(-len(points) // PLOT_POINTS)
+            out.append(("parity", target, points.iloc[::step].round(4)))
     for task, targets in (("detect", ["contact"]), ("localise", node_columns(kind))):
         frame = predictions.get(task)
         if frame is not None and not frame.empty:
             for target in targets:
-                out.append(("confusion", target,
-                            frame[[f"{target}_true", f"{target}_pred"]].rename(
-                                columns={f"{target}_true": "actual",
-                                         f"{target}_pred": "predicted"})))
-    return out
+                classes = frame[[f"{target}_true", f"{target}_pred"]].rename(
+                    columns={f"{target}_true": "actual", f"{target}_pred": "predicted"})
+                if target == "contact":
+                    classes = classes.apply(lambda c: c.map({True: "contact", False: "none"}))
+                out.append(("confusion", target, classes.value_counts().rename("count")
+                            .reset_index().sort_values(["actual", "predicted"])))
+    return [(template, stem, frame.assign(panel=f"{scene}: {PANEL_LABEL[stem]}"))
+            for template, stem, frame in out]
 
 
-def report(params: dict[str, Any], *, metrics_dir: Path, predictions_dir: Path,
+def report(params: dict[str, Any], *, scores_dir: Path, predictions_dir: Path,
            figures_dir: Path, plots_dir: Path, page_path: Path, results_path: Path) -> str:
     settings = section(params, "report")
     kinds = {name: scene["kind"] for name, scene in section(params, "scenes").items()}
-    metrics = {scene: _task_files(metrics_dir, scene, ".json", lambda p: json.loads(p.read_text()))
+    metrics = {scene: _task_files(scores_dir, scene, ".json", lambda p: json.loads(p.read_text()))
                for scene in kinds}
     if not any(metrics.values()):
-        raise FileNotFoundError(f"{metrics_dir}: no metrics for any scene of params.yaml "
+        raise FileNotFoundError(f"{scores_dir}: no scores for any scene of params.yaml "
                                 f"({', '.join(kinds)}); run the training stages first")
     predictions = {scene: _task_files(predictions_dir, scene, ".parquet", pd.read_parquet)
                    for scene in kinds}
@@ -120,7 +140,7 @@ def report(params: dict[str, Any], *, metrics_dir: Path, predictions_dir: Path,
                 written += 1
         chosen = {task: frame[frame["scheme"] == settings["plots_scheme"]]
                   for task, frame in predictions[scene].items() if not frame.empty}
-        for template, stem, frame in plot_data(kind, chosen):
+        for template, stem, frame in plot_data(scene, kind, chosen):
             (plots_dir / template).mkdir(parents=True, exist_ok=True)
             frame.to_csv(plots_dir / template / f"{scene}_{stem}.csv", index=False)
 

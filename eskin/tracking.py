@@ -366,6 +366,23 @@ def _requirements() -> list[str]:
     return [f"{name}=={version(name)}" for name in ("scikit-learn", "numpy", "scipy", "pandas")]
 
 
+def log_report(*, figures_dir: Path, page_path: Path, params_text: str) -> str:
+    """The report's figures (PNG and SVG, under ``figures/<scene>/``) and page as artifacts
+    of the pipeline run the training stages logged under; its id."""
+    with _naming_the_store("logging the report's figures"):
+        client = connect()
+        experiment_id = _experiment_id(client, EXPERIMENT)
+        commit = git_commit(project_root())
+        key = pipeline_key(params_text, commit)
+        parent = parent_run(client, experiment_id, key,
+                            {"eskin.git_commit": commit, "mlflow.source.git.commit": commit,
+                             "eskin.dvc_experiment": dvc_experiment()},
+                            yaml.safe_load(params_text) if params_text else {})
+        client.log_artifacts(parent, str(figures_dir), "figures")
+        client.log_artifact(parent, str(page_path))
+        return parent
+
+
 def log_scores_run(*, scene: str, task: str, scores: Mapping[str, Any], params_text: str,
                    dataset_digest: str) -> str:
     """Log a run that only scores other runs' predictions (e.g. two-force pairs)."""

@@ -1,14 +1,25 @@
-"""DVC stage: predictions + metrics → figures, plot data, reports/index.html, reports/results.md."""
+"""DVC stage: predictions + scores → figures, plot data, reports/index.html, reports/results.md;
+the figures and the page go to the pipeline's MLflow run as artifacts."""
 
 import sys
 
 from eskin import report
-from eskin.catalog import METRICS_DIR, PREDICTIONS_DIR
-from eskin.config import load_params
+from eskin.catalog import FIGURES_DIR, PAGE, PLOTS_DIR, PREDICTIONS_DIR, SCORES_DIR
+from eskin.config import DEFAULT_PARAMS, load_params
 from eskin.errors import run_friendly
 
+
+def main() -> str:
+    summary = report.report(
+        load_params(), scores_dir=SCORES_DIR, predictions_dir=PREDICTIONS_DIR,
+        figures_dir=FIGURES_DIR, plots_dir=PLOTS_DIR, page_path=PAGE,
+        results_path="reports/results.md")
+    from eskin import tracking  # MLflow takes seconds to import
+
+    run_id = tracking.log_report(figures_dir=FIGURES_DIR, page_path=PAGE,
+                                 params_text=DEFAULT_PARAMS.read_text())
+    return f"{summary}; figures and page logged to MLflow run {run_id}"
+
+
 if __name__ == "__main__":
-    sys.exit(run_friendly(lambda: print(report.report(
-        load_params(), metrics_dir=METRICS_DIR, predictions_dir=PREDICTIONS_DIR,
-        figures_dir="reports/figures", plots_dir="reports/plots",
-        page_path="reports/index.html", results_path="reports/results.md"))))
+    sys.exit(run_friendly(lambda: print(main())))

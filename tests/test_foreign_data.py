@@ -123,8 +123,8 @@ def project(tmp_path_factory, repo_params, mlflow_server):
     return root, env, params, rows, served.port, repro
 
 
-def metrics(root: Path, scene: str, task: str) -> dict:
-    return json.loads((root / "reports/metrics" / scene / f"{task}.json").read_text())
+def scores(root: Path, scene: str, task: str) -> dict:
+    return json.loads((root / "reports/scores" / scene / f"{task}.json").read_text())
 
 
 def test_every_scene_gets_its_stages_from_params_alone(project):
@@ -141,28 +141,28 @@ def test_every_scene_gets_its_stages_from_params_alone(project):
 def test_each_scene_trains_what_its_data_supports_and_says_why_it_skips_the_rest(project):
     root, *_ = project
     for task in ("stretch", "force", "detect", "localise"):
-        assert metrics(root, "lab_single", task)["status"] == "trained", task
-    assert metrics(root, "lab_single", "stretch")["grouped"]["stretch"]["r2"] > 0.9
-    assert metrics(root, "lab_single", "pairs")["reason"].startswith("a single_force scene")
-    pairs = {task: metrics(root, "lab_pairs", task) for task in
+        assert scores(root, "lab_single", task)["status"] == "trained", task
+    assert scores(root, "lab_single", "stretch")["grouped"]["stretch"]["r2"] > 0.9
+    assert scores(root, "lab_single", "pairs")["reason"].startswith("a single_force scene")
+    pairs = {task: scores(root, "lab_pairs", task) for task in
              ("stretch", "force", "detect", "localise", "pairs")}
     assert pairs["force"]["status"] == "trained"
     assert set(pairs["force"]["grouped"]) == {"force1", "force2"}
     assert pairs["localise"]["status"] == "trained" and pairs["pairs"]["status"] == "scored"
     assert "two or more stretch levels" in pairs["stretch"]["reason"]
     assert "contact and no-contact samples" in pairs["detect"]["reason"]
-    board = metrics(root, "board_day1", "stretch")
+    board = scores(root, "board_day1", "stretch")
     assert board["status"] == "skipped" and "this scene has one (λ = 1)" in board["reason"]
-    assert metrics(root, "board_day1", "force")["status"] == "trained"
+    assert scores(root, "board_day1", "force")["status"] == "trained"
 
 
 def test_the_datasets_name_their_sources(project):
     root, _, _, rows, port, _ = project
-    single = metrics(root, "lab_single", "force")
+    single = scores(root, "lab_single", "force")
     assert single["dataset_rows"] == rows["lab_single"]
     assert single["source"].startswith("import ") and "lab_single.csv (sha256 " in \
         single["source"]
-    board = metrics(root, "board_day1", "force")
+    board = scores(root, "board_day1", "force")
     assert board["source"] == f"serial {port}, device lab-board-7 firmware hostile-1.0"
 
 

@@ -38,7 +38,8 @@ def features(project, scene="single_force"):
 
 def train(project, scene, task, out, params=None, **kwargs):
     return learn.train(params or project[0], scene, task, project[1] / "features",
-                       metrics_path=out / "metrics.json", predictions_path=out / "oof.parquet",
+                       metrics_path=out / "metrics.json", scores_path=out / "scores.json",
+                       predictions_path=out / "oof.parquet",
                        model_path=out / "model.joblib", track=False,
                        **kwargs)
 
@@ -112,13 +113,15 @@ def test_a_single_stretch_level_skips_stretch_with_its_reason(project, tmp_path)
     write_dataset(frame[frame["stretch"] == 1.0], "single_force",
                   one_level / "single_force.parquet", meta)
     summary = learn.train(params, "single_force", "stretch", one_level,
-                          metrics_path=tmp_path / "m.json", predictions_path=tmp_path / "p.parquet",
+                          metrics_path=tmp_path / "m.json", scores_path=tmp_path / "s.json",
+                          predictions_path=tmp_path / "p.parquet",
                           model_path=tmp_path / "model.joblib",
                           track=False)
     assert "skipped" in summary
-    metrics = json.loads((tmp_path / "m.json").read_text())
-    assert metrics["status"] == "skipped"
-    assert "two or more stretch levels" in metrics["reason"]
+    scores = json.loads((tmp_path / "s.json").read_text())
+    assert scores["status"] == "skipped"
+    assert "two or more stretch levels" in scores["reason"]
+    assert json.loads((tmp_path / "m.json").read_text()) == {}  # no headline to show
 
 
 def test_every_kind_has_the_catalogs_tasks_each_with_a_registered_role():
@@ -189,20 +192,21 @@ def test_out_of_fold_predictions_cover_each_row_once(project, capsys):
     assert result.summary["x"]["accuracy"] == pytest.approx(accuracy, abs=0.02)
 
 
-def test_same_params_and_seed_give_identical_metrics_files(project, tmp_path):
+def test_same_params_and_seed_give_identical_scores_files(project, tmp_path):
     # force: the seeded default (gradient boosting's random_state); localise's default,
     # logistic regression, draws nothing
     for task in ("force",):
         train(project, "single_force", task, tmp_path / "a" / task)
         train(project, "single_force", task, tmp_path / "b" / task)
-        first = (tmp_path / "a" / task / "metrics.json").read_bytes()
-        assert first == (tmp_path / "b" / task / "metrics.json").read_bytes(), task
+        first = (tmp_path / "a" / task / "scores.json").read_bytes()
+        assert first == (tmp_path / "b" / task / "scores.json").read_bytes(), task
         assert json.loads(first)["status"] == "trained"
 
 
-def test_metrics_carry_every_score_under_both_schemes(project, tmp_path):
+def test_scores_carry_every_score_under_both_schemes_and_metrics_the_headline(project,
+                                                                            tmp_path):
     train(project, "single_force", "localise", tmp_path)
-    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    metrics = json.loads((tmp_path / "scores.json").read_text())
     for scheme in ("stratified", "grouped"):
         for axis in ("x", "y"):
             scores = metrics[scheme][axis]
@@ -213,13 +217,17 @@ def test_metrics_carry_every_score_under_both_schemes(project, tmp_path):
     assert metrics["dataset_md5"] == md5_file(project[1] / "processed" / "single_force.parquet")
     oof = pd.read_parquet(tmp_path / "oof.parquet")
     assert set(oof["scheme"]) == {"stratified", "grouped"}
+    # DVC's metrics file: the grouped accuracy of each axis, nothing else
+    assert json.loads((tmp_path / "metrics.json").read_text()) == {
+        "grouped": {axis: {"accuracy": metrics["grouped"][axis]["accuracy"]}
+                    for axis in ("x", "y")}}
 
 
 def test_detection_keeps_a_score_per_sample_for_roc_curves(project, tmp_path):
     train(project, "single_force", "detect", tmp_path)
     oof = pd.read_parquet(tmp_path / "oof.parquet")
     assert oof["contact_score"].notna().all()
-    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    metrics = json.loads((tmp_path / "scores.json").read_text())
     assert 0.5 < metrics["stratified"]["contact"]["roc_auc"] <= 1
     assert metrics["source"] == "simulated (seed 20230529)"
     assert metrics["dataset_rows"] == len(oof) // 2
@@ -227,8 +235,8 @@ def test_detection_keeps_a_score_per_sample_for_roc_curves(project, tmp_path):
 
 def test_two_force_tasks_train(project, tmp_path):
     summary = train(project, "two_force", "localise", tmp_path / "loc")
-    metrics = json.loads((tmp_path / "loc" / "metrics.json").read_text())
-    assert set(metrics["stratified"]) == {"x1", "y1", "x2", "y2"}, summary
+    scores = json.loads((tmp_path / "loc" / "scores.json").read_text())
+    assert set(scores["stratified"]) == {"x1", "y1", "x2", "y2"}, summary
     train(project, "two_force", "force", tmp_path / "f")
     metrics = json.loads((tmp_path / "f" / "metrics.json").read_text())
     assert np.isfinite(metrics["grouped"]["force1"]["r2"])
@@ -236,8 +244,8 @@ def test_two_force_tasks_train(project, tmp_path):
     for task, reason in (("stretch", "two or more stretch levels"),
                          ("detect", "contact and no-contact samples")):
         train(project, "two_force", task, tmp_path / task)
-        metrics = json.loads((tmp_path / task / "metrics.json").read_text())
-        assert metrics["status"] == "skipped" and reason in metrics["reason"], metrics
+        scores = json.loads((tmp_path / task / "scores.json").read_text())
+        assert scores["status"] == "skipped" and reason in scores["reason"], scores
 
 
 def test_a_task_model_may_be_named_per_kind():

@@ -8,6 +8,7 @@ through MLFLOW_TRACKING_URI, and the tests read the runs back through its client
 """
 
 import json
+import shutil
 import subprocess
 import sys
 import time
@@ -55,14 +56,21 @@ def test_dvc_metrics_show_lists_the_headline_metrics(scratch):
             # make bench's metrics (reports/soak, reports/fuzz) are declared but not made here
             if "data" in content:
                 metrics[path] = content["data"]
+    # The headline only: grouped CV, one score a target (every scheme, spread and confusion
+    # count is in reports/scores/, which the report reads).
     single = "reports/metrics/single_force/{}.json"
-    assert 0 < metrics[single.format("stretch")]["stratified"]["stretch"]["r2"] <= 1
-    assert "r2" in metrics[single.format("force")]["grouped"]["force"]
-    assert "accuracy" in metrics[single.format("detect")]["stratified"]["contact"]
-    for axis in ("x", "y"):
-        assert "accuracy" in metrics[single.format("localise")]["stratified"][axis]
+    assert metrics[single.format("stretch")] == {"grouped": {"stretch": {
+        "r2": json.loads((root / "reports/scores/single_force/stretch.json").read_text())[
+            "grouped"]["stretch"]["r2"]}}}
+    assert set(metrics[single.format("force")]["grouped"]["force"]) == {"r2"}
+    assert set(metrics[single.format("detect")]["grouped"]["contact"]) == {"accuracy"}
+    assert set(metrics[single.format("localise")]["grouped"]) == {"x", "y"}
+    assert set(metrics["reports/metrics/two_force/pairs.json"]["grouped"]) == {
+        "pair_accuracy", "ghost_share", "force_r2"}
+    assert metrics[single.format("pairs")] == {}  # skipped: one contact (reason in its scores)
     table = run(["dvc", "metrics", "show"], root, env)
-    assert "stratified.stretch.r2" in table and "stratified.contact.accuracy" in table
+    assert "grouped.stretch.r2" in table and "grouped.contact.accuracy" in table
+    assert "stratified" not in table and "_std" not in table
 
 
 def test_a_second_force_model_is_a_second_mlflow_run_on_the_same_dataset(scratch, repo_params):
@@ -93,6 +101,14 @@ def test_a_second_force_model_is_a_second_mlflow_run_on_the_same_dataset(scratch
         assert run_.data.tags["mlflow.parentRunId"]
         assert run_.data.tags["eskin.git_commit"]
         assert "stratified.force.r2" in run_.data.metrics
+    # `dvc exp show --only-changed` of the two fits a 160-column terminal (DVC folds what
+    # does not fit into "…") and shows the changed param and the headline score.
+    shown = run_checked(["dvc", "exp", "show", "--only-changed", "--no-pager"], root,
+                        {**env, "COLUMNS": "160"}).stdout
+    assert "…" not in shown, shown
+    for column in ("train.force.model.single_force", "random_forest", "physics_profile",
+                   "grouped.force.r2", "force-rf"):
+        assert column in shown, (column, shown)
     # The dataset version DVC records is the digest MLflow carries.
     lock = yaml.safe_load((root / "dvc.lock").read_text())
     outs = lock["stages"]["ingest@single_force"]["outs"]
@@ -113,8 +129,57 @@ def test_the_report_stage_writes_the_results_page_and_dvc_plots_render(scratch):
     finally:
         readme.write_text(prose)
     assert (root / "reports" / "index.html").stat().st_size > 10_000
+
+
+CHROMIUM = shutil.which("chromium")
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is missing: `make test` "
+                    "installs it")
+def test_dvc_plots_draw_offline_in_headless_chromium(scratch):
+    """`dvc plots show` (and so `dvc plots diff`) writes a page that draws with no network:
+    vega is in the page template `make setup` writes; each panel is titled with its
+    scene and target, parity panels have the ideal line, classes are in numeric order."""
+    from playwright.sync_api import sync_playwright
+
+    root, env = scratch
     run(["dvc", "plots", "show", "-o", str(root / "dvc_plots")], root, env)
-    assert (root / "dvc_plots" / "index.html").exists()
+    page_path = root / "dvc_plots" / "index.html"
+    requested, errors = [], []
+    with sync_playwright() as playwright:
+        browser = playwright.chromium.launch(executable_path=CHROMIUM,
+                                             args=["--no-sandbox", "--disable-gpu"])
+        context = browser.new_context(offline=True)
+        page = context.new_page()
+        page.on("request", lambda request: requested.append(request.url))
+        page.on("pageerror", lambda error: errors.append(str(error)))
+        page.goto(page_path.as_uri())
+        plots = page.eval_on_selector_all(".vega-embed", "e => e.length")
+        page.wait_for_function(
+            f"document.querySelectorAll('.vega-embed svg.marks').length == {plots}",
+            timeout=60_000)
+        panels = page.eval_on_selector_all("g.role-title-text text",
+                                           "ts => ts.map(t => t.textContent)")
+        points = page.eval_on_selector_all("g.mark-symbol path", "ps => ps.length")
+        ideal = page.eval_on_selector_all("g.mark-line path", "ps => ps.length")
+        cells = page.eval_on_selector_all("g.mark-rect path", "ps => ps.length")
+        # the x axis of the single-force x-terminal confusion matrix, left to right
+        x_axis = page.evaluate("""() => {
+            const svg = [...document.querySelectorAll('.vega-embed svg')].find(
+                s => s.textContent.includes('single_force: x terminal'));
+            const axis = svg.querySelector('g.role-axis[aria-label^="X-axis"]');
+            return [...axis.querySelectorAll('g.role-axis-label text')].map(t => t.textContent);
+        }""")
+        browser.close()
+    assert not errors, errors
+    assert [url for url in requested if not url.startswith("file:")] == []
+    assert plots == 11, plots  # 4 parity panels, 7 confusion matrices (small scenes)
+    for panel in ("single_force: stretch λ", "single_force: force (N)",
+                  "two_force: force of contact 2 (N)", "single_force: contact",
+                  "two_force: y terminal of contact 1"):
+        assert panel in panels, (panel, panels)
+    assert points > 500 and ideal == 4 and cells > 20, (points, ideal, cells)
+    assert x_axis == [str(n) for n in range(1, 11)], x_axis
 
 
 def test_a_repro_groups_its_task_runs_under_one_pipeline_run(scratch):

@@ -14,14 +14,14 @@ CHROMIUM = shutil.which("chromium")
 
 
 def fake_outputs(root):
-    """Predictions and metrics shaped like the training stages' (small)."""
+    """Predictions and scores shaped like the training stages' (small)."""
     rng = np.random.default_rng(0)
 
     def write(scene, task, frame, metrics):
-        for sub in ("predictions", "metrics"):
+        for sub in ("predictions", "scores"):
             (root / sub / scene).mkdir(parents=True, exist_ok=True)
         frame.to_parquet(root / "predictions" / scene / f"{task}.parquet")
-        (root / "metrics" / scene / f"{task}.json").write_text(json.dumps(
+        (root / "scores" / scene / f"{task}.json").write_text(json.dumps(
             {"scene": scene, "kind": scene, "task": task, "status": "trained",
              "dataset_md5": "0" * 32,
              "dataset_rows": 120, "source": "simulated", "model": "paper",
@@ -60,7 +60,7 @@ def fake_outputs(root):
                                             force2_true=force, force2_pred=force + 0.1),
           {s: {**regression("force1", force)[s], **regression("force2", force)[s]}
            for s in scores})
-    (root / "metrics" / "two_force" / "stretch.json").write_text(json.dumps(
+    (root / "scores" / "two_force" / "stretch.json").write_text(json.dumps(
         {"scene": "two_force", "kind": "two_force", "task": "stretch", "status": "skipped",
          "reason": "stretch regression needs two or more stretch levels; this scene has one"}))
     return root
@@ -73,7 +73,7 @@ def built(tmp_path_factory):
                          "dpi": 60, "page_dpi": 50},
               "scenes": {"single_force": {"kind": "single_force"},
                          "two_force": {"kind": "two_force"}}}
-    summary = report.report(params, metrics_dir=root / "metrics",
+    summary = report.report(params, scores_dir=root / "scores",
                             predictions_dir=root / "predictions",
                             figures_dir=root / "figures", plots_dir=root / "plots",
                             page_path=root / "index.html", results_path=root / "results.md")
@@ -98,9 +98,13 @@ def test_every_figure_is_written_as_png_and_svg_per_scheme(built):
 def test_dvc_plot_data_has_the_columns_dvc_yaml_names(built):
     root, _ = built
     confusion = pd.read_csv(root / "plots" / "confusion" / "single_force_x.csv")
-    assert list(confusion.columns) == ["actual", "predicted"]
+    assert list(confusion.columns) == ["actual", "predicted", "count", "panel"]
+    assert set(confusion["panel"]) == {"single_force: x terminal"}  # the panel's title
+    assert confusion["count"].sum() == 60  # every stratified prediction, counted
+    contact = pd.read_csv(root / "plots" / "confusion" / "single_force_contact.csv")
+    assert set(contact["actual"]) <= {"contact", "none"}
     parity = pd.read_csv(root / "plots" / "parity" / "single_force_force.csv")
-    assert list(parity.columns) == ["actual", "predicted", "stretch"]
+    assert list(parity.columns) == ["actual", "predicted", "stretch", "panel"]
     assert len(parity) == 60  # the stratified half only
     assert {p.stem for p in (root / "plots").rglob("*.csv")} == {
         "single_force_stretch", "single_force_force", "two_force_force1", "two_force_force2",

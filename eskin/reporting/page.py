@@ -1,20 +1,19 @@
 """The headline table, the report page and the results page (``reports/results.md``).
 
-Inputs are the metrics documents of the training and scoring stages; outputs
+Inputs are the scores documents of the training and scoring stages; outputs
 are strings, so that everything here is tested without files.
 """
 
 from __future__ import annotations
 
 import base64
-import html
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
 from eskin.catalog import SCHEMES
 
-# (scene, kind, {task: metrics document}) for each scene of params.yaml, in its order.
+# (scene, kind, {task: scores document}) for each scene of params.yaml, in its order.
 Scenes = list[tuple[str, str, Mapping[str, Mapping]]]
 
 
@@ -67,8 +66,8 @@ HEADLINES = (
 )
 
 
-def _value(metrics: Mapping[str, Mapping], row: Headline, scheme: str) -> str:
-    document = metrics.get(row.task)
+def _value(scores: Mapping[str, Mapping], row: Headline, scheme: str) -> str:
+    document = scores.get(row.task)
     if document is None:
         return "missing"
     if document.get("status") == "skipped":
@@ -86,29 +85,29 @@ def _value(metrics: Mapping[str, Mapping], row: Headline, scheme: str) -> str:
     return f"{fmt.format(mean)} ± {fmt.format(std)}" if math.isfinite(std) else fmt.format(mean)
 
 
-def headline_rows(kind: str, metrics: Mapping[str, Mapping]) -> list[list[str]]:
-    """[metric, stratified, grouped, paper] per headline of a ``kind`` scene whose metrics
-    documents are ``metrics`` (by task), as display strings."""
-    return [[_label(metrics, row), *(_value(metrics, row, s) for s in SCHEMES), row.paper]
+def headline_rows(kind: str, scores: Mapping[str, Mapping]) -> list[list[str]]:
+    """[metric, stratified, grouped, paper] per headline of a ``kind`` scene whose scores
+    documents are ``scores`` (by task), as display strings."""
+    return [[_label(scores, row), *(_value(scores, row, s) for s in SCHEMES), row.paper]
             for row in HEADLINES if row.kind == kind]
 
 
-def _label(metrics: Mapping[str, Mapping], row: Headline) -> str:
+def _label(scores: Mapping[str, Mapping], row: Headline) -> str:
     """The row's label with the model that produced its number (the paper's, or another)."""
-    model = metrics.get(row.task, {}).get("model")
+    model = scores.get(row.task, {}).get("model")
     return f"{row.label} [{model}]" if model else row.label
 
 
-def headline_markdown(kind: str, metrics: Mapping[str, Mapping]) -> str:
+def headline_markdown(kind: str, scores: Mapping[str, Mapping]) -> str:
     lines = ["| metric | stratified CV (the paper's) | grouped CV (whole trials out) | paper |",
              "|---|---|---|---|"]
-    lines += ["| " + " | ".join(cells) + " |" for cells in headline_rows(kind, metrics)]
+    lines += ["| " + " | ".join(cells) + " |" for cells in headline_rows(kind, scores)]
     return "\n".join(lines)
 
 
-def dataset(metrics: Mapping[str, Mapping]) -> tuple[str, str, str] | None:
+def dataset(scores: Mapping[str, Mapping]) -> tuple[str, str, str] | None:
     """(DVC md5, rows, source) of the dataset a scene's tasks trained on."""
-    for document in metrics.values():
+    for document in scores.values():
         if "dataset_md5" in document:
             rows = document.get("dataset_rows")
             return (document["dataset_md5"], f"{rows:,}" if isinstance(rows, int) else "?",
@@ -116,10 +115,10 @@ def dataset(metrics: Mapping[str, Mapping]) -> tuple[str, str, str] | None:
     return None
 
 
-def skipped(metrics: Mapping[str, Mapping]) -> list[tuple[str, str]]:
+def skipped(scores: Mapping[str, Mapping]) -> list[tuple[str, str]]:
     """(task, reason) of each task the scene's data did not support."""
     return [(task, str(document.get("reason", "")))
-            for task, document in metrics.items() if document.get("status") == "skipped"]
+            for task, document in scores.items() if document.get("status") == "skipped"]
 
 
 def results_markdown(scenes: Scenes) -> str:
@@ -128,25 +127,18 @@ def results_markdown(scenes: Scenes) -> str:
     A file of its own, not a section of the README: written into the README, every
     experiment rewrote it, and a prose edit made `dvc status` report a changed output."""
     parts = ["# Results",
-             "Written by the report stage from the metrics of this commit (`dvc metrics show` "
-             "has every number; the figures and the model hashes are in "
-             "`reports/index.html`)."]
-    for scene, kind, metrics in scenes:
-        data = dataset(metrics)
+             "Written by the report stage from the scores of this commit "
+             "(`reports/scores/`; `dvc metrics show` has the grouped-CV headline, and "
+             "the figures and the model hashes are in `reports/index.html`)."]
+    for scene, kind, scores in scenes:
+        data = dataset(scores)
         about = (f"{data[1]} rows, {data[2]}, DVC md5 `{data[0]}`" if data
                  else "no trained task")
         skips = "".join(f"\n- {scene}/{task} skipped: {reason}"
-                        for task, reason in skipped(metrics))
+                        for task, reason in skipped(scores))
         parts.append(f"## {scene} ({kind.replace('_', ' ')})\n\n{about}.\n\n"
-                     f"{headline_markdown(kind, metrics)}" + (f"\n{skips}" if skips else ""))
+                     f"{headline_markdown(kind, scores)}" + (f"\n{skips}" if skips else ""))
     return "\n\n".join(parts) + "\n\nMean ± std over folds.\n"
-
-
-def _table(header: list[str], rows: list[list[str]]) -> str:
-    head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
-    body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in row) + "</tr>"
-                   for row in rows)
-    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 
 
 CSS = """
@@ -165,63 +157,27 @@ figcaption { font-size: 0.9em; color: #555; }
 def models(scenes: Scenes) -> list[list[str]]:
     """(scene/task, model, model md5) of each trained task: the key to its MLflow run."""
     return [[f"{scene}/{task}", str(document.get("model", "?")), document["model_md5"]]
-            for scene, _, metrics in scenes for task, document in metrics.items()
+            for scene, _, scores in scenes for task, document in scores.items()
             if "model_md5" in document]
-
-
-def _figures(figures: list[tuple[str, str, bytes]]) -> str:
-    return "".join(
-        f'<figure id="{html.escape(fid)}"><img alt="{html.escape(caption)}" '
-        f'src="data:image/png;base64,{base64.b64encode(png).decode()}">'
-        f"<figcaption>{html.escape(caption)}</figcaption></figure>"
-        for fid, caption, png in figures)
-
-
-def _scene_section(scene: str, kind: str, metrics: Mapping[str, Mapping],
-                   figures: list[tuple[str, str, bytes]]) -> str:
-    data = dataset(metrics)
-    about = (f"{html.escape(data[1])} rows; source: {html.escape(data[2])}; dataset DVC md5 "
-             f"<code>{html.escape(data[0])}</code>." if data else "No task trained.")
-    skips = "".join(f"<li>{html.escape(task)}: {html.escape(reason)}</li>"
-                    for task, reason in skipped(metrics))
-    return f"""<section id="scene-{html.escape(scene)}">
-<h2>Scene {html.escape(scene)} ({html.escape(kind.replace("_", " "))})</h2>
-<p>{about}</p>
-{_table(["metric", "stratified CV (the paper's)", "grouped CV", "paper"],
-        headline_rows(kind, metrics))}
-{f"<p>Skipped, for want of the data they need:</p><ul>{skips}</ul>" if skips else ""}
-{_figures(figures)}
-</section>
-"""
 
 
 def render_page(scenes: Scenes, figures: Mapping[str, list[tuple[str, str, bytes]]],
                 commit: str = "") -> str:
-    """The report: per scene its headline table, dataset and figures (embedded as PNG),
-    then the models. ``figures`` are (id, caption, PNG bytes) by scene; the page needs
-    no other file."""
-    sections = "".join(_scene_section(scene, kind, metrics, figures.get(scene, []))
-                       for scene, kind, metrics in scenes)
+    """The report (templates/page.html.j2): per scene its headline table, dataset and
+    figures (embedded as PNG), then the models. ``figures`` are (id, caption, PNG bytes) by
+    scene; the page needs no other file."""
+    import jinja2
 
-    def beside(pattern: str) -> str:  # links, relative to this page in reports/, per scene
-        return ", ".join(f'<a href="{html.escape(pattern.format(scene))}">'
-                         f"{html.escape(scene)}</a>" for scene, _, _ in scenes)
-    return f"""<!DOCTYPE html>
-<html lang="en"><head><meta charset="utf-8"><title>eskin report</title>
-<style>{CSS}</style></head><body>
-<h1>eskin — this run against the paper</h1>
-<p>Dawood, Coppola &amp; Althoefer (ICRA 2023), reproduced on the data below.
-Mean ± std over the folds of each cross-validation scheme: <em>stratified</em> is the paper's
-(10 folds stratified on the node); <em>grouped</em> holds whole trials out.
-{f"Git commit <code>{html.escape(commit)}</code>." if commit else ""}</p>
-{sections}
-<h2>Models</h2>
-<p>Each model file's md5 is the one in <code>dvc.lock</code>; its MLflow run carries it as the tag
-<code>eskin.model_md5</code>
-(<code>mlflow.search_runs(filter_string="tags.`eskin.model_md5` = '…'")</code>).</p>
-{_table(["scene/task", "model", "model md5"], models(scenes))}
-<p>Beside this page, from their own pipelines (each scene's, where they have run):
-the benchmark (<code>make bench</code>) of {beside("benchmark/{}/summary.md")} and
-numerical stress (<code>make stress</code>) of {beside("stress/{}.html")}.</p>
-</body></html>
-"""
+    environment = jinja2.Environment(
+        loader=jinja2.PackageLoader("eskin.reporting", "templates"),
+        autoescape=True, undefined=jinja2.StrictUndefined)
+    context = [{
+        "name": scene, "kind": kind.replace("_", " "),
+        "dataset": dict(zip(("md5", "rows", "source"), data, strict=True)) if (
+            data := dataset(scores)) else None,
+        "headline": headline_rows(kind, scores), "skipped": skipped(scores),
+        "figures": [{"id": fid, "caption": caption, "png": base64.b64encode(png).decode()}
+                    for fid, caption, png in figures.get(scene, [])],
+    } for scene, kind, scores in scenes]
+    return environment.get_template("page.html.j2").render(
+        css=CSS, scenes=context, models=models(scenes), commit=commit)
