@@ -267,7 +267,7 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("scene", help="a scene of params.yaml, e.g. single_force")
     train.add_argument("task", choices=TASK_NAMES,
                        help="a task (train.<task> in params.yaml); one a scene's data cannot "
-                       "support is skipped, with the reason in its metrics file")
+                       "support is skipped, with the reason in its scores file")
     train.add_argument("--params", type=Path, default=Path("params.yaml"), help=PARAMS_HELP)
     train.add_argument("--no-track", action="store_true", help="do not log to MLflow")
     train.set_defaults(run=_learning_step)

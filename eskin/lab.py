@@ -197,10 +197,16 @@ def main(argv: list[str] | None = None) -> int:
 
     def serve_until_stopped() -> int:
         with lab_server(args.dir, pg_port=args.pg_port, port=args.port) as (database, tracking):
+            # The experiment made now, so that its page (in the training view) can be named.
+            os.environ["MLFLOW_TRACKING_URI"] = tracking.uri
+            from eskin import tracking as runs
+
+            experiment = runs.ensure_experiment()
             print(f"MLflow tracking server on {tracking.uri} (PostgreSQL {database.uri}; "
                   f"artifacts in {tracking.artifacts}); in each clone:\n"
-                  f"  export MLFLOW_TRACKING_URI={tracking.uri}\nCtrl-C stops both.",
-                  flush=True)
+                  f"  export MLFLOW_TRACKING_URI={tracking.uri}\n"
+                  f"The training runs: {runs.ui_url(experiment)}\n"
+                  "Ctrl-C stops both.", flush=True)
             try:
                 while tracking.process.poll() is None:
                     time.sleep(1)

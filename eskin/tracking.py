@@ -366,9 +366,32 @@ def _requirements() -> list[str]:
     return [f"{name}=={version(name)}" for name in ("scikit-learn", "numpy", "scipy", "pandas")]
 
 
+# MLflow 3's UI opens an experiment in the view the URL names (`workflowType`), else in the
+# browser's last choice, GenAI unless changed: `mlflow.experimentKind` does not decide it.
+# Links eskin prints name the training view.
+TRAINING_VIEW = "workflowType=machine_learning"
+
+
+def ensure_experiment() -> str:
+    """The id of the project's experiment on the tracking store, made (as model training)
+    if missing."""
+    with _naming_the_store("finding the experiment"):
+        return _experiment_id(connect(), EXPERIMENT)
+
+
+def ui_url(experiment_id: str, run_id: str | None = None, artifacts: bool = False) -> str:
+    """The MLflow UI's page of an experiment (or one of its runs, or the run's artifacts),
+    on the tracking server, or on `mlflow ui`'s default address for a local store."""
+    uri = tracking_uri()
+    base = uri.rstrip("/") if uri.startswith(("http://", "https://")) else "http://127.0.0.1:5000"
+    page = f"#/experiments/{experiment_id}" + (f"/runs/{run_id}" if run_id else "") + (
+        "/artifacts" if run_id and artifacts else "")
+    return f"{base}/{page}?{TRAINING_VIEW}"
+
+
 def log_report(*, figures_dir: Path, page_path: Path, params_text: str) -> str:
     """The report's figures (PNG and SVG, under ``figures/<scene>/``) and page as artifacts
-    of the pipeline run the training stages logged under; its id."""
+    of the pipeline run the training stages logged under; the UI's page of them."""
     with _naming_the_store("logging the report's figures"):
         client = connect()
         experiment_id = _experiment_id(client, EXPERIMENT)
@@ -380,7 +403,7 @@ def log_report(*, figures_dir: Path, page_path: Path, params_text: str) -> str:
                             yaml.safe_load(params_text) if params_text else {})
         client.log_artifacts(parent, str(figures_dir), "figures")
         client.log_artifact(parent, str(page_path))
-        return parent
+        return ui_url(experiment_id, parent, artifacts=True)
 
 
 def log_scores_run(*, scene: str, task: str, scores: Mapping[str, Any], params_text: str,

@@ -16,9 +16,9 @@ def main() -> str:
         results_path="reports/results.md")
     from eskin import tracking  # MLflow takes seconds to import
 
-    run_id = tracking.log_report(figures_dir=FIGURES_DIR, page_path=PAGE,
-                                 params_text=DEFAULT_PARAMS.read_text())
-    return f"{summary}; figures and page logged to MLflow run {run_id}"
+    page = tracking.log_report(figures_dir=FIGURES_DIR, page_path=PAGE,
+                               params_text=DEFAULT_PARAMS.read_text())
+    return f"{summary}\nfigures and page in MLflow: {page}"
 
 
 if __name__ == "__main__":

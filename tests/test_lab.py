@@ -120,3 +120,58 @@ class socket_closed:
 
     def __exit__(self, *exc) -> None:
         pass
+
+
+# ---------------------------------------------------------------- the tracking server
+
+
+def test_make_lab_server_names_the_training_view_of_its_experiment():
+    """`make lab-server` (python -m eskin.lab serve) prints the link to the experiment's
+    runs in MLflow's training view, the experiment made already; Ctrl-C stops it."""
+    import json
+    import re
+    import shutil
+    import subprocess
+    import sys
+    import tempfile
+    import urllib.request
+    from pathlib import Path
+
+    from eskin.lab import free_port
+
+    home = Path(tempfile.mkdtemp(prefix="eskin-lab-"))  # postgres must reach it: not 0700
+    home.chmod(0o755)
+    port = free_port()
+    serving = subprocess.Popen(
+        [sys.executable, "-m", "eskin.lab", "serve", "--dir", str(home), "--port", str(port),
+         "--pg-port", str(free_port())], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+        text=True, env={**os.environ, "MLFLOW_TRACKING_URI": ""})
+    lines: list[str] = []
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and not any("Ctrl-C" in line for line in lines):
+            line = serving.stdout.readline()
+            if not line:
+                break
+            lines.append(line)
+        printed = "".join(lines)
+        found = re.search(r"The training runs: (\S+)", printed)
+        assert found, printed
+        assert re.fullmatch(rf"http://127\.0\.0\.1:{port}/#/experiments/\d+"
+                            r"\?workflowType=machine_learning", found.group(1)), printed
+        experiment = found.group(1).split("/experiments/")[1].split("?")[0]
+        with urllib.request.urlopen(
+                f"http://127.0.0.1:{port}/api/2.0/mlflow/experiments/get?experiment_id="
+                f"{experiment}", timeout=30) as answer:
+            made = json.loads(answer.read())["experiment"]
+        assert made["name"] == "eskin"
+        assert {"key": "mlflow.experimentKind", "value": "custom_model_development"} in \
+            made["tags"]
+    finally:
+        serving.send_signal(signal.SIGINT)
+        try:
+            serving.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            serving.kill()
+        shutil.rmtree(home, ignore_errors=True)
+    assert serving.returncode == 0, "".join(lines) + (serving.stdout.read() or "")

@@ -101,13 +101,17 @@ def test_a_second_force_model_is_a_second_mlflow_run_on_the_same_dataset(scratch
         assert run_.data.tags["mlflow.parentRunId"]
         assert run_.data.tags["eskin.git_commit"]
         assert "stratified.force.r2" in run_.data.metrics
-    # `dvc exp show --only-changed` of the two fits a 160-column terminal (DVC folds what
-    # does not fit into "…") and shows the changed param and the headline score.
+    # `dvc exp show --only-changed` of the two, in a 160-column terminal, shows every
+    # changed score and the changed param; DVC folds what does not fit into "…", which
+    # here is only the changed dependencies' md5s (DVC puts those last).
+    changed = run(["dvc", "exp", "show", "--only-changed", "--csv"], root, env)
+    changed_scores = [c for c in changed.splitlines()[0].split(",") if c.startswith("grouped.")]
+    assert changed_scores, changed
     shown = run_checked(["dvc", "exp", "show", "--only-changed", "--no-pager"], root,
                         {**env, "COLUMNS": "160"}).stdout
-    assert "…" not in shown, shown
-    for column in ("train.force.model.single_force", "random_forest", "physics_profile",
-                   "grouped.force.r2", "force-rf"):
+    assert max(len(line) for line in shown.splitlines()) <= 160, shown
+    for column in (*changed_scores, "train.force.model.single_force", "random_forest",
+                   "physics_profile", "force-rf"):
         assert column in shown, (column, shown)
     # The dataset version DVC records is the digest MLflow carries.
     lock = yaml.safe_load((root / "dvc.lock").read_text())
@@ -182,6 +186,52 @@ def test_dvc_plots_draw_offline_in_headless_chromium(scratch):
     assert x_axis == [str(n) for n in range(1, 11)], x_axis
 
 
+@pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is missing: `make test` "
+                    "installs it")
+def test_the_mlflow_ui_opens_on_the_training_runs_and_shows_their_figures(scratch,
+                                                                          monkeypatch):
+    """The links eskin prints (the report stage's, `make lab-server`'s), opened in headless
+    Chromium on the real server: MLflow 3's UI shows the training view (it picks the view
+    from the URL, else the browser's last choice, GenAI by default), run names say scene,
+    task, model and variant, the duration is the training's, the figures are artifacts."""
+    import mlflow
+    from playwright.sync_api import sync_playwright
+
+    from eskin import tracking
+
+    root, env = scratch
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", env["MLFLOW_TRACKING_URI"])
+    mlflow.set_tracking_uri(env["MLFLOW_TRACKING_URI"])
+    experiment = mlflow.MlflowClient().get_experiment_by_name("eskin").experiment_id
+    task = mlflow.search_runs(experiment_names=["eskin"], filter_string=(
+        "tags.`eskin.task` = 'force' and tags.`eskin.scene` = 'single_force' and "
+        "tags.`eskin.dvc_experiment` = ''")).iloc[0]
+    parent = mlflow.MlflowClient().get_run(task["tags.mlflow.parentRunId"])
+    with sync_playwright() as playwright:
+        browser = playwright.chromium.launch(executable_path=CHROMIUM,
+                                             args=["--no-sandbox", "--disable-gpu"])
+        page = browser.new_page(viewport={"width": 1600, "height": 1000})
+
+        def text_of(url: str, wait_for: str) -> str:
+            page.goto(url)
+            page.wait_for_selector(f"text={wait_for}", timeout=60_000)
+            return page.inner_text("body")
+
+        runs = text_of(tracking.ui_url(experiment), parent.info.run_name)
+        assert "/runs" in page.url and "Duration" in runs and "Token Usage" not in runs
+        run_page = text_of(tracking.ui_url(experiment, task["run_id"]), "Duration")
+        artifacts = text_of(tracking.ui_url(experiment, parent.info.run_id, artifacts=True),
+                            "figures")
+        browser.close()
+    assert task["tags.mlflow.runName"] in run_page  # single_force/force <model> @repro-…
+    shown = run_page.split("Duration", 1)[1].split()[0]  # "26.9s", "1.2min"
+    seconds = (task["end_time"] - task["start_time"]).total_seconds()
+    assert shown.endswith(("s", "min")) and not shown.endswith("ms"), shown
+    assert float(shown.rstrip("mins")) * (60 if shown.endswith("min") else 1) == \
+        pytest.approx(seconds, rel=0.1, abs=0.1), (shown, seconds)
+    assert "index.html" in artifacts
+
+
 def test_a_repro_groups_its_task_runs_under_one_pipeline_run(scratch):
     root, env = scratch
     import mlflow
@@ -227,6 +277,13 @@ def test_a_repro_groups_its_task_runs_under_one_pipeline_run(scratch):
     parent = mlflow.MlflowClient().get_run(runs.iloc[0]["tags.mlflow.parentRunId"])
     assert parent.data.params["sim.seed"] == str(yaml.safe_load(
         (root / "params.yaml").read_text())["sim"]["seed"])
+    # ... and the report's figures and page, as artifacts (through the server)
+    client = mlflow.MlflowClient()
+    logged = {a.path for a in client.list_artifacts(parent.info.run_id, "figures/single_force")}
+    written = {f"figures/single_force/{p.name}"
+               for p in (root / "reports" / "figures" / "single_force").iterdir()}
+    assert logged == written and any(p.endswith(".png") for p in logged), logged
+    assert "index.html" in {a.path for a in client.list_artifacts(parent.info.run_id)}
 
 
 def test_eskin_live_runs_the_reproduced_stack_and_refuses_a_changed_model_file(scratch):
