@@ -16,6 +16,36 @@ export DO_NOT_TRACK := 1
 
 .PHONY: setup plots-page browser avr firmware postgres lab-server repro bench stress test lint clean
 
+# `dvc plots show|diff` pages that draw offline (DVC's own page loads vega from a CDN):
+# vega, vega-lite and vega-embed, pinned, from npm's registry, checked against the
+# sha512 npm publishes, inlined into the page template that .dvc/config.local then names
+# (so a checkout without it keeps DVC's own page).
+VEGA_BUILDS := \
+  vega/5.33.1/build/vega.min.js/1fArfVDUqVbb5z8n+/nVQb+VNBzx8svY6CrsyTK4Ujm4yrd9I1auoKxBAPXLCavY1LcrbHUskQbGUP8gXOzyQw== \
+  vega-lite/5.23.0/build/vega-lite.min.js/l4J6+AWE3DIjvovEoHl2LdtCUkfm4zs8Xxx7INwZEAv+XVb6kR6vIN1gt3t2gN2gs/y4DYTs/RPoTeYAuEg6mA== \
+  vega-embed/6.29.0/build/vega-embed.min.js/PmlshTLtLFLgWtF/b23T1OwX53AugJ9RZ3qPE2c01VFAbgt3/GSNI/etzA/GzdrkceXFma+FDHNXUppKuM0U6Q==
+PLOTS_PAGE := .dvc/plots/offline.html
+plots-page: $(PLOTS_PAGE)
+$(PLOTS_PAGE): Makefile $(VENV)/.installed
+	@set -euo pipefail; work=$$(mktemp -d); trap 'rm -rf "$$work"' EXIT; \
+	printf '%s\n' '<!DOCTYPE html>' '<html>' '<head>' '<meta charset="utf-8">' \
+	  '<title>eskin: dvc plots</title>' > "$$work/page"; \
+	for build in $(VEGA_BUILDS); do \
+	  IFS=/ read -r name version dir file sha <<< "$$build"; \
+	  curl -fsSL --retry 3 -o "$$work/$$name.tgz" \
+	    "https://registry.npmjs.org/$$name/-/$$name-$$version.tgz"; \
+	  [ "$$(openssl dgst -sha512 -binary "$$work/$$name.tgz" | base64 -w0)" = "$$sha" ] || \
+	    { echo "$$name $$version: the tarball's sha512 is not npm's; not using it" >&2; exit 1; }; \
+	  { echo "<script>/* $$name $$version (npm), BSD-3-Clause */"; \
+	    tar -xzOf "$$work/$$name.tgz" "package/$$dir/$$file"; echo '</script>'; } >> "$$work/page"; \
+	done; \
+	printf '%s\n' '<style>body{font-family:sans-serif;margin:1em}' \
+	  '.vega-embed{margin:1em 0}</style>' '</head>' '<body>' \
+	  '<h1>eskin: dvc plots</h1>' '{plot_divs}' '</body>' '</html>' >> "$$work/page"; \
+	mkdir -p $(@D) && mv "$$work/page" $@ && \
+	$(BIN)/dvc config --local plots.html_template plots/offline.html && \
+	echo "wrote $@ (vega inlined, draws offline), named in .dvc/config.local"
+
 setup: $(VENV)/.installed $(PLOTS_PAGE)
 
 # The report page is tested in headless Chromium: Debian's, installed where missing.
@@ -58,33 +88,6 @@ firmware: avr
 	$(MAKE) -C firmware/emulator --no-print-directory
 	avr-size -C --mcu=atmega328p firmware/eskin/build/eskin.elf \
 	  | tee firmware/eskin/build/size.txt
-
-# `dvc plots show|diff` pages that draw offline (DVC's own page loads vega from a CDN):
-# vega, vega-lite and vega-embed, pinned, from npm's registry, checked against the
-# sha512 npm publishes, inlined into the page template .dvc/config names.
-VEGA_BUILDS := \
-  vega/5.33.1/build/vega.min.js/1fArfVDUqVbb5z8n+/nVQb+VNBzx8svY6CrsyTK4Ujm4yrd9I1auoKxBAPXLCavY1LcrbHUskQbGUP8gXOzyQw== \
-  vega-lite/5.23.0/build/vega-lite.min.js/l4J6+AWE3DIjvovEoHl2LdtCUkfm4zs8Xxx7INwZEAv+XVb6kR6vIN1gt3t2gN2gs/y4DYTs/RPoTeYAuEg6mA== \
-  vega-embed/6.29.0/build/vega-embed.min.js/PmlshTLtLFLgWtF/b23T1OwX53AugJ9RZ3qPE2c01VFAbgt3/GSNI/etzA/GzdrkceXFma+FDHNXUppKuM0U6Q==
-PLOTS_PAGE := .dvc/plots/offline.html
-plots-page: $(PLOTS_PAGE)
-$(PLOTS_PAGE): Makefile
-	@set -euo pipefail; work=$$(mktemp -d); trap 'rm -rf "$$work"' EXIT; \
-	printf '%s\n' '<!DOCTYPE html>' '<html>' '<head>' '<meta charset="utf-8">' \
-	  '<title>eskin: dvc plots</title>' > "$$work/page"; \
-	for build in $(VEGA_BUILDS); do \
-	  IFS=/ read -r name version dir file sha <<< "$$build"; sha=$${build#*/*/*/*/}; \
-	  curl -fsSL --retry 3 -o "$$work/$$name.tgz" \
-	    "https://registry.npmjs.org/$$name/-/$$name-$$version.tgz"; \
-	  [ "$$(openssl dgst -sha512 -binary "$$work/$$name.tgz" | base64 -w0)" = "$$sha" ] || \
-	    { echo "$$name $$version: the tarball's sha512 is not npm's; not using it" >&2; exit 1; }; \
-	  { echo "<script>/* $$name $$version (npm), BSD-3-Clause */"; \
-	    tar -xzOf "$$work/$$name.tgz" "package/$$dir/$$file"; echo '</script>'; } >> "$$work/page"; \
-	done; \
-	printf '%s\n' '<style>body{font-family:sans-serif;margin:1em}' \
-	  '.vega-embed{margin:1em 0}</style>' '</head>' '<body>' \
-	  '<h1>eskin: dvc plots</h1>' '{plot_divs}' '</body>' '</html>' >> "$$work/page"; \
-	mkdir -p $(@D) && mv "$$work/page" $@ && echo "wrote $@ (vega inlined, draws offline)"
 
 # Rebuilt whenever the package list or the pinned versions change.
 $(VENV)/.installed: pyproject.toml constraints.txt

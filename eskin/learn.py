@@ -78,7 +78,7 @@ def train(params: dict[str, Any], scene: str, task_name: str, features_dir: Path
     log(f"{scene}/{task_name} [{model_name}]: refitting on all {len(frame):,} rows …")
     models = fit_final(task, frame, estimator)
     save_models(models, model_path)
-    # The model file's md5 (as in dvc.lock) links metrics, DVC and the MLflow run.
+    # The model file's md5 (as in dvc.lock) links scores, DVC and the MLflow run.
     header["model_md5"] = md5_file(model_path)
     scores_doc = {**header, "status": "trained", "rows": int(task.rows(frame).sum()),
                   **{r.scheme: r.summary for r in results}}
@@ -86,9 +86,10 @@ def train(params: dict[str, Any], scene: str, task_name: str, features_dir: Path
     if confusion:
         scores_doc["confusion"] = confusion
     write_json(scores_doc, scores_path)
-    write_json(headline_metrics({r.scheme: {target: {task.headline_metric: scores[
-        task.headline_metric]} for target, scores in r.summary.items()} for r in results}),
-               metrics_path)
+    name = task.headline_metric
+    write_json(headline_metrics({r.scheme: {target: {name: scores[name]}
+                                            for target, scores in r.summary.items()}
+                                 for r in results}), metrics_path)
     if lineage_path is not None:
         write_json({**header, "status": "trained", "features_md5": md5_file(source)},
                    lineage_path)

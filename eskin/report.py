@@ -108,9 +108,9 @@ def report(params: dict[str, Any], *, scores_dir: Path, predictions_dir: Path,
            figures_dir: Path, plots_dir: Path, page_path: Path, results_path: Path) -> str:
     settings = section(params, "report")
     kinds = {name: scene["kind"] for name, scene in section(params, "scenes").items()}
-    metrics = {scene: _task_files(scores_dir, scene, ".json", lambda p: json.loads(p.read_text()))
-               for scene in kinds}
-    if not any(metrics.values()):
+    scores = {scene: _task_files(scores_dir, scene, ".json", lambda p: json.loads(p.read_text()))
+              for scene in kinds}
+    if not any(scores.values()):
         raise FileNotFoundError(f"{scores_dir}: no scores for any scene of params.yaml "
                                 f"({', '.join(kinds)}); run the training stages first")
     predictions = {scene: _task_files(predictions_dir, scene, ".parquet", pd.read_parquet)
@@ -144,7 +144,7 @@ def report(params: dict[str, Any], *, scores_dir: Path, predictions_dir: Path,
             (plots_dir / template).mkdir(parents=True, exist_ok=True)
             frame.to_csv(plots_dir / template / f"{scene}_{stem}.csv", index=False)
 
-    scenes = [(scene, kinds[scene], metrics[scene]) for scene in kinds]
+    scenes = [(scene, kinds[scene], scores[scene]) for scene in kinds]
     Path(page_path).write_text(render_page(scenes, page_figures))
     Path(results_path).write_text(results_markdown(scenes))
     return (f"report: {len(kinds)} scene(s), {written} figures (PNG + SVG) in {figures_dir}, "

@@ -208,13 +208,19 @@ def _pipeline(scene: str, params_text: str, start_time: int | None = None
     client = connect()
     experiment_id = _experiment_id(client, EXPERIMENT)
     settle_stale_runs(client, [experiment_id])
-    commit = git_commit(project_root())
-    key = pipeline_key(params_text, commit)
-    tags = {"eskin.git_commit": commit, "mlflow.source.git.commit": commit,
-            "eskin.dvc_experiment": dvc_experiment(), "eskin.scene": scene}
+    key, tags = _pipeline_key_and_tags(params_text)
+    tags["eskin.scene"] = scene
     params = yaml.safe_load(params_text) if params_text else {}
     return (experiment_id, parent_run(client, experiment_id, key, tags, params or {},
                                       start_time), key, tags)
+
+
+def _pipeline_key_and_tags(params_text: str) -> tuple[str, dict[str, str]]:
+    """The pipeline run's key (commit and params) and the tags every run of it carries."""
+    commit = git_commit(project_root())
+    return pipeline_key(params_text, commit), {
+        "eskin.git_commit": commit, "mlflow.source.git.commit": commit,
+        "eskin.dvc_experiment": dvc_experiment()}
 
 
 def _epoch_ms(perf_counter_start: float | None) -> int | None:
@@ -395,11 +401,8 @@ def log_report(*, figures_dir: Path, page_path: Path, params_text: str) -> str:
     with _naming_the_store("logging the report's figures"):
         client = connect()
         experiment_id = _experiment_id(client, EXPERIMENT)
-        commit = git_commit(project_root())
-        key = pipeline_key(params_text, commit)
-        parent = parent_run(client, experiment_id, key,
-                            {"eskin.git_commit": commit, "mlflow.source.git.commit": commit,
-                             "eskin.dvc_experiment": dvc_experiment()},
+        key, tags = _pipeline_key_and_tags(params_text)
+        parent = parent_run(client, experiment_id, key, tags,
                             yaml.safe_load(params_text) if params_text else {})
         client.log_artifacts(parent, str(figures_dir), "figures")
         client.log_artifact(parent, str(page_path))

@@ -106,11 +106,14 @@ def scratch_project(root: Path, params: dict, tracking_uri: str) -> dict:
     for args in (["git", "init", "-q"], ["dvc", "init", "-q"],
                  ["dvc", "config", "core.analytics", "false"]):
         run_checked(args, root, env)
-    # the plot templates, and the offline page template `make setup` writes
+    # the plot templates, and the offline page template `make setup` writes (and names in
+    # .dvc/config.local, as here)
     shutil.copytree(ROOT / ".dvc" / "plots", root / ".dvc" / "plots")
     shutil.copy2(ROOT / ".dvc" / ".gitignore", root / ".dvc" / ".gitignore")
-    for args in (["dvc", "config", "plots.html_template", "plots/offline.html"],
-                 ["git", "add", "-A"], ["git", "commit", "-qm", "scratch"]):
+    if (root / ".dvc" / "plots" / "offline.html").exists():
+        run_checked(["dvc", "config", "--local", "plots.html_template", "plots/offline.html"],
+                    root, env)
+    for args in (["git", "add", "-A"], ["git", "commit", "-qm", "scratch"]):
         run_checked(args, root, env)
     return env
 
