@@ -155,3 +155,21 @@ def test_another_board_answering_after_a_reconnect_is_refused():
             link.port = second.port  # the cable now leads to another skin
             with pytest.raises(DeviceChanged, match="another board answered"):
                 link.reopen(budget_s=5, notify=lambda message: None)
+
+
+def test_frames_that_came_in_the_same_read_as_another_boards_hello_are_handed_over_first():
+    """CI caught it, one run in many: our board's frames and another board's #HELLO in one
+    read; the frames were dropped with the error. Now they are yielded, then the error."""
+    from collections import deque
+
+    from eskin.device.host import OtherBoard, StreamFrame
+    from eskin.device.protocol import Frame, Hello
+
+    link = SerialLink("loop://", timeout_s=1.0)
+    ours = [StreamFrame(Frame(seq, 12 * seq, (500,) * 20, b"")) for seq in (147, 148)]
+    other = Hello(firmware="x", terminals=20, adc_bits=10, device_id="OTHER-9999", line=b"")
+    link._pending = deque([*ours, OtherBoard(other, expected="hostile-0001")])
+    stream = link.stream()
+    assert next(stream) == ours
+    with pytest.raises(DeviceChanged, match="OTHER-9999"):
+        next(stream)

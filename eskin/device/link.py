@@ -369,6 +369,12 @@ class SerialLink:
                 self._read()
             while self._pending:
                 event = self._pending.popleft()
+                if isinstance(event, OtherBoard | Restarted) and arrived:
+                    # Our board's frames that came in the same read as another board's
+                    # #HELLO (or our own restart) are handed over first; the next pass
+                    # raises.
+                    self._pending.appendleft(event)
+                    break
                 self._raise_for_board(event, "while streaming")
                 if isinstance(event, StreamFrame | StreamGap | Junk):
                     arrived.append(event)
