@@ -114,8 +114,12 @@ stress: setup
 
 # Two workers, a test file each (its module fixtures, servers and scratch projects stay
 # in one process): most of a pipeline test is starting Python processes on one core.
+# Then, on a quiet machine, the tests marked `alone` (a Dask worker killed mid-sweep:
+# under two workers' load, Dask cancelled the sweep for "lost dependencies" once in three
+# runs; the cause is not found yet).
 test: setup browser firmware postgres
-	pytest -q -n 2 --dist loadfile --durations=15
+	pytest -q -n 2 --dist loadfile -m "not alone" --durations=15
+	pytest -q -m alone
 
 lint: setup
 	ruff check eskin stages tests

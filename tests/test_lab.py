@@ -76,6 +76,7 @@ def test_dask_gives_the_predictions_of_loky_and_ships_the_features_once(cluster,
     assert sent["own_bytes_per_task"] == 0  # ... and nothing else of size in any
 
 
+@pytest.mark.alone
 def test_a_worker_killed_mid_sweep_and_the_sweep_completes_on_the_other(cluster, dataset):
     _, client = cluster
     killed: list[tuple[str, float]] = []
