@@ -1,5 +1,7 @@
+import contextlib
 import copy
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -21,6 +23,26 @@ def pytest_collection_modifyitems(items):
     items.sort(key=rank)  # stable: within a file, and among the rest, the order holds
 
 ROOT = Path(__file__).resolve().parents[1]
+
+# Pages (the report, the live view, DVC's plots, MLflow's UI) are tested in Debian's
+# chromium, headless; `make test` installs it where missing.
+CHROMIUM = shutil.which("chromium")
+needs_chromium = pytest.mark.skipif(
+    CHROMIUM is None, reason="Debian's chromium is missing: `make test` installs it")
+
+
+@contextlib.contextmanager
+def headless_chromium():
+    """Debian's chromium under playwright: the browser, closed on leaving."""
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as playwright:
+        browser = playwright.chromium.launch(executable_path=CHROMIUM,
+                                             args=["--no-sandbox", "--disable-gpu"])
+        try:
+            yield browser
+        finally:
+            browser.close()
 os.environ.setdefault("DVC_NO_ANALYTICS", "1")
 
 

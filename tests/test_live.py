@@ -8,7 +8,6 @@ arrive, must equal its batch predictions for the same frames.
 from __future__ import annotations
 
 import contextlib
-import shutil
 import threading
 
 import joblib
@@ -37,7 +36,7 @@ from eskin.live_view import LiveView
 from eskin.models import build_model, model_settings
 from eskin.stack import ExportedStack, SkinStack, StackError, rest_reading
 from eskin.tasks import get_task
-from tests.conftest import prepared_scene, small_scenes
+from tests.conftest import headless_chromium, needs_chromium, prepared_scene, small_scenes
 from tests.hostile_board import HostileBoard, Served
 
 TARE = 50
@@ -343,16 +342,10 @@ def test_the_json_lines_reach_a_client_on_loopback_and_a_stalled_one_is_dropped(
         stalled.close()
 
 
-CHROMIUM = shutil.which("chromium")
-
-
-@pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is missing: `make test` "
-                    "installs it")
+@needs_chromium
 def test_the_live_view_shows_a_press_where_and_as_hard_as_it_is(stack, tmp_path):
     """The page in headless Chromium, read as a person reads it, while the live loop runs
     on the simulated board's stream and a weight is pressed on node (5, 5)."""
-    from playwright.sync_api import sync_playwright
-
     params, skin = stack
     settings = section(params, "acquire")
     stop, failure = threading.Event(), []
@@ -381,9 +374,7 @@ def test_the_live_view_shows_a_press_where_and_as_hard_as_it_is(stack, tmp_path)
         worker = threading.Thread(target=loop, args=(view,), daemon=True)
         worker.start()
         try:
-            with sync_playwright() as playwright:
-                browser = playwright.chromium.launch(executable_path=CHROMIUM,
-                                                     args=["--no-sandbox", "--disable-gpu"])
+            with headless_chromium() as browser:
                 page = browser.new_page(viewport={"width": 980, "height": 640})
                 page.goto(view.url)
                 page.wait_for_function(
@@ -394,7 +385,6 @@ def test_the_live_view_shows_a_press_where_and_as_hard_as_it_is(stack, tmp_path)
                 cell = page.inner_text("#cell-5-5")
                 bar = page.eval_on_selector("#bar-x5", "bar => bar.style.height")
                 page.screenshot(path=str(tmp_path / "live_view.png"))
-                browser.close()
         finally:
             stop.set()
             worker.join(timeout=30)

@@ -8,7 +8,6 @@ through MLFLOW_TRACKING_URI, and the tests read the runs back through its client
 """
 
 import json
-import shutil
 import subprocess
 import sys
 import time
@@ -16,7 +15,14 @@ import time
 import pandas as pd
 import pytest
 import yaml
-from conftest import params_trace_dir, run_checked, scratch_project, small_scenes
+from conftest import (
+    headless_chromium,
+    needs_chromium,
+    params_trace_dir,
+    run_checked,
+    scratch_project,
+    small_scenes,
+)
 from test_stage_deps import params_mismatches
 
 from eskin.data.schema import CHANNELS, md5_file
@@ -135,24 +141,17 @@ def test_the_report_stage_writes_the_results_page_and_dvc_plots_render(scratch):
     assert (root / "reports" / "index.html").stat().st_size > 10_000
 
 
-CHROMIUM = shutil.which("chromium")
 
-
-@pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is missing: `make test` "
-                    "installs it")
+@needs_chromium
 def test_dvc_plots_draw_offline_in_headless_chromium(scratch):
     """`dvc plots show` (and so `dvc plots diff`) writes a page that draws with no network:
     vega is in the page template `make setup` writes; each panel is titled with its
     scene and target, parity panels have the ideal line, classes are in numeric order."""
-    from playwright.sync_api import sync_playwright
-
     root, env = scratch
     run(["dvc", "plots", "show", "-o", str(root / "dvc_plots")], root, env)
     page_path = root / "dvc_plots" / "index.html"
     requested, errors = [], []
-    with sync_playwright() as playwright:
-        browser = playwright.chromium.launch(executable_path=CHROMIUM,
-                                             args=["--no-sandbox", "--disable-gpu"])
+    with headless_chromium() as browser:
         context = browser.new_context(offline=True)
         page = context.new_page()
         page.on("request", lambda request: requested.append(request.url))
@@ -174,7 +173,6 @@ def test_dvc_plots_draw_offline_in_headless_chromium(scratch):
             const axis = svg.querySelector('g.role-axis[aria-label^="X-axis"]');
             return [...axis.querySelectorAll('g.role-axis-label text')].map(t => t.textContent);
         }""")
-        browser.close()
     assert not errors, errors
     assert [url for url in requested if not url.startswith("file:")] == []
     assert plots == 11, plots  # 4 parity panels, 7 confusion matrices (small scenes)
@@ -186,8 +184,7 @@ def test_dvc_plots_draw_offline_in_headless_chromium(scratch):
     assert x_axis == [str(n) for n in range(1, 11)], x_axis
 
 
-@pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is missing: `make test` "
-                    "installs it")
+@needs_chromium
 def test_the_mlflow_ui_opens_on_the_training_runs_and_shows_their_figures(scratch,
                                                                           monkeypatch):
     """The links eskin prints (the report stage's, `make lab-server`'s), opened in headless
@@ -195,7 +192,6 @@ def test_the_mlflow_ui_opens_on_the_training_runs_and_shows_their_figures(scratc
     from the URL, else the browser's last choice, GenAI by default), run names say scene,
     task, model and variant, the duration is the training's, the figures are artifacts."""
     import mlflow
-    from playwright.sync_api import sync_playwright
 
     from eskin import tracking
 
@@ -207,9 +203,7 @@ def test_the_mlflow_ui_opens_on_the_training_runs_and_shows_their_figures(scratc
         "tags.`eskin.task` = 'force' and tags.`eskin.scene` = 'single_force' and "
         "tags.`eskin.dvc_experiment` = ''")).iloc[0]
     parent = mlflow.MlflowClient().get_run(task["tags.mlflow.parentRunId"])
-    with sync_playwright() as playwright:
-        browser = playwright.chromium.launch(executable_path=CHROMIUM,
-                                             args=["--no-sandbox", "--disable-gpu"])
+    with headless_chromium() as browser:
         page = browser.new_page(viewport={"width": 1600, "height": 1000})
 
         def text_of(url: str, wait_for: str) -> str:
@@ -222,7 +216,6 @@ def test_the_mlflow_ui_opens_on_the_training_runs_and_shows_their_figures(scratc
         run_page = text_of(tracking.ui_url(experiment, task["run_id"]), "Duration")
         artifacts = text_of(tracking.ui_url(experiment, parent.info.run_id, artifacts=True),
                             "figures")
-        browser.close()
     assert task["tags.mlflow.runName"] in run_page  # single_force/force <model> @repro-…
     shown = run_page.split("Duration", 1)[1].split()[0]  # "26.9s", "1.2min"
     seconds = (task["end_time"] - task["start_time"]).total_seconds()

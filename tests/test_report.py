@@ -1,16 +1,14 @@
 """The report: figures, plot data, the page (opened in headless Chromium), the results page."""
 
 import json
-import shutil
 
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import headless_chromium, needs_chromium
 
 from eskin import report
 from eskin.reporting.page import HEADLINES, headline_rows
-
-CHROMIUM = shutil.which("chromium")
 
 
 def fake_outputs(root):
@@ -129,15 +127,10 @@ def test_missing_and_skipped_tasks_say_so_in_the_table():
     assert by_label["force R²"][1:3] == ["missing", "missing"]
 
 
-@pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is missing: `make test` "
-                    "installs it")
+@needs_chromium
 def test_the_page_loads_every_image_in_headless_chromium(built):
-    from playwright.sync_api import sync_playwright
-
     root, _ = built
-    with sync_playwright() as playwright:
-        browser = playwright.chromium.launch(executable_path=CHROMIUM,
-                                             args=["--no-sandbox", "--disable-gpu"])
+    with headless_chromium() as browser:
         page = browser.new_page()
         page.goto((root / "index.html").as_uri())
         page.wait_for_load_state("load")
@@ -146,7 +139,6 @@ def test_the_page_loads_every_image_in_headless_chromium(built):
             "#scene-single_force table tbody tr", "rows => rows.map(r => r.cells[0].innerText)")
         skipped = page.inner_text("#scene-two_force ul")
         models = page.inner_text("h2:text('Models') + p + table")
-        browser.close()
     assert len(widths) == 12 and all(w > 0 for w in widths), widths
     assert [h.split(' [')[0] for h in headline] == [row.label for row in HEADLINES
                                                     if row.kind == "single_force"]
