@@ -42,6 +42,7 @@ LINEAGE_DIR = Path("reports/lineage")
 FIGURES_DIR = Path("reports/figures")
 PLOTS_DIR = Path("reports/plots")
 BENCH_DIR = Path("reports/benchmark")
+BOUND_DIR = Path("bench/bound")  # in bench/'s own DVC project, so in DVC's cache (not git)
 SOAK_DIR = Path("reports/soak")
 STRESS_DIR = Path("reports/stress")
 EXPORT_DIR = Path("reports/export")
@@ -96,9 +97,13 @@ def export_report_path(scene: str) -> Path:
 
 
 def bench_dir(scene: str) -> Path:
-    """`make bench`'s outputs for one scene: the Bayes bound, a JSON and a plot per task,
-    the summary."""
+    """`make bench`'s reports for one scene: a JSON and a plot per task, the summary."""
     return BENCH_DIR / scene
+
+
+def bayes_bound_path(scene: str) -> Path:
+    """The simulator's Bayes bound for every sample of one scene (`make bench`)."""
+    return BOUND_DIR / f"{scene}.parquet"
 
 
 def task_outputs(scene: str, task: str) -> dict[str, Path]:

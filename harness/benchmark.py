@@ -278,7 +278,7 @@ def read_bound(bound_path: Path, frame: pd.DataFrame) -> tuple[pd.DataFrame | No
     oracle.attrs = {"convergence": moves}
     if oracle["stretch"].isna().any():
         raise ValueError(f"{bound_path}: does not cover every sample of the scene; "
-                         "rerun `dvc repro bench/dvc.yaml`")
+                         "rerun `make bench`")
     return oracle, None
 
 
@@ -389,7 +389,10 @@ def summarise(params: Mapping[str, Any], scene: str, bench_dir: Path, features_p
                     "doubling of the data (target ≤ 2.3×)"}
     (bench_dir / "summary.json").write_text(
         json.dumps(summary, indent=2, sort_keys=True, allow_nan=True) + "\n")
-    (bench_dir / "summary.md").write_text(summary_markdown(scene, docs, summary))
+    markdown = summary_markdown(scene, docs, summary)
+    (bench_dir / "summary.md").write_text(markdown)
+    (bench_dir / "summary.html").write_text(
+        summary_html(scene, markdown, sorted(p.stem for p in figures.glob("*.png"))))
     return "\n".join([f"{scene} target {'met ' if t['met'] else 'MISSED'}: {t['text']}"
                       for t in summary["targets"].values()]
                      + [f"{scene} skipped {t}: {why}" for t, why in summary["skipped"].items()])
@@ -452,6 +455,31 @@ def unconverged(moves: Mapping[str, float]) -> str:
     if moves[worst] < CONVERGED:
         return ""
     return f", NOT converged: doubling the integration moves {worst} by {moves[worst]:.4f}"
+
+
+SUMMARY_CSS = """body{font-family:sans-serif;max-width:60em;margin:2em auto;color:#222}
+table{border-collapse:collapse;margin:.5em 0 1.5em}th,td{border:1px solid #ccc;padding:.2em .6em}
+th{background:#f3f3f3}td:nth-child(n+2){text-align:right}img{max-width:100%}"""
+
+
+def summary_html(scene: str, markdown: str, figures: list[str]) -> str:
+    """``summary.md`` as a page (the report page links this, not the Markdown): its tables
+    rendered (markdown-it-py, CommonMark with tables), each task's plot (``figures/<task>.png``,
+    beside the page) above the task's first table."""
+    from markdown_it import MarkdownIt
+
+    lines, shown = [], set()
+    for line in markdown.splitlines():
+        lines.append(line)
+        task = line[3:].split()[0].rstrip(":") if line.startswith("## ") else None
+        if task in figures and task not in shown:
+            shown.add(task)
+            lines += ["", f"![{scene} {task}: seconds a fold against error](figures/{task}.png)",
+                      ""]
+    body = MarkdownIt("commonmark").enable("table").render("\n".join(lines))
+    return (f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
+            f"<title>Benchmark: {scene}</title><style>{SUMMARY_CSS}</style></head>"
+            f"<body>\n{body}</body></html>\n")
 
 
 def summary_markdown(scene: str, docs: Mapping[str, Mapping],

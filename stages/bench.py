@@ -3,7 +3,7 @@ against error, and the summary."""
 
 import sys
 
-from eskin.catalog import bench_dir, features_path, processed_path
+from eskin.catalog import bayes_bound_path, bench_dir, features_path, processed_path
 from eskin.config import load_params
 from eskin.errors import run_friendly
 from harness import benchmark
@@ -14,11 +14,11 @@ def main(what: str, scene: str, task: str | None = None) -> str:
     out = bench_dir(scene)
     if what == "bound":
         return benchmark.bayes_bound(params, scene, processed_path(scene),
-                                     out / "bayes_bound.parquet")
+                                     bayes_bound_path(scene))
     if what == "summary":
         return benchmark.summarise(params, scene, out, features_path(scene))
     return benchmark.bench(params, scene, task, features_path(scene),
-                           out / "bayes_bound.parquet", out)
+                           bayes_bound_path(scene), out)
 
 
 if __name__ == "__main__":

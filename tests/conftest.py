@@ -112,7 +112,8 @@ def scratch_project(root: Path, params: dict, tracking_uri: str) -> dict:
         source = ROOT / name
         if source.is_dir():
             shutil.copytree(source, root / name,
-                            ignore=shutil.ignore_patterns("__pycache__", "dvc.lock", "build"))
+                            ignore=shutil.ignore_patterns("__pycache__", "dvc.lock", "build", "tmp",
+                                                          "config.local", "bound"))
         else:
             shutil.copy2(source, root / name)
     write_params(root, params)

@@ -21,6 +21,7 @@ from __future__ import annotations
 import copy
 import csv
 import json
+import re
 import sys
 from pathlib import Path
 
@@ -226,10 +227,10 @@ def test_removing_a_scene_from_params_removes_its_stages(project, tmp_path):
 
 @pytest.fixture(scope="module")
 def benched(project):
-    """`make bench`'s per-scene stages on the imported scenes (bench/dvc.yaml)."""
+    """`make bench`'s per-scene stages on the imported scenes (bench/dvc.yaml, a DVC
+    project of its own)."""
     root, env, *_ = project
-    run(["dvc", "repro", "bench/dvc.yaml:summary@lab_single",
-         "bench/dvc.yaml:summary@lab_pairs"], root, env)
+    run(["dvc", "repro", "summary@lab_single", "summary@lab_pairs"], root / "bench", env)
     return root
 
 
@@ -252,6 +253,12 @@ def test_the_benchmark_runs_per_scene_and_says_where_there_is_no_bayes_bound(ben
     assert sorted(p.name for p in (bench / "lab_pairs/figures").iterdir()) == \
         ["force.png", "localise.png"]
     assert len(list((bench / "lab_single/figures").glob("*.png"))) == 4
+    # the page the report links: every table of the Markdown, each task's plot beside it
+    page = (bench / "lab_single/summary.html").read_text()
+    assert page.count("<table>") == single.count("| variant |") > 0
+    images = re.findall(r'<img src="([^"]+)"', page)
+    assert sorted(images) == sorted(f"figures/{p.name}"
+                                    for p in (bench / "lab_single/figures").iterdir())
 
 
 def test_each_stage_reads_exactly_the_params_it_declares(benched):

@@ -16,6 +16,7 @@ import pandas as pd
 import pytest
 import yaml
 from conftest import (
+    ROOT,
     headless_chromium,
     needs_chromium,
     params_trace_dir,
@@ -139,6 +140,24 @@ def test_the_report_stage_writes_the_results_page_and_dvc_plots_render(scratch):
     finally:
         readme.write_text(prose)
     assert (root / "reports" / "index.html").stat().st_size > 10_000
+
+
+def test_after_a_repro_dvc_status_and_checkout_are_clean_and_quiet(scratch):
+    """A clone after `make repro`: DVC's cache holds the pipeline's outputs, not the bench's,
+    though bench/dvc.lock names them (the bounds only `make bench` makes). bench/ and
+    stress/ are DVC projects of their own, so the project's `dvc status` and `dvc checkout`
+    say nothing of them; in bench/, its status says what is missing."""
+    root, env = scratch
+    lock = root / "bench" / "dvc.lock"
+    lock.write_text((ROOT / "bench" / "dvc.lock").read_text())
+    try:
+        status = run_checked(["dvc", "status"], root, env)
+        assert status.stdout.strip() == "Data and pipelines are up to date.", status.stdout
+        checkout = run_checked(["dvc", "checkout"], root, env)
+        assert (checkout.stdout + checkout.stderr).strip() == "", checkout
+        assert "changed outs" in run_checked(["dvc", "status"], root / "bench", env).stdout
+    finally:
+        lock.unlink()
 
 
 

@@ -113,18 +113,36 @@ def implicit_init(path: Path) -> bool:
     return path.name == "__init__.py"
 
 
-def stages() -> list[tuple[str, str, list[Path]]]:
-    """(stage address, module its command runs, declared deps) of every DVC stage."""
+SUBPROJECTS = ("bench", "stress")  # DVC projects of their own (dvc init --subdir)
+
+
+def project_stages(project: Path) -> Iterator[tuple[str, list[str], object]]:
+    """(address from ``project``, command words, stage) of every stage of the project's
+    pipeline and of its subprojects'. A subproject's stage runs at the project's root
+    (``cd .. && python -m …``): the words are the command's after the ``cd``."""
     from dvc.repo import Repo
 
+    for sub in ("", *SUBPROJECTS):
+        if sub and not (project / sub / ".dvc").is_dir():
+            continue
+        with Repo(str(project / sub)) as repo:
+            for stage in repo.index.stages:
+                words = shlex.split(stage.cmd if isinstance(stage.cmd, str) else stage.cmd[0])
+                if sub:
+                    assert words[:3] == ["cd", "..", "&&"], f"{stage.addressing}: {stage.cmd}"
+                    words = words[3:]
+                address = f"{os.path.relpath(stage.dvcfile.path, project)}:{stage.name}"
+                yield address, words, stage
+
+
+def stages() -> list[tuple[str, str, list[Path]]]:
+    """(stage address, module its command runs, declared deps) of every DVC stage."""
     out = []
-    with Repo(str(ROOT)) as repo:
-        for stage in repo.index.stages:
-            words = shlex.split(stage.cmd if isinstance(stage.cmd, str) else stage.cmd[0])
-            assert words[:2] == ["python", "-m"], f"{stage.addressing}: {stage.cmd}"
-            deps = [Path(dep.fs_path) for dep in stage.deps
-                    if Path(dep.fs_path).is_relative_to(ROOT)]
-            out.append((stage.addressing, words[2], deps))
+    for address, words, stage in project_stages(ROOT):
+        assert words[:2] == ["python", "-m"], f"{address}: {' '.join(words)}"
+        deps = [Path(dep.fs_path) for dep in stage.deps
+                if Path(dep.fs_path).is_relative_to(ROOT)]
+        out.append((address, words[2], deps))
     return out
 
 
@@ -203,8 +221,6 @@ def params_mismatches(project: Path, trace_dir: Path, *,
     judged for them."""
     import json
 
-    from dvc.repo import Repo
-
     def within(key: str, section: str) -> bool:
         return key == section or key.startswith(section + ".") or section == "*"
 
@@ -222,27 +238,24 @@ def params_mismatches(project: Path, trace_dir: Path, *,
     assert reads, f"no params traces in {trace_dir}"
     problems = []
     groups: dict[str, tuple[list[str], set[str], set[str]]] = {}
-    with Repo(str(project)) as repo:
-        for stage in repo.index.stages:
-            words = shlex.split(stage.cmd if isinstance(stage.cmd, str) else stage.cmd[0])
-            command, args = (words[2], *words[3:]), tuple(words[3:])
-            if command not in reads:
-                continue  # not run by this test
-            keys = [key for dep in stage.deps if type(dep).__name__ == "ParamsDependency"
-                    for key in dep.params]
-            read = reads[command]
-            missing = sorted(r for r in read if not any(within(r, k) for k in keys))
-            if missing:
-                problems.append(f"{os.path.relpath(stage.dvcfile.path, project)}:{stage.name}: "
-                                f"reads {missing}, which it does not declare")
-            # the template: bench/dvc.yaml:bound for bench/dvc.yaml:bound@<scene>
-            name = f"{os.path.relpath(stage.dvcfile.path, project)}:{stage.name.split('@')[0]}"
-            if name in partly_run:
-                continue
-            addresses, declared, group_reads = groups.setdefault(name, ([], set(), set()))
-            addresses.append(stage.name)
-            declared.update(template(k, args) for k in keys)
-            group_reads.update(template(r, args) for r in read)
+    for address, words, stage in project_stages(project):
+        command, args = (words[2], *words[3:]), tuple(words[3:])
+        if command not in reads:
+            continue  # not run by this test
+        keys = [key for dep in stage.deps if type(dep).__name__ == "ParamsDependency"
+                for key in dep.params]
+        read = reads[command]
+        missing = sorted(r for r in read if not any(within(r, k) for k in keys))
+        if missing:
+            problems.append(f"{address}: reads {missing}, which it does not declare")
+        # the template: bench/dvc.yaml:bound for bench/dvc.yaml:bound@<scene>
+        name = address.split("@")[0]
+        if name in partly_run:
+            continue
+        addresses, declared, group_reads = groups.setdefault(name, ([], set(), set()))
+        addresses.append(stage.name)
+        declared.update(template(k, args) for k in keys)
+        group_reads.update(template(r, args) for r in read)
     assert groups, f"no traced process ran a stage of {project}"
     for name, (addresses, declared, group_reads) in groups.items():
         unused = sorted(k for k in declared
