@@ -196,6 +196,7 @@ class Bench(_Section):
     n_jobs: Jobs
     backend: Backend
     import_rows: list[Count] = []
+    repro_baseline: str = ""  # the revision make bench's repro_speed times against
     tasks: dict[str, dict[str, Variant]]
 
 

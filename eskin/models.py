@@ -285,10 +285,12 @@ REGISTRY: dict[str, dict[str, Factory]] = {
         "logistic": lambda C=1.0: _scaled(LogisticRegression(C=C, max_iter=1000)),
         "linear_svm": lambda C=1.0: _scaled(LinearSVC(C=C)),
         # Two contacts: find the pressed terminals, pair them by amplitude (ActiveTerminals).
-        "active_terminals": lambda max_iter=200, min_samples_leaf=20, seed=0: make_pipeline(
-            ActiveTerminals(), FunctionTransformer(np.round, kw_args={"decimals": 6}),
-            HistGradientBoostingClassifier(max_iter=max_iter, min_samples_leaf=min_samples_leaf,
-                                           random_state=seed)),
+        "active_terminals": lambda max_iter=200, learning_rate=0.1, min_samples_leaf=20,
+            seed=0: make_pipeline(
+                ActiveTerminals(), FunctionTransformer(np.round, kw_args={"decimals": 6}),
+                HistGradientBoostingClassifier(max_iter=max_iter, learning_rate=learning_rate,
+                                               min_samples_leaf=min_samples_leaf,
+                                               random_state=seed)),
     },
 }
 

@@ -4,7 +4,8 @@ A stage's code is the import closure of the module its command runs
 (``python -m stages.X``), computed from the source: every ``import`` and
 ``from … import`` of eskin or stages modules, at module level or inside a
 function, and every module a child process is started on (``"-m", "<module>"``
-in an argument list, or the imports of ``"-c", <code>``). A package's ``__init__.py`` counts
+in an argument list, or the imports of ``"-c", <code>``; ``"dvc", "repro"``: every
+module the pipeline runs). A package's ``__init__.py`` counts
 imported by name (``from eskin import __version__``); the others hold no code
 (checked below). The test fails when dvc.yaml, bench/dvc.yaml or stress/dvc.yaml
 misses a file of the closure or lists one the stage does not run, and says which.
@@ -74,8 +75,21 @@ def imported_modules(path: Path, source: str | None = None) -> Iterator[str]:
             for flag, target in zip(values, values[1:], strict=False):
                 if flag == "-m" and isinstance(target, str):
                     yield "eskin.__main__" if target == "eskin" else target
+                if flag == "dvc" and target == "repro":  # the whole pipeline, run
+                    yield from pipeline_modules()
                 if flag == "-c" and isinstance(target, str):
                     yield from imported_modules(path, target)
+
+
+def pipeline_modules() -> list[str]:
+    """The modules the project's pipeline (dvc.yaml) runs, a stage each."""
+    import yaml
+
+    out = []
+    for stage in yaml.safe_load((ROOT / "dvc.yaml").read_text())["stages"].values():
+        words = shlex.split(stage.get("do", stage)["cmd"])
+        out.append(words[words.index("-m") + 1])
+    return out
 
 
 def closure(module: str) -> set[Path]:

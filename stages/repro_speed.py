@@ -1,0 +1,27 @@
+"""DVC stage of `make bench`: the default pipeline's `dvc repro` from an empty cache against
+a baseline revision's (harness/repro_speed.py), both timed in this run."""
+
+import json
+import sys
+from pathlib import Path
+
+from eskin.config import load_params, section
+from eskin.errors import run_friendly
+from harness.repro_speed import measure, render
+
+REPORT = Path("reports/repro_speed")
+
+
+def main() -> str:
+    settings = section(load_params(), "bench")
+    result = measure(str(settings["repro_baseline"]),
+                     log=lambda line: print(line, file=sys.stderr, flush=True))
+    REPORT.mkdir(parents=True, exist_ok=True)
+    (REPORT / "default.json").write_text(json.dumps(result, indent=2) + "\n")
+    text = render(result) + "\n"
+    (REPORT / "default.md").write_text(text)
+    return text
+
+
+if __name__ == "__main__":
+    sys.exit(run_friendly(lambda: print(main())))
