@@ -202,12 +202,12 @@ def main(argv: list[str] | None = None) -> int:
             from eskin import tracking as runs
 
             experiment = runs.ensure_experiment()
-            print(f"MLflow tracking server on {tracking.uri} (PostgreSQL {database.uri}; "
-                  f"artifacts in {tracking.artifacts}); in each clone:\n"
-                  f"  export MLFLOW_TRACKING_URI={tracking.uri}\n"
-                  f"The training runs: {runs.ui_url(experiment)}\n"
-                  "Ctrl-C stops both.", flush=True)
-            try:
+            try:  # from the line that says Ctrl-C on: a Ctrl-C right after it is a clean stop
+                print(f"MLflow tracking server on {tracking.uri} (PostgreSQL {database.uri}; "
+                      f"artifacts in {tracking.artifacts}); in each clone:\n"
+                      f"  export MLFLOW_TRACKING_URI={tracking.uri}\n"
+                      f"The training runs: {runs.ui_url(experiment)}\n"
+                      "Ctrl-C stops both.", flush=True)
                 while tracking.process.poll() is None:
                     time.sleep(1)
             except KeyboardInterrupt:

@@ -126,6 +126,39 @@ class socket_closed:
 # ---------------------------------------------------------------- the tracking server
 
 
+def test_a_ctrl_c_as_the_lab_server_says_how_to_stop_it_is_a_clean_stop(monkeypatch, tmp_path):
+    """Ctrl-C at the moment `make lab-server` prints "Ctrl-C stops both." (as a user, or the
+    test below, answers that line): exit 0 and both servers stopped, not "interrupted" (130).
+    The fresh-clone CI of 799af58 caught that window, once, under load."""
+    from types import SimpleNamespace
+
+    import eskin.lab
+    import eskin.tracking
+
+    stopped = []
+
+    @contextlib.contextmanager
+    def servers(directory, **ports):
+        process = SimpleNamespace(poll=lambda: None)
+        try:
+            yield (SimpleNamespace(uri="postgresql://db"),
+                   SimpleNamespace(uri="http://127.0.0.1:5999", artifacts=directory,
+                                   process=process, log=directory / "log"))
+        finally:
+            stopped.append(directory)
+
+    def ctrl_c_on_the_line_that_names_it(*args, **kwargs):
+        if "Ctrl-C" in " ".join(map(str, args)):
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(eskin.lab, "lab_server", servers)
+    monkeypatch.setattr(eskin.tracking, "ensure_experiment", lambda: "1")
+    monkeypatch.setattr(eskin.lab, "print", ctrl_c_on_the_line_that_names_it, raising=False)
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", "")
+    assert eskin.lab.main(["serve", "--dir", str(tmp_path)]) == 0
+    assert stopped == [tmp_path]
+
+
 def test_make_lab_server_names_the_training_view_of_its_experiment():
     """`make lab-server` (python -m eskin.lab serve) prints the link to the experiment's
     runs in MLflow's training view, the experiment made already; Ctrl-C stops it."""
