@@ -221,6 +221,13 @@ def _scaled(estimator: BaseEstimator) -> Pipeline:
                          estimator)
 
 
+def _on_active_terminals(booster: BaseEstimator) -> Pipeline:
+    """Two contacts' models: the pressed terminals' places and amplitudes (ActiveTerminals),
+    rounded to 1e-6 as :func:`_scaled` rounds, then ``booster``."""
+    return make_pipeline(ActiveTerminals(),
+                         FunctionTransformer(np.round, kw_args={"decimals": 6}), booster)
+
+
 Factory = Callable[..., BaseEstimator]
 
 REGISTRY: dict[str, dict[str, Factory]] = {
@@ -253,11 +260,9 @@ REGISTRY: dict[str, dict[str, Factory]] = {
         # that one model serves every pair of nodes; large leaves, as a new trial's
         # placement and seating are unlike any one trial seen.
         "active_terminals": lambda max_iter=200, learning_rate=0.1, min_samples_leaf=20,
-            seed=0: make_pipeline(
-                ActiveTerminals(), FunctionTransformer(np.round, kw_args={"decimals": 6}),
-                HistGradientBoostingRegressor(max_iter=max_iter, learning_rate=learning_rate,
-                                              min_samples_leaf=min_samples_leaf,
-                                              random_state=seed)),
+            seed=0: _on_active_terminals(HistGradientBoostingRegressor(
+                max_iter=max_iter, learning_rate=learning_rate,
+                min_samples_leaf=min_samples_leaf, random_state=seed)),
     },
     "detect": {
         "paper": lambda C=1.0, gamma="scale", class_weight="balanced":
@@ -286,11 +291,9 @@ REGISTRY: dict[str, dict[str, Factory]] = {
         "linear_svm": lambda C=1.0: _scaled(LinearSVC(C=C)),
         # Two contacts: find the pressed terminals, pair them by amplitude (ActiveTerminals).
         "active_terminals": lambda max_iter=200, learning_rate=0.1, min_samples_leaf=20,
-            seed=0: make_pipeline(
-                ActiveTerminals(), FunctionTransformer(np.round, kw_args={"decimals": 6}),
-                HistGradientBoostingClassifier(max_iter=max_iter, learning_rate=learning_rate,
-                                               min_samples_leaf=min_samples_leaf,
-                                               random_state=seed)),
+            seed=0: _on_active_terminals(HistGradientBoostingClassifier(
+                max_iter=max_iter, learning_rate=learning_rate,
+                min_samples_leaf=min_samples_leaf, random_state=seed)),
     },
 }
 
