@@ -67,7 +67,7 @@ avr:
 	  $(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends \
 	    $(AVR_PACKAGES); }
 
-# A lab's tracking server (eskin/lab.py): MLflow on Debian's PostgreSQL, installed where
+# A lab's tracking server (eskin/tracking/lab.py): MLflow on Debian's PostgreSQL, installed where
 # missing; its tests start one on 127.0.0.1.
 postgres:
 	@{ command -v pg_ctl >/dev/null || ls /usr/lib/postgresql/*/bin/pg_ctl >/dev/null 2>&1; } || { \
@@ -79,7 +79,7 @@ postgres:
 # PostgreSQL and `mlflow server --serve-artifacts` on it, data in .lab/, until Ctrl-C;
 # then, in each clone: export MLFLOW_TRACKING_URI=http://127.0.0.1:5000
 lab-server: setup postgres
-	python -m eskin.lab serve --dir .lab
+	python -m eskin.tracking.lab serve --dir .lab
 
 # firmware/eskin/build/eskin.{hex,elf}, the flash and RAM used in size.txt, and the
 # emulation harness that runs it under simavr (firmware/emulator/build/eskin_emulator).

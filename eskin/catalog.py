@@ -1,7 +1,7 @@
 """The project's vocabulary and where each artifact lives, defined once.
 
 Scenes are declared in params.yaml (``scenes:``); their kinds, tasks and CV
-schemes are named here and in :mod:`eskin.tasks`; every path a stage writes or
+schemes are named here and in :mod:`eskin.learning.tasks`; every path a stage writes or
 reads is a function of the scene (and task) below, so dvc.yaml, the stages,
 the report, compare, audit and reproduce agree by construction (a test checks
 dvc.yaml against these).
@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-# Every kind has the same tasks (eskin/tasks.py says what each means for each kind), so
+# Every kind has the same tasks (eskin/learning/tasks.py says what each means for each kind), so
 # the stage graph is scenes × tasks; a task a scene's data cannot support is skipped.
 KINDS: tuple[str, ...] = ("single_force", "two_force")
 TASK_NAMES: tuple[str, ...] = ("stretch", "force", "detect", "localise")
@@ -87,7 +87,7 @@ def model_path(scene: str, task: str) -> Path:
 
 
 def stack_path(scene: str) -> Path:
-    """The scene's whole stack as one ONNX file (eskin/export.py)."""
+    """The scene's whole stack as one ONNX file (eskin/deploy/export.py)."""
     return MODELS_DIR / scene / "stack.onnx"
 
 

@@ -62,9 +62,15 @@ def _live(args: argparse.Namespace) -> int:
     from eskin.acquisition.session import simulated_board
     from eskin.catalog import raw_dir, stack_path
     from eskin.config import load_params, section, skin_params
+    from eskin.deploy.live import (
+        LineBroadcast,
+        LiveRecorder,
+        json_line,
+        live_estimates,
+        stream_events,
+    )
+    from eskin.deploy.stack import ExportedStack, SkinStack
     from eskin.device.link import SerialLink
-    from eskin.live import LineBroadcast, LiveRecorder, json_line, live_estimates, stream_events
-    from eskin.stack import ExportedStack, SkinStack
 
     def note(message: str) -> None:
         print(f"eskin live: {message}", file=sys.stderr, flush=True)
@@ -78,7 +84,9 @@ def _live(args: argparse.Namespace) -> int:
         if stack.scene != args.scene:
             raise ValueError(f"{args.onnx} is the {stack.scene} stack, not {args.scene}'s")
     elif args.alias:
-        stack = SkinStack.from_registry(args.scene, args.alias)
+        from eskin.tracking.registry import stack_from_registry
+
+        stack = stack_from_registry(args.scene, args.alias)
     else:
         stack = SkinStack.from_workspace(args.scene)
     scene_params = section(params, "scenes").get(args.scene) or {}
@@ -124,7 +132,7 @@ def _live(args: argparse.Namespace) -> int:
                 broadcast = resources.enter_context(LineBroadcast(args.serve, notify=note))
                 note(f"serving the JSON lines on 127.0.0.1:{broadcast.port}")
             if args.view is not None:
-                from eskin.live_view import LiveView
+                from eskin.deploy.view import LiveView
 
                 view = resources.enter_context(LiveView(
                     scene=args.scene, kind=stack.kind, device=hello.device_id, port=args.view))
@@ -151,7 +159,7 @@ def _live(args: argparse.Namespace) -> int:
 
 
 def _export(args: argparse.Namespace) -> int:
-    from eskin.export import export_scene
+    from eskin.deploy.export import export_scene
 
     print(export_scene(args.scene))
     return 0
@@ -321,40 +329,40 @@ def _emit(text: str, output: Path | None) -> None:
 
 
 def _compare(args: argparse.Namespace) -> int:
-    from eskin import experiments
+    from eskin.tracking import compare
 
-    table = experiments.variant_table(experiments.load_runs(), scheme=args.scheme,
+    table = compare.variant_table(compare.load_runs(), scheme=args.scheme,
                                       variants=args.variant, last=args.last)
-    _emit(experiments.render(table, args.format), args.output)
+    _emit(compare.render(table, args.format), args.output)
     return 0
 
 
 def _audit(args: argparse.Namespace) -> int:
-    from eskin import experiments
+    from eskin.tracking import compare
 
     root = Path.cwd()
     if args.run_id:
-        _emit(experiments.render_audit(experiments.run_audit(args.run_id, root)), args.output)
+        _emit(compare.render_audit(compare.run_audit(args.run_id, root)), args.output)
         return 0
-    runs = experiments.load_runs()
+    runs = compare.load_runs()
     scenes = sorted(runs["tags.eskin.scene"].dropna().unique()) if "tags.eskin.scene" in runs \
         else []
-    versions = experiments.dataset_versions(runs, experiments.workspace_digests(root, scenes))
+    versions = compare.dataset_versions(runs, compare.workspace_digests(root, scenes))
     versions["committed"] = versions["dataset md5"].map(
-        experiments.commit_dates(root, list(versions["dataset md5"])))
+        compare.commit_dates(root, list(versions["dataset md5"])))
     if args.format != "table":
-        _emit(experiments.render(versions, args.format), args.output)
+        _emit(compare.render(versions, args.format), args.output)
         return 0
-    parts = [experiments.render(versions, "table")]
+    parts = [compare.render(versions, "table")]
     for digest in versions["dataset md5"]:
         parts.append(f"\n{digest} trained:\n"
-                     + experiments.render(experiments.runs_of_dataset(runs, digest), "table"))
+                     + compare.render(compare.runs_of_dataset(runs, digest), "table"))
     _emit("".join(parts), args.output)
     return 0
 
 
 def _reproduce(args: argparse.Namespace) -> int:
-    from eskin import registry
+    from eskin.tracking import registry
 
     result = registry.reproduce(args.model, args.version, root=Path.cwd(),
                                 log=lambda message: print(message, file=sys.stderr))
@@ -363,22 +371,22 @@ def _reproduce(args: argparse.Namespace) -> int:
 
 
 def _learning_step(args: argparse.Namespace) -> int:
-    from eskin import learn
     from eskin.config import load_params
-    from eskin.features import featurize_scene
+    from eskin.learning import train
+    from eskin.learning.features import featurize_scene
 
     params = load_params(args.params)
     if args.command == "featurize":
         print(featurize_scene(params, args.scene, PROCESSED_DIR, FEATURES_DIR, MODELS_DIR))
     else:
-        print(learn.train(params, args.scene, args.task, FEATURES_DIR,
+        print(train.train(params, args.scene, args.task, FEATURES_DIR,
                           params_text=Path(args.params).read_text(), track=not args.no_track,
                           **task_outputs(args.scene, args.task)))
     return 0
 
 
 def _pipeline_step(args: argparse.Namespace) -> int:
-    from eskin import steps
+    from eskin.acquisition import acquire
     from eskin.config import load_params, section
     from eskin.data import build
 
@@ -389,7 +397,7 @@ def _pipeline_step(args: argparse.Namespace) -> int:
             scene["source"] = args.source
         if args.port:
             scene["port"] = args.port
-        print(steps.acquire(params, args.scene, RAW_DIR / args.scene,
+        print(acquire.acquire(params, args.scene, RAW_DIR / args.scene,
                             progress=not args.no_progress))
     else:
         print(build.ingest(params, args.scene, RAW_DIR / args.scene, PROCESSED_DIR))

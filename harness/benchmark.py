@@ -30,9 +30,9 @@ from sklearn.base import BaseEstimator, clone
 from eskin.data.schema import CHANNELS
 from eskin.evaluation import metrics
 from eskin.evaluation.crossval import parallel_backend
-from eskin.evaluation.cv import assign_folds
-from eskin.models import build_model
-from eskin.tasks import Task, get_task
+from eskin.evaluation.folds import assign_folds
+from eskin.learning.estimators import build_model
+from eskin.learning.tasks import Task, get_task
 
 
 def peak_memory_mb() -> float | None:
@@ -330,7 +330,7 @@ def default_variant(params: Mapping[str, Any], kind: str, task_name: str,
     """The bench variant whose model and hyperparameters the training stage uses by default
     for a scene of ``kind``."""
     from eskin.config import section
-    from eskin.models import model_settings
+    from eskin.learning.estimators import model_settings
 
     model, hyper = model_settings(section(params, f"train.{task_name}"),
                                   section(params, "train.configuration"), kind)

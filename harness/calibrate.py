@@ -35,9 +35,9 @@ from eskin.acquisition.plan import ScenePlan, plan_from_params
 from eskin.data.schema import CHANNELS
 from eskin.device.physics import SkinModel, SkinParams, Trial
 from eskin.evaluation.crossval import cross_validate
-from eskin.evaluation.cv import assign_folds
-from eskin.models import build_model
-from eskin.tasks import get_task
+from eskin.evaluation.folds import assign_folds
+from eskin.learning.estimators import build_model
+from eskin.learning.tasks import get_task
 
 # The paper's numbers (section IV), and how close a fit or a prediction must come.
 TARGETS = {  # name: (paper value, tolerance, fitted?)

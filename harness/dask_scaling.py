@@ -30,9 +30,9 @@ from eskin.catalog import features_path
 from eskin.config import load_params, section
 from eskin.data.schema import read_metadata
 from eskin.evaluation.crossval import cross_validate
-from eskin.evaluation.cv import assign_folds
-from eskin.models import build_model, model_settings
-from eskin.tasks import get_task
+from eskin.evaluation.folds import assign_folds
+from eskin.learning.estimators import build_model, model_settings
+from eskin.learning.tasks import get_task
 
 TASK = "force"
 

@@ -29,7 +29,7 @@ import pandas as pd
 
 from eskin.catalog import processed_path, stack_path
 from eskin.data.schema import CHANNELS
-from eskin.stack import ExportedStack, SkinStack
+from eskin.deploy.stack import ExportedStack, SkinStack
 
 BUDGET_MS = 1.0
 FRAMES = 500  # sampled from each scene's dataset

@@ -30,7 +30,7 @@ import numpy as np
 import pandas as pd
 
 from eskin.data.schema import CHANNELS
-from eskin.tasks import Task
+from eskin.learning.tasks import Task
 
 # Invariance tolerances of a `same` case: regression predictions within this share of
 # the target's standard deviation; classifications within this share of rows; scores.
@@ -142,7 +142,7 @@ CASES: tuple[Case, ...] = (
 def models_under_test(params: Mapping[str, Any]) -> list[tuple[str, str, dict[str, Any]]]:
     """(task, model name, hyperparameters) of the tuned and paper configurations."""
     from eskin.catalog import TASK_NAMES
-    from eskin.models import model_settings
+    from eskin.learning.estimators import model_settings
 
     out = []
     for task in TASK_NAMES:
@@ -160,9 +160,9 @@ def fit_case(frame: pd.DataFrame, task_name: str, model: str, hyper: Mapping[str
 
     Runs in a worker process; returns predictions and scores, or the error."""
     from eskin.evaluation.crossval import cross_validate
-    from eskin.evaluation.cv import assign_folds
-    from eskin.models import build_model
-    from eskin.tasks import get_task
+    from eskin.evaluation.folds import assign_folds
+    from eskin.learning.estimators import build_model
+    from eskin.learning.tasks import get_task
 
     # The cases are written for one contact (stress() skips scenes of another kind).
     task = get_task(KIND, task_name)
@@ -253,7 +253,7 @@ def run_suite(frames: Mapping[str, pd.DataFrame], params: Mapping[str, Any], *,
     other dataset a case names (``noise_zero``, ``noise_x10``)."""
     from joblib.externals.loky import get_reusable_executor
 
-    from eskin.tasks import get_task
+    from eskin.learning.tasks import get_task
 
     models = models or models_under_test(params)
     context = {"sim": params["sim"]}
@@ -289,8 +289,8 @@ def large_factorisation(frame: pd.DataFrame, rows: int, seed: int) -> dict[str, 
     process, scored on the remaining samples: the case that segfaulted OpenBLAS."""
     from sklearn.metrics import r2_score
 
-    from eskin.gp import FixedKernelGaussianProcess
-    from eskin.tasks import get_task
+    from eskin.learning.gp import FixedKernelGaussianProcess
+    from eskin.learning.tasks import get_task
 
     task = get_task(KIND, "force")
     y = task.target_values(frame)["force"]
@@ -318,11 +318,11 @@ def stress(params: Mapping[str, Any], scene: str, features_path, out_dir, *, scr
     import json
     from pathlib import Path
 
-    from eskin import steps
+    from eskin.acquisition import acquire
     from eskin.config import section
     from eskin.data import build
     from eskin.data.schema import describe_source, read_dataset, read_metadata
-    from eskin.features import featurize_scene
+    from eskin.learning.features import featurize_scene
 
     settings = section(params, "stress")
     meta = read_metadata(features_path)
@@ -353,7 +353,7 @@ def stress(params: Mapping[str, Any], scene: str, features_path, out_dir, *, scr
             noisy["sim"][knob] = params["sim"][knob] * factor
         noisy["scenes"][scene].update(settings["noise_scene"])
         root = Path(scratch) / name
-        steps.acquire(noisy, scene, root / "raw", progress=False)
+        acquire.acquire(noisy, scene, root / "raw", progress=False)
         build.ingest(noisy, scene, root / "raw", root / "processed")
         featurize_scene(noisy, scene, root / "processed", root / "features", root / "models")
         frames[name] = read_dataset(root / "features" / f"{scene}.parquet")

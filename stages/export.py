@@ -2,8 +2,8 @@
 
 import sys
 
+from eskin.deploy.export import export_scene
 from eskin.errors import run_friendly
-from eskin.export import export_scene
 
 if __name__ == "__main__":
     sys.exit(run_friendly(lambda: print(export_scene(sys.argv[1]))))

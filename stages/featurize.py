@@ -5,7 +5,7 @@ import sys
 from eskin.catalog import FEATURES_DIR, MODELS_DIR, PROCESSED_DIR
 from eskin.config import load_params
 from eskin.errors import run_friendly
-from eskin.features import featurize_scene
+from eskin.learning.features import featurize_scene
 
 if __name__ == "__main__":
     scene = sys.argv[1]

@@ -3,10 +3,10 @@ the figures and the page go to the pipeline's MLflow run as artifacts."""
 
 import sys
 
-from eskin import report
 from eskin.catalog import FIGURES_DIR, PAGE, PLOTS_DIR, PREDICTIONS_DIR, SCORES_DIR
 from eskin.config import DEFAULT_PARAMS, load_params
 from eskin.errors import run_friendly
+from eskin.reporting import report
 
 
 def main() -> str:
@@ -14,9 +14,9 @@ def main() -> str:
         load_params(), scores_dir=SCORES_DIR, predictions_dir=PREDICTIONS_DIR,
         figures_dir=FIGURES_DIR, plots_dir=PLOTS_DIR, page_path=PAGE,
         results_path="reports/results.md")
-    from eskin import tracking  # MLflow takes seconds to import
+    from eskin.tracking import runs  # MLflow takes seconds to import
 
-    page = tracking.log_report(figures_dir=FIGURES_DIR, page_path=PAGE,
+    page = runs.log_report(figures_dir=FIGURES_DIR, page_path=PAGE,
                                params_text=DEFAULT_PARAMS.read_text())
     return f"{summary}\nfigures and page in MLflow: {page}"
 

@@ -64,10 +64,10 @@ def small_scenes(repo_params: dict) -> dict:
 def prepared_scene(params: dict, scene: str, root: Path) -> Path:
     """``scene`` acquired from the simulated board over a pty and ingested under ``root``
     (raw/<scene>, processed/); returns the dataset's path."""
-    from eskin import steps
+    from eskin.acquisition import acquire
     from eskin.data import build
 
-    steps.acquire(params, scene, root / "raw" / scene, progress=False)
+    acquire.acquire(params, scene, root / "raw" / scene, progress=False)
     build.ingest(params, scene, root / "raw" / scene, root / "processed")
     return root / "processed" / f"{scene}.parquet"
 
@@ -149,12 +149,12 @@ def eskin(args, cwd, **kwargs):
 
 @pytest.fixture(scope="module")
 def lab():
-    """A lab's tracking server (eskin/lab.py): PostgreSQL on 127.0.0.1 and `mlflow server
+    """A lab's tracking server (eskin/tracking/lab.py): PostgreSQL on 127.0.0.1 and `mlflow server
     --serve-artifacts` on it; yields (database, tracking server). One per test module."""
     import shutil
     import tempfile
 
-    from eskin.lab import LabServerError, lab_server
+    from eskin.tracking.lab import LabServerError, lab_server
 
     home = Path(tempfile.mkdtemp(prefix="eskin-lab-"))  # postgres must reach it: not 0700
     home.chmod(0o755)

@@ -12,7 +12,7 @@ import pandas as pd
 import pytest
 from conftest import eskin, small_scenes, write_params
 
-from eskin import steps
+from eskin.acquisition import acquire
 from eskin.acquisition.rawlog import read_log
 from eskin.acquisition.session import acquire_scene, simulated_board
 from eskin.config import scene_plan, skin_params
@@ -26,7 +26,7 @@ CONTENT = ["trial", "sample", *CHANNELS]
 
 
 def acquire_and_ingest(params, root, scene="single_force"):
-    summary = steps.acquire(params, scene, root / "raw" / scene, progress=False)
+    summary = acquire.acquire(params, scene, root / "raw" / scene, progress=False)
     build.ingest(params, scene, root / "raw" / scene, root / "processed")
     return summary, pd.read_parquet(root / "processed" / f"{scene}.parquet")
 
@@ -109,24 +109,24 @@ def test_sigkill_midway_then_resume_gives_every_planned_row_once(clean_run, tmp_
 
 def test_a_grown_plan_acquires_only_the_new_conditions(clean_run, tmp_path):
     params, _, _ = clean_run
-    first = steps.acquire(params, "single_force", tmp_path, progress=False)
+    first = acquire.acquire(params, "single_force", tmp_path, progress=False)
     assert "404 condition(s) acquired" in first
     grown = copy.deepcopy(params)
     grown["scenes"]["single_force"]["stretches"].append(1.15842)
-    second = steps.acquire(grown, "single_force", tmp_path, progress=False)
+    second = acquire.acquire(grown, "single_force", tmp_path, progress=False)
     assert "202 condition(s) acquired, 404 reused of 606" in second
     before = (tmp_path / "acquisition.log").read_bytes()
-    again = steps.acquire(grown, "single_force", tmp_path, progress=False)
+    again = acquire.acquire(grown, "single_force", tmp_path, progress=False)
     assert "0 condition(s) acquired, 606 reused" in again
     assert (tmp_path / "acquisition.log").read_bytes() == before, "nothing new, nothing written"
 
 
 def test_a_changed_simulator_parameter_reacquires_everything(clean_run, tmp_path):
     params, _, clean = clean_run
-    steps.acquire(params, "single_force", tmp_path, progress=False)
+    acquire.acquire(params, "single_force", tmp_path, progress=False)
     changed = copy.deepcopy(params)
     changed["sim"]["noise_pf"] = params["sim"]["noise_pf"] * 2
-    summary = steps.acquire(changed, "single_force", tmp_path, progress=False)
+    summary = acquire.acquire(changed, "single_force", tmp_path, progress=False)
     assert "404 condition(s) acquired, 0 reused" in summary
     build.ingest(changed, "single_force", tmp_path, tmp_path / "processed")
     frame = pd.read_parquet(tmp_path / "processed" / "single_force.parquet")
@@ -145,7 +145,7 @@ def test_two_force_scene_follows_its_documented_plan(small_params, tmp_path):
 
 
 def test_ingest_of_an_incomplete_log_says_how_to_resume(small_params, tmp_path):
-    steps.acquire(small_params, "single_force", tmp_path, progress=False)
+    acquire.acquire(small_params, "single_force", tmp_path, progress=False)
     grown = copy.deepcopy(small_params)
     grown["scenes"]["single_force"]["forces"].append(5.2136)
     expected = "202 of 606 planned conditions .*eskin acquire single_force"

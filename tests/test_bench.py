@@ -10,9 +10,9 @@ from sklearn.utils.estimator_checks import check_estimator
 
 from eskin.data.schema import CHANNELS, contact_mask, read_dataset
 from eskin.device.physics import SkinModel, SkinParams
-from eskin.gp import FixedKernelGaussianProcess, SparseGaussianProcess, stable_cholesky
-from eskin.models import build_model
-from eskin.tasks import get_task
+from eskin.learning.estimators import build_model
+from eskin.learning.gp import FixedKernelGaussianProcess, SparseGaussianProcess, stable_cholesky
+from eskin.learning.tasks import get_task
 from harness import benchmark
 from harness.oracle import (
     CONVERGED,
@@ -158,7 +158,7 @@ def test_a_variant_is_scored_on_the_given_folds_only(small_dataset):
 
 
 def test_shared_hyperparameters_are_fitted_once(small_dataset, monkeypatch):
-    from eskin import gp
+    from eskin.learning import gp
 
     _, frame = small_dataset
     calls = []
@@ -228,7 +228,7 @@ def test_the_strongest_force_model_does_not_beat_the_bound_on_held_out_trials(li
     """The benchmark's best force models under grouped CV (gradient boosting on the
     channels, and on the physics features), against the oracle on the same held-out
     fold: a bound a model beats is no bound."""
-    from eskin.evaluation.cv import assign_folds
+    from eskin.evaluation.folds import assign_folds
 
     sim, frame, force = light_and_heavy
     folds = assign_folds(frame, "single_force", "grouped", 4, seed=0)
@@ -286,7 +286,7 @@ def test_the_pair_bound_converges_and_no_strong_model_beats_it(two_contacts):
     condition are caught; and the strongest two-contact models (the pressed terminals, then
     gradient boosting) on held-out trials stay below the oracle on the same rows, force and
     position alike."""
-    from eskin.evaluation.cv import assign_folds
+    from eskin.evaluation.folds import assign_folds
     from harness import pair_oracle
 
     sim, conditions, frame = two_contacts

@@ -6,7 +6,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from eskin import experiments
+from eskin.tracking import compare
 
 T0 = pd.Timestamp("2026-11-23 10:00", tz="UTC")
 
@@ -52,7 +52,7 @@ def runs():
 
 
 def test_compare_keeps_the_latest_run_per_task_and_shows_only_differing_params(runs):
-    table = experiments.variant_table(runs, scheme="grouped")
+    table = compare.variant_table(runs, scheme="grouped")
     assert list(table["variant"]) == ["repro 1a2b", "force-rf", "seed7"]
     assert "cv.folds" not in table  # the same everywhere
     assert list(table["train.force.model"]) == [
@@ -71,24 +71,24 @@ def test_compare_keeps_the_latest_run_per_task_and_shows_only_differing_params(r
 
 
 def test_compare_picks_variants_by_name_or_recency(runs):
-    picked = experiments.variant_table(runs, variants=["force-rf", "seed7"])
+    picked = compare.variant_table(runs, variants=["force-rf", "seed7"])
     assert list(picked["variant"]) == ["force-rf", "seed7"]
     assert "train.force.model" in picked and "pairs acc" in picked
-    newest = experiments.variant_table(runs, last=1)
+    newest = compare.variant_table(runs, last=1)
     assert list(newest["variant"]) == ["seed7"]
     assert "sim.seed" not in newest and "force R²" in newest  # nothing differs in one row
-    with pytest.raises(experiments.NoRunsError, match="no variant named nope"):
-        experiments.variant_table(runs, variants=["nope"])
+    with pytest.raises(compare.NoRunsError, match="no variant named nope"):
+        compare.variant_table(runs, variants=["nope"])
 
 
 def test_compare_under_the_other_scheme(runs):
-    table = experiments.variant_table(runs, scheme="stratified")
+    table = compare.variant_table(runs, scheme="stratified")
     assert table["force R²"].iloc[0] == 0.95
     assert table["force R²"].iloc[1:].isna().all()
 
 
 def test_audit_groups_runs_by_dataset_version_and_marks_the_workspace(runs):
-    versions = experiments.dataset_versions(runs, workspace={"single_force": "d2"},
+    versions = compare.dataset_versions(runs, workspace={"single_force": "d2"},
                                             committed={"d1": "2026-11-22 abc1234"})
     by_digest = versions.set_index("dataset md5")
     assert by_digest.loc["d1", "runs"] == 4
@@ -98,7 +98,7 @@ def test_audit_groups_runs_by_dataset_version_and_marks_the_workspace(runs):
     assert by_digest.loc["d2", "workspace"] == "yes" and by_digest.loc["d1", "workspace"] == ""
     assert by_digest.loc["t1", "scene"] == "two_force"
     assert by_digest.loc["d2", "source"] == "simulated (seed 1)"
-    used = experiments.runs_of_dataset(runs, "d1")
+    used = compare.runs_of_dataset(runs, "d1")
     assert list(used["run"]) == ["a", "b", "c", "d"]
     assert list(used["variant"]) == ["repro 1a2b"] * 2 + ["force-rf"] * 2
 
@@ -106,7 +106,7 @@ def test_audit_groups_runs_by_dataset_version_and_marks_the_workspace(runs):
 @pytest.mark.parametrize("fmt", ["table", "markdown", "csv"])
 def test_tables_render_in_every_format(runs, fmt, monkeypatch):
     monkeypatch.setenv("COLUMNS", "250")  # a row per variant (narrower: tested below)
-    text = experiments.render(experiments.variant_table(runs), fmt)
+    text = compare.render(compare.variant_table(runs), fmt)
     assert "force-rf" in text and "2026-11-23 10:07:20" in text
     if fmt == "csv":
         back = pd.read_csv(io.StringIO(text))
@@ -118,9 +118,9 @@ def test_tables_render_in_every_format(runs, fmt, monkeypatch):
 
 
 def test_the_table_fits_the_terminal_and_keeps_every_column(runs, monkeypatch):
-    table = experiments.variant_table(runs)
+    table = compare.variant_table(runs)
     monkeypatch.setenv("COLUMNS", "80")
-    text = experiments.render(table, "table")
+    text = compare.render(table, "table")
     assert max(len(line) for line in text.splitlines()) <= 80, text
     for name in ("variant", "commit", "force-rf"):
         assert name in text  # wrapped to fit, not cut off
@@ -128,13 +128,13 @@ def test_the_table_fits_the_terminal_and_keeps_every_column(runs, monkeypatch):
 
 
 def test_an_empty_store_is_a_clear_error():
-    with pytest.raises(experiments.NoRunsError, match="dvc repro"):
-        experiments.variant_table(pd.DataFrame())
+    with pytest.raises(compare.NoRunsError, match="dvc repro"):
+        compare.variant_table(pd.DataFrame())
     with pytest.raises(ValueError, match="format"):
-        experiments.render(pd.DataFrame({"a": [1]}), "html")
+        compare.render(pd.DataFrame({"a": [1]}), "html")
 
 
 def test_params_come_back_from_their_mlflow_strings():
-    assert experiments.parse_param("['stratified', 'grouped']") == ["stratified", "grouped"]
-    assert experiments.parse_param("10") == 10
-    assert experiments.parse_param("random_forest") == "random_forest"
+    assert compare.parse_param("['stratified', 'grouped']") == ["stratified", "grouped"]
+    assert compare.parse_param("10") == 10
+    assert compare.parse_param("random_forest") == "random_forest"

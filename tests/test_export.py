@@ -1,4 +1,4 @@
-"""The stack as one ONNX file (eskin.export) against the scikit-learn stack it came from.
+"""The stack as one ONNX file (eskin.deploy.export) against the scikit-learn stack it came from.
 
 Synthetic stacks built to reach every converter and its corners: ties between terminals
 (which peak TopK picks), rows with fewer than two peaks, NaN readings (the trees' missing
@@ -17,10 +17,10 @@ from sklearn.base import BaseEstimator, RegressorMixin
 from sklearn.ensemble import HistGradientBoostingClassifier, HistGradientBoostingRegressor
 
 from eskin.data.schema import CHANNELS
-from eskin.export import ExportError, compare, stack_to_onnx, write_stack
-from eskin.features import make_featurizer
-from eskin.models import REGISTRY, ActiveTerminals, ForceProfile, build_model
-from eskin.stack import ExportedStack, SkinStack
+from eskin.deploy.export import ExportError, compare, stack_to_onnx, write_stack
+from eskin.deploy.stack import ExportedStack, SkinStack
+from eskin.learning.estimators import REGISTRY, ActiveTerminals, ForceProfile, build_model
+from eskin.learning.features import make_featurizer
 
 
 def readings(n: int, seed: int) -> np.ndarray:
@@ -99,7 +99,7 @@ def test_a_two_force_stack_exports_with_the_same_estimates(tmp_path):
 def test_a_missing_value_takes_the_branch_each_split_learnt(tmp_path):
     import onnxruntime
 
-    from eskin.export import OPSETS, _convert, _register
+    from eskin.deploy.export import OPSETS, _convert, _register
 
     _register()
     X = readings(1500, seed=10)
@@ -129,7 +129,7 @@ def test_the_transformers_match_numpy_to_the_last_bit():
     from skl2onnx import convert_sklearn
     from skl2onnx.common.data_types import DoubleTensorType
 
-    from eskin.export import CONVERTER_OPSETS, _register
+    from eskin.deploy.export import CONVERTER_OPSETS, _register
 
     _register()
     X = readings(3000, seed=5) * 1.37  # sums of non-integers, where order shows

@@ -2,7 +2,7 @@
 two worker processes on 127.0.0.1, started here) against loky.
 
 The lab's tracking server (PostgreSQL under ``mlflow server --serve-artifacts``,
-eskin/lab.py) is the one tests/test_pipeline_tracking.py runs the whole pipeline,
+eskin/tracking/lab.py) is the one tests/test_pipeline_tracking.py runs the whole pipeline,
 concurrent experiments from two clones and a database lost mid-run against.
 """
 
@@ -19,9 +19,9 @@ import pandas as pd
 import pytest
 
 from eskin.evaluation.crossval import cross_validate, parallel_backend
-from eskin.evaluation.cv import assign_folds
-from eskin.models import build_model
-from eskin.tasks import get_task
+from eskin.evaluation.folds import assign_folds
+from eskin.learning.estimators import build_model
+from eskin.learning.tasks import get_task
 from tests.conftest import prepared_scene, small_scenes
 
 # ---------------------------------------------------------------- Dask
@@ -115,7 +115,7 @@ class socket_closed:
     """The address of a loopback port nobody listens on."""
 
     def __enter__(self) -> str:
-        from eskin.lab import free_port
+        from eskin.tracking.lab import free_port
 
         return f"tcp://127.0.0.1:{free_port()}"
 
@@ -132,8 +132,8 @@ def test_a_ctrl_c_as_the_lab_server_says_how_to_stop_it_is_a_clean_stop(monkeypa
     The fresh-clone CI of 799af58 caught that window, once, under load."""
     from types import SimpleNamespace
 
-    import eskin.lab
-    import eskin.tracking
+    import eskin.tracking.lab
+    import eskin.tracking.runs
 
     stopped = []
 
@@ -151,16 +151,17 @@ def test_a_ctrl_c_as_the_lab_server_says_how_to_stop_it_is_a_clean_stop(monkeypa
         if "Ctrl-C" in " ".join(map(str, args)):
             raise KeyboardInterrupt
 
-    monkeypatch.setattr(eskin.lab, "lab_server", servers)
-    monkeypatch.setattr(eskin.tracking, "ensure_experiment", lambda: "1")
-    monkeypatch.setattr(eskin.lab, "print", ctrl_c_on_the_line_that_names_it, raising=False)
+    monkeypatch.setattr(eskin.tracking.lab, "lab_server", servers)
+    monkeypatch.setattr(eskin.tracking.runs, "ensure_experiment", lambda: "1")
+    monkeypatch.setattr(eskin.tracking.lab, "print", ctrl_c_on_the_line_that_names_it,
+                        raising=False)
     monkeypatch.setenv("MLFLOW_TRACKING_URI", "")
-    assert eskin.lab.main(["serve", "--dir", str(tmp_path)]) == 0
+    assert eskin.tracking.lab.main(["serve", "--dir", str(tmp_path)]) == 0
     assert stopped == [tmp_path]
 
 
 def test_make_lab_server_names_the_training_view_of_its_experiment():
-    """`make lab-server` (python -m eskin.lab serve) prints the link to the experiment's
+    """`make lab-server` (python -m eskin.tracking.lab serve) prints the link to the experiment's
     runs in MLflow's training view, the experiment made already; Ctrl-C stops it."""
     import json
     import re
@@ -171,13 +172,14 @@ def test_make_lab_server_names_the_training_view_of_its_experiment():
     import urllib.request
     from pathlib import Path
 
-    from eskin.lab import free_port
+    from eskin.tracking.lab import free_port
 
     home = Path(tempfile.mkdtemp(prefix="eskin-lab-"))  # postgres must reach it: not 0700
     home.chmod(0o755)
     port = free_port()
     serving = subprocess.Popen(
-        [sys.executable, "-m", "eskin.lab", "serve", "--dir", str(home), "--port", str(port),
+        [sys.executable, "-m", "eskin.tracking.lab", "serve", "--dir", str(home),
+         "--port", str(port),
          "--pg-port", str(free_port())], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
         text=True, env={**os.environ, "MLFLOW_TRACKING_URI": ""})
     lines: list[str] = []

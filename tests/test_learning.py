@@ -8,14 +8,19 @@ import pytest
 from conftest import prepared_scene, small_scenes
 from sklearn.utils.estimator_checks import check_estimator
 
-from eskin import learn
 from eskin.catalog import TASK_NAMES
 from eskin.data.schema import CHANNELS, md5_file, node_id
 from eskin.evaluation.crossval import cross_validate, parallel_backend
-from eskin.evaluation.cv import assign_folds, strata
-from eskin.features import BaselineDelta, featurize_scene, fit_featurizer
-from eskin.models import REGISTRY, SubsampledGaussianProcess, build_model, model_settings
-from eskin.tasks import TASKS, get_task
+from eskin.evaluation.folds import assign_folds, strata
+from eskin.learning import train as train_step
+from eskin.learning.estimators import (
+    REGISTRY,
+    SubsampledGaussianProcess,
+    build_model,
+    model_settings,
+)
+from eskin.learning.features import BaselineDelta, featurize_scene, fit_featurizer
+from eskin.learning.tasks import TASKS, get_task
 
 
 @pytest.fixture(scope="module")
@@ -37,7 +42,7 @@ def features(project, scene="single_force"):
 
 
 def train(project, scene, task, out, params=None, **kwargs):
-    return learn.train(params or project[0], scene, task, project[1] / "features",
+    return train_step.train(params or project[0], scene, task, project[1] / "features",
                        metrics_path=out / "metrics.json", scores_path=out / "scores.json",
                        predictions_path=out / "oof.parquet",
                        model_path=out / "model.joblib", track=False,
@@ -112,7 +117,7 @@ def test_a_single_stretch_level_skips_stretch_with_its_reason(project, tmp_path)
     meta = read_metadata(root / "features" / "single_force.parquet")
     write_dataset(frame[frame["stretch"] == 1.0], "single_force",
                   one_level / "single_force.parquet", meta)
-    summary = learn.train(params, "single_force", "stretch", one_level,
+    summary = train_step.train(params, "single_force", "stretch", one_level,
                           metrics_path=tmp_path / "m.json", scores_path=tmp_path / "s.json",
                           predictions_path=tmp_path / "p.parquet",
                           model_path=tmp_path / "model.joblib",
@@ -304,7 +309,7 @@ def test_force_profile_reads_stretch_and_press_in_any_units(repo_params):
     counts as in farads or offset by a constant."""
     from eskin.acquisition.plan import single_force_plan
     from eskin.device.physics import SkinParams
-    from eskin.models import ForceProfile
+    from eskin.learning.estimators import ForceProfile
     from harness.calibrate import simulate_plan
 
     sim = SkinParams.from_mapping(repo_params["sim"])

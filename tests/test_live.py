@@ -18,13 +18,8 @@ import pytest
 from eskin.acquisition.session import simulated_board
 from eskin.config import section, skin_params
 from eskin.data.schema import read_dataset, read_metadata
-from eskin.device.host import HostProtocol, StreamFrame, StreamGap
-from eskin.device.link import SerialLink
-from eskin.device.protocol import encode_frame
-from eskin.evaluation.crossval import fit_final
-from eskin.export import write_stack
-from eskin.features import featurize_scene
-from eskin.live import (
+from eskin.deploy.export import write_stack
+from eskin.deploy.live import (
     LineBroadcast,
     LiveRecorder,
     Tare,
@@ -32,10 +27,15 @@ from eskin.live import (
     live_estimates,
     stream_events,
 )
-from eskin.live_view import LiveView
-from eskin.models import build_model, model_settings
-from eskin.stack import ExportedStack, SkinStack, StackError, rest_reading
-from eskin.tasks import get_task
+from eskin.deploy.stack import ExportedStack, SkinStack, StackError, rest_reading
+from eskin.deploy.view import LiveView
+from eskin.device.host import HostProtocol, StreamFrame, StreamGap
+from eskin.device.link import SerialLink
+from eskin.device.protocol import encode_frame
+from eskin.evaluation.crossval import fit_final
+from eskin.learning.estimators import build_model, model_settings
+from eskin.learning.features import featurize_scene
+from eskin.learning.tasks import get_task
 from tests.conftest import headless_chromium, needs_chromium, prepared_scene, small_scenes
 from tests.hostile_board import HostileBoard, Served
 
@@ -163,7 +163,7 @@ def test_record_keeps_the_stream_in_the_raw_log_apart_from_the_training_data(sta
     """`--record`: every streamed frame, damaged lines and gaps included, goes into the
     scene's raw log as a live session; ingest gives the same training data as before and
     the recorded frames beside it, and acquisition still finds nothing left to do."""
-    from eskin import steps
+    from eskin.acquisition import acquire
     from eskin.acquisition.rawlog import read_log
     from eskin.data import build
 
@@ -190,7 +190,7 @@ def test_record_keeps_the_stream_in_the_raw_log_apart_from_the_training_data(sta
     recorded = pd.read_parquet(tmp_path / "processed" / "single_force.live.parquet")
     assert list(recorded["seq"]) == streamed and set(recorded["session"]) == {"live001"}
     size = (raw / "acquisition.log").stat().st_size
-    steps.acquire(params, "single_force", raw, progress=False)  # nothing left to acquire
+    acquire.acquire(params, "single_force", raw, progress=False)  # nothing left to acquire
     assert (raw / "acquisition.log").stat().st_size == size
 
 

@@ -100,7 +100,7 @@ def test_active_terminals_find_the_pressed_rows_and_columns_in_any_units(repo_pa
     from eskin.acquisition.plan import two_force_plan
     from eskin.data.schema import CHANNELS
     from eskin.device.physics import SkinParams
-    from eskin.models import ActiveTerminals
+    from eskin.learning.estimators import ActiveTerminals
     from harness.calibrate import simulate_plan
 
     sim = SkinParams.from_mapping(repo_params["sim"])

@@ -27,7 +27,7 @@ from conftest import (
 from test_stage_deps import params_mismatches
 
 from eskin.data.schema import CHANNELS, md5_file
-from eskin.models import model_settings
+from eskin.learning.estimators import model_settings
 
 
 def run(args, cwd, env):
@@ -212,7 +212,7 @@ def test_the_mlflow_ui_opens_on_the_training_runs_and_shows_their_figures(scratc
     task, model and variant, the duration is the training's, the figures are artifacts."""
     import mlflow
 
-    from eskin import tracking
+    from eskin.tracking import runs
 
     root, env = scratch
     monkeypatch.setenv("MLFLOW_TRACKING_URI", env["MLFLOW_TRACKING_URI"])
@@ -230,10 +230,10 @@ def test_the_mlflow_ui_opens_on_the_training_runs_and_shows_their_figures(scratc
             page.wait_for_selector(f"text={wait_for}", timeout=60_000)
             return page.inner_text("body")
 
-        runs = text_of(tracking.ui_url(experiment), parent.info.run_name)
-        assert "/runs" in page.url and "Duration" in runs and "Token Usage" not in runs
-        run_page = text_of(tracking.ui_url(experiment, task["run_id"]), "Duration")
-        artifacts = text_of(tracking.ui_url(experiment, parent.info.run_id, artifacts=True),
+        listing = text_of(runs.ui_url(experiment), parent.info.run_name)
+        assert "/runs" in page.url and "Duration" in listing and "Token Usage" not in listing
+        run_page = text_of(runs.ui_url(experiment, task["run_id"]), "Duration")
+        artifacts = text_of(runs.ui_url(experiment, parent.info.run_id, artifacts=True),
                             "figures")
     assert task["tags.mlflow.runName"] in run_page  # single_force/force <model> @repro-…
     shown = run_page.split("Duration", 1)[1].split()[0]  # "26.9s", "1.2min"

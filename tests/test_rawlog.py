@@ -5,7 +5,7 @@ import copy
 import pytest
 from conftest import eskin, write_params
 
-from eskin import steps
+from eskin.acquisition import acquire
 from eskin.acquisition.rawlog import RawLogError, RawLogWriter, read_log
 from eskin.data import build
 from eskin.data.schema import DatasetError
@@ -53,7 +53,7 @@ def test_frame_damaged_on_disk_is_named_and_its_condition_not_trusted(tmp_path):
 
 
 def test_damaged_log_stops_ingest_or_goes_to_quarantine(tmp_path, small_params):
-    steps.acquire(small_params, "single_force", tmp_path, progress=False)
+    acquire.acquire(small_params, "single_force", tmp_path, progress=False)
     log = tmp_path / "acquisition.log"
     lines = log.read_text().splitlines(keepends=True)
     frame_line = next(i for i, line in enumerate(lines) if line.startswith("F\t"))
@@ -65,7 +65,7 @@ def test_damaged_log_stops_ingest_or_goes_to_quarantine(tmp_path, small_params):
     lenient["ingest"]["bad_rows"] = "quarantine"
     with pytest.raises(DatasetError, match="1 of 404 planned conditions"):
         build.ingest(lenient, "single_force", tmp_path, tmp_path / "out")
-    summary = steps.acquire(lenient, "single_force", tmp_path, progress=False)
+    summary = acquire.acquire(lenient, "single_force", tmp_path, progress=False)
     assert "1 condition(s) acquired, 403 reused" in summary
     message = build.ingest(lenient, "single_force", tmp_path, tmp_path / "out")
     assert "2020 rows" in message and "1 row(s) quarantined" in message

@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 from conftest import headless_chromium, needs_chromium
 
-from eskin import report
+from eskin.reporting import report
 from eskin.reporting.page import HEADLINES, headline_rows
 
 

@@ -10,7 +10,7 @@ import joblib
 import pytest
 
 from eskin.data.schema import md5_file
-from eskin.learn import ModelIntegrityError, load_models
+from eskin.learning.saved import ModelIntegrityError, load_models
 
 ROOT = Path(__file__).resolve().parents[1]
 

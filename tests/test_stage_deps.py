@@ -202,9 +202,9 @@ def test_subpackage_init_files_hold_no_code():
 
 def test_the_closure_finds_what_a_stage_imports_lazily_and_starts_as_a_process(tmp_path):
     """The checker itself: a function-local import and a child process both count."""
-    learn = closure("eskin.learn")
-    assert ROOT / "eskin/tracking.py" in learn      # imported inside train()
-    assert ROOT / "eskin/gp.py" in learn            # through eskin.models
+    learn = closure("eskin.learning.train")
+    assert ROOT / "eskin/tracking/runs.py" in learn      # imported inside train()
+    assert ROOT / "eskin/learning/gp.py" in learn            # through eskin.learning.estimators
     session = closure("eskin.acquisition.session")
     assert ROOT / "eskin/device/board.py" in session  # the simulated board's own process
 

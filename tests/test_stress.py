@@ -10,18 +10,18 @@ from conftest import small_scenes
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from eskin import steps
+from eskin.acquisition import acquire
 from eskin.catalog import TASK_NAMES
 from eskin.data import build
 from eskin.data.schema import CHANNELS, read_dataset
-from eskin.features import featurize_scene
-from eskin.models import build_model, model_settings
-from eskin.tasks import get_task
+from eskin.learning.estimators import build_model, model_settings
+from eskin.learning.features import featurize_scene
+from eskin.learning.tasks import get_task
 from harness import stress
 
 
 def acquire_features(params, root):
-    steps.acquire(params, "single_force", root / "raw", progress=False)
+    acquire.acquire(params, "single_force", root / "raw", progress=False)
     build.ingest(params, "single_force", root / "raw", root / "processed")
     featurize_scene(params, "single_force", root / "processed", root / "features",
                     root / "models")

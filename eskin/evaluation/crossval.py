@@ -23,7 +23,7 @@ from tqdm import tqdm
 
 from eskin.data.schema import CHANNELS
 from eskin.evaluation import metrics
-from eskin.tasks import Task
+from eskin.learning.tasks import Task
 
 
 @dataclass

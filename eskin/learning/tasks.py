@@ -53,7 +53,7 @@ class Task:
     """A learning task: a model role, a scorer, and a target per output."""
 
     name: str
-    role: str                     # entry of eskin.models.REGISTRY
+    role: str                     # entry of eskin.learning.estimators.REGISTRY
     scorer: str                   # entry of eskin.evaluation.metrics.SCORERS
     targets: dict[str, Callable[[pd.DataFrame], np.ndarray]]
     rows: Callable[[pd.DataFrame], np.ndarray] = _all_rows

@@ -1,7 +1,7 @@
 """Compare variants and audit dataset versions, from the MLflow store and DVC's cache.
 
 A *variant* is one pipeline run (one ``dvc repro`` at a commit and params,
-or one ``dvc exp run``; see :mod:`eskin.tracking`): its task runs are its
+or one ``dvc exp run``; see :mod:`eskin.tracking.runs`): its task runs are its
 children, and it carries the whole params file. ``variant_table`` puts the
 latest run of every task of every variant side by side; ``dataset_versions``
 groups task runs by the DVC md5 of the dataset that trained them.
@@ -269,19 +269,19 @@ def _rich_table(table: pd.DataFrame) -> str:
 # --- reading the store, git and the workspace --------------------------------------------
 
 def load_runs(experiment: str | None = None) -> pd.DataFrame:
-    """Every run of the project's MLflow experiment (``eskin.tracking.tracking_uri``)."""
+    """Every run of the project's MLflow experiment (``eskin.tracking.runs.tracking_uri``)."""
     import mlflow
 
-    from eskin import tracking
+    from eskin.tracking import runs
 
-    client = tracking.connect()
-    name = experiment or tracking.EXPERIMENT
+    client = runs.connect()
+    name = experiment or runs.EXPERIMENT
     experiment_ = mlflow.get_experiment_by_name(name)
     if experiment_ is None:
-        raise NoRunsError(f"no MLflow experiment {name!r} at {tracking.tracking_uri()}: "
+        raise NoRunsError(f"no MLflow experiment {name!r} at {runs.tracking_uri()}: "
                           "run `dvc repro` first (or set MLFLOW_TRACKING_URI)")
     # A run a killed stage left RUNNING is shown as what it is: FAILED.
-    tracking.settle_stale_runs(client, [experiment_.experiment_id])
+    runs.settle_stale_runs(client, [experiment_.experiment_id])
     return mlflow.search_runs(experiment_names=[name], output_format="pandas")
 
 
@@ -326,14 +326,14 @@ def run_audit(run_id: str, root: Path) -> dict[str, Any]:
     workspace and DVC's cache still hold what it used."""
     import mlflow
 
-    from eskin import tracking
+    from eskin.tracking import runs
 
-    client = tracking.connect()
+    client = runs.connect()
     try:
         run = client.get_run(run_id)
     except mlflow.exceptions.MlflowException as err:
-        raise NoRunsError(f"no run {run_id} at {tracking.tracking_uri()}") from err
-    if tracking.settle_stale_runs(client, [run.info.experiment_id]):
+        raise NoRunsError(f"no run {run_id} at {runs.tracking_uri()}") from err
+    if runs.settle_stale_runs(client, [run.info.experiment_id]):
         run = client.get_run(run_id)
     tags = run.data.tags
     scene, task = tags.get("eskin.scene", ""), tags.get("eskin.task", "")
@@ -354,7 +354,7 @@ def run_audit(run_id: str, root: Path) -> dict[str, Any]:
             "this run's model")
         checks["model in DVC cache"] = _cache_check(root, tags["eskin.model_md5"])
     commit = tags.get("eskin.git_commit", "")
-    head = tracking.git_commit(root)
+    head = runs.git_commit(root)
     dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=root,
                            capture_output=True, text=True, check=False).stdout.strip()
     checks["commit"] = (("ok", "HEAD" + (", with uncommitted changes" if dirty else ""))

@@ -15,16 +15,16 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import joblib
 import pandas as pd
 
 from eskin.catalog import HEADLINE_SCHEME, PAIRS_HEADLINE
 from eskin.config import section
 from eskin.data.schema import describe_source, md5_file, read_dataset, read_metadata
 from eskin.evaluation.crossval import cross_validate, fit_final, parallel_backend
-from eskin.evaluation.cv import assign_folds
-from eskin.models import build_model, model_settings
-from eskin.tasks import Task, get_task
+from eskin.evaluation.folds import assign_folds
+from eskin.learning.estimators import build_model, model_settings
+from eskin.learning.saved import save_models
+from eskin.learning.tasks import Task, get_task
 
 
 def train(params: dict[str, Any], scene: str, task_name: str, features_dir: Path, *,
@@ -97,9 +97,9 @@ def train(params: dict[str, Any], scene: str, task_name: str, features_dir: Path
                                ignore_index=True), predictions_path)
     run_note = ""
     if track:
-        from eskin import tracking  # MLflow takes seconds to import; only training needs it
+        from eskin.tracking import runs  # MLflow takes seconds to import; only training needs it
 
-        tracked = tracking.log_task_run(
+        tracked = runs.log_task_run(
             scene=scene, task=task_name, params={"model": model_name, model_name: hyper, "cv": cv},
             params_text=params_text, results=results, models=models,
             dataset=frame.drop(columns=["session", "trial", "seq", "t_ms"]),
@@ -144,27 +144,6 @@ def save_predictions(frame: pd.DataFrame, path: Path) -> None:
     frame.to_parquet(path, index=False)
 
 
-def save_models(models: dict, path: Path) -> None:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    joblib.dump(models, path)
-
-
-class ModelIntegrityError(ValueError):
-    """A saved model whose bytes are not the ones recorded for it."""
-
-
-def load_models(path: Path, md5: str) -> dict:
-    """A task's saved models (target → estimator), unpickled only if the file's md5 is
-    ``md5``, the one DVC (dvc.lock) and MLflow (``eskin.model_md5``) recorded for it:
-    unpickling runs whatever code the file names."""
-    actual = md5_file(path)
-    if actual != md5:
-        raise ModelIntegrityError(f"{path}: md5 is {actual}, but {md5} was recorded for this "
-                                  "model; not loading it")
-    return joblib.load(path)
-
-
 def score_pairs(scene: str, predictions_dir: Path, metrics_path: Path, scores_path: Path, *,
                 params_text: str = "", track: bool = True) -> str:
     """Score a two-force scene's contacts as sets (order-free), from its tasks' predictions;
@@ -199,9 +178,9 @@ def score_pairs(scene: str, predictions_dir: Path, metrics_path: Path, scores_pa
                                  for scheme, values in scores.items()}), metrics_path)
     run_note = ""
     if track:
-        from eskin import tracking
+        from eskin.tracking import runs
 
-        run_id = tracking.log_scores_run(scene=scene, task="pairs", scores=scores,
+        run_id = runs.log_scores_run(scene=scene, task="pairs", scores=scores,
                                          params_text=params_text,
                                          dataset_digest=localise.get("dataset_md5", ""))
         run_note = f"; MLflow run {run_id}"

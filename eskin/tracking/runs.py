@@ -279,7 +279,7 @@ class _quiet:
     """Raise a logger's level for a block: MLflow's pickle advice, given on every save.
 
     Models are pickled by design; eskin loads one only after its file's md5
-    matches the one recorded in dvc.lock and in the run (``eskin.learn.load_models``).
+    matches the one recorded in dvc.lock and in the run (``eskin.learning.saved.load_models``).
     """
 
     def __init__(self, name: str) -> None:

@@ -39,7 +39,7 @@ from sklearn.preprocessing import FunctionTransformer, StandardScaler
 from sklearn.svm import SVC, LinearSVC
 from sklearn.utils.validation import check_is_fitted, validate_data
 
-from eskin.gp import (
+from eskin.learning.gp import (
     FixedKernelGaussianProcess,
     SparseGaussianProcess,
     rbf_gp_kernel,

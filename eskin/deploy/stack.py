@@ -4,7 +4,7 @@ the estimates — what a robot loop holds.
 :class:`SkinStack` is the scikit-learn stack: the scene's featurizer and its task models
 (stretch, contact, location, force), loaded from the workspace with every file's md5
 checked against dvc.lock, or from the MLflow registry by alias. :class:`ExportedStack` is
-the same stack as one ONNX file (:mod:`eskin.export`), run by onnxruntime. Both have
+the same stack as one ONNX file (:mod:`eskin.deploy.export`), run by onnxruntime. Both have
 ``predict(counts)`` from n × 20 channel readings to a DataFrame of estimates.
 
 A single-force stack detects contact, and locates and weighs a contact only where it
@@ -27,7 +27,7 @@ from threadpoolctl import ThreadpoolController
 from eskin.catalog import TASK_NAMES, features_path, featurizer_path, model_path, processed_path
 from eskin.data.schema import CHANNELS, read_metadata
 from eskin.errors import EskinError
-from eskin.learn import load_models
+from eskin.learning.saved import load_models
 
 # A few frames are too little work to share between OpenMP threads (gradient boosting):
 # waking them costs more than they save, and much more when the other core is busy
@@ -89,48 +89,6 @@ class SkinStack:
         if processed.exists():
             rest = rest_reading(pd.read_parquet(processed))
         return cls(scene, meta["kind"], featurizer, models, skipped, meta.get("device"), rest)
-
-    @classmethod
-    def from_registry(cls, scene: str, alias: str, root: Path = Path(".")) -> SkinStack:
-        """The stack whose task models carry the MLflow alias ``alias`` (``champion``:
-        ``client.set_registered_model_alias("single_force.force", "champion", 3)``).
-        Each task's file is found by the md5 its version recorded, in the workspace or
-        DVC's cache, and checked before it is loaded, as ``eskin reproduce`` does; all
-        must come from the same features version."""
-        from eskin import tracking
-        from eskin.registry import versioned_file
-
-        client = tracking.connect()
-        versions = [client.get_model_version_by_alias(model.name, alias)
-                    for model in client.search_registered_models(f"name LIKE '{scene}.%'")
-                    # LIKE's "_" matches any character, and scene names have them
-                    if model.name.startswith(f"{scene}.") and alias in (model.aliases or {})]
-        by_task = {v.tags.get("eskin.task"): v for v in versions}
-        if not by_task:
-            raise StackError(f"no registered model of scene {scene!r} has the alias {alias!r}: "
-                             f"set one with MlflowClient().set_registered_model_alias("
-                             f"'{scene}.force', '{alias}', <version>)")
-        features_md5 = {v.tags.get("eskin.features_md5") for v in by_task.values()}
-        if len(features_md5) != 1:
-            raise StackError(f"the {alias!r} models of {scene} were trained on different "
-                             f"features versions ({', '.join(sorted(map(str, features_md5)))}): "
-                             "give the alias to versions of one training")
-        features = versioned_file(root, features_path(scene), features_md5.pop(),
-                                  f"features of {scene}")
-        meta = read_metadata(features)
-        models, skipped = {}, {}
-        for task in TASK_NAMES:
-            version = by_task.get(task)
-            if version is None:
-                skipped[task] = f"no {task} model has the alias {alias!r}"
-                continue
-            md5 = version.tags["eskin.model_md5"]
-            models[task] = load_models(versioned_file(root, model_path(scene, task), md5,
-                                                      f"{version.name} v{version.version}"), md5)
-        processed = versioned_file(root, processed_path(scene), meta["dataset"]["md5"],
-                                   f"dataset of {scene}")
-        return cls(scene, meta["kind"], _featurizer_for(scene, meta, features, root),
-                   models, skipped, meta.get("device"), rest_reading(pd.read_parquet(processed)))
 
     # ------------------------------------------------------------ predicting
 
@@ -219,7 +177,7 @@ def check_board(scene: str, device: dict | None, device_id: str) -> None:
 
 @dataclass
 class ExportedStack:
-    """The stack as one ONNX file (``eskin export``, :mod:`eskin.export`), run by
+    """The stack as one ONNX file (``eskin export``, :mod:`eskin.deploy.export`), run by
     onnxruntime: the same :meth:`predict` as :class:`SkinStack`, a tenth of its time per
     frame or less (``make bench``), and nothing of eskin's training side needed to load it.
     The file names its scene, kind, board and rest reading in its metadata."""
@@ -271,7 +229,7 @@ class ExportedStack:
 def rest_reading(frame: pd.DataFrame) -> np.ndarray | None:
     """The training data's reading with nothing pressed, at the lowest stretch: what a tare
     takes a live board's offset from. None for a scene without such samples."""
-    from eskin.features import baseline_rows
+    from eskin.learning.features import baseline_rows
 
     rows = baseline_rows(frame)
     if not rows.any():
@@ -279,11 +237,11 @@ def rest_reading(frame: pd.DataFrame) -> np.ndarray | None:
     return frame.loc[rows, CHANNELS].to_numpy(dtype=np.float64).mean(axis=0)
 
 
-def _featurizer_for(scene: str, meta: dict, features: Path, root: Path):
+def featurizer_for(scene: str, meta: dict, features: Path, root: Path):
     """The featurizer that made ``features``: ``raw`` is the identity; a fitted one is the
     workspace's, if the workspace's features are these (their md5s agree)."""
     from eskin.data.schema import md5_file
-    from eskin.features import make_featurizer
+    from eskin.learning.features import make_featurizer
 
     method = meta["featurize"]["method"]
     if method == "raw":

@@ -4,7 +4,7 @@ One researcher's clone logs to SQLite in the project (``mlflow.db``). A lab shar
 one server: PostgreSQL as MLflow's backend store, and ``mlflow server
 --serve-artifacts``, so that clients send artifacts through the server and need no
 access to its disk. Every clone then sets ``MLFLOW_TRACKING_URI`` to the server's
-address; the pipeline is unchanged. ``make lab-server`` (``python -m eskin.lab
+address; the pipeline is unchanged. ``make lab-server`` (``python -m eskin.tracking.lab
 serve``) starts both on 127.0.0.1 with their data under ``.lab/``; a lab that serves
 other machines puts the server behind its own network or SSH tunnel.
 
@@ -183,7 +183,7 @@ def lab_server(directory: Path, *, pg_port: int | None = None,
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m eskin.lab", description=__doc__.split(
+    parser = argparse.ArgumentParser(prog="python -m eskin.tracking.lab", description=__doc__.split(
         "\n\n")[0])
     commands = parser.add_subparsers(dest="command", required=True)
     serve = commands.add_parser("serve", help="start PostgreSQL and the MLflow server on it "
@@ -199,7 +199,7 @@ def main(argv: list[str] | None = None) -> int:
         with lab_server(args.dir, pg_port=args.pg_port, port=args.port) as (database, tracking):
             # The experiment made now, so that its page (in the training view) can be named.
             os.environ["MLFLOW_TRACKING_URI"] = tracking.uri
-            from eskin import tracking as runs
+            from eskin.tracking import runs
 
             experiment = runs.ensure_experiment()
             try:  # from the line that says Ctrl-C on: a Ctrl-C right after it is a clean stop

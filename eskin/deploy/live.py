@@ -1,4 +1,4 @@
-"""Live: a scene's stack (:mod:`eskin.stack`) on a board's stream, frame by frame.
+"""Live: a scene's stack (:mod:`eskin.deploy.stack`) on a board's stream, frame by frame.
 
 :func:`live_estimates` runs a stack on a :class:`~eskin.device.link.SerialLink` that
 streams (``STREAM ON``): a tare first (frames with nothing pressed, whose offset from the
@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from eskin.data.schema import CHANNELS
-from eskin.stack import ExportedStack, SkinStack
+from eskin.deploy.stack import ExportedStack, SkinStack
 
 TARE_FRAMES = 100  # about 1.2 s of the stream at the board's 12 ms frame period
 

@@ -128,7 +128,7 @@ events.onmessage = message => show(JSON.parse(message.data));
 
 
 class LiveView:
-    """Serve the page; :meth:`show` each record of :func:`eskin.live.live_estimates`."""
+    """Serve the page; :meth:`show` each record of :func:`eskin.deploy.live.live_estimates`."""
 
     def __init__(self, *, scene: str, kind: str, device: str, port: int = 0) -> None:
         self.page = PAGE.format(scene=scene, kind=kind, device=device).encode()

@@ -1,6 +1,6 @@
 """Registered models and their lineage: load one, and reproduce its run on its dataset.
 
-Every training run registers its final models (``eskin.tracking.registered_name``)
+Every training run registers its final models (``eskin.tracking.runs.registered_name``)
 with the run's lineage as version tags: the DVC md5 of the dataset and of the
 features file it was trained on, the git commit, the DVC experiment. From those
 alone, ``reproduce`` finds the features file and the model file in DVC's cache
@@ -18,13 +18,14 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from eskin.catalog import features_path, model_path
+from eskin.catalog import TASK_NAMES, features_path, model_path, processed_path
 from eskin.data.schema import md5_file, read_dataset, read_metadata
+from eskin.deploy.stack import SkinStack, StackError, featurizer_for, rest_reading
 from eskin.evaluation.crossval import cross_validate
-from eskin.evaluation.cv import assign_folds
-from eskin.experiments import NoRunsError, dvc_cache_path, parse_param
-from eskin.learn import load_models
-from eskin.tasks import get_task
+from eskin.evaluation.folds import assign_folds
+from eskin.learning.saved import load_models
+from eskin.learning.tasks import get_task
+from eskin.tracking.compare import NoRunsError, dvc_cache_path, parse_param
 
 
 def model_version(client, name: str, version: str | None = None):
@@ -64,9 +65,9 @@ def reproduce(name: str, version: str | None = None, *, root: Path = Path("."),
     """
     import mlflow
 
-    from eskin import tracking
+    from eskin.tracking import runs
 
-    client = tracking.connect()
+    client = runs.connect()
     entry = model_version(client, name, version)
     tags = entry.tags
     scene, task_name, target = tags["eskin.scene"], tags["eskin.task"], tags["eskin.target"]
@@ -112,3 +113,44 @@ def render_reproduction(result: dict[str, Any]) -> str:
                      f"identical (largest difference {s['max_abs_difference']:.3g})")
     lines.append("  reproduced" if result["reproduced"] else "  NOT reproduced")
     return "\n".join(lines) + "\n"
+
+
+def stack_from_registry(scene: str, alias: str, root: Path = Path(".")) -> SkinStack:
+    """The stack whose task models carry the MLflow alias ``alias`` (``champion``:
+    ``client.set_registered_model_alias("single_force.force", "champion", 3)``).
+    Each task's file is found by the md5 its version recorded, in the workspace or
+    DVC's cache, and checked before it is loaded, as ``eskin reproduce`` does; all
+    must come from the same features version."""
+    from eskin.tracking import runs
+
+    client = runs.connect()
+    versions = [client.get_model_version_by_alias(model.name, alias)
+                for model in client.search_registered_models(f"name LIKE '{scene}.%'")
+                # LIKE's "_" matches any character, and scene names have them
+                if model.name.startswith(f"{scene}.") and alias in (model.aliases or {})]
+    by_task = {v.tags.get("eskin.task"): v for v in versions}
+    if not by_task:
+        raise StackError(f"no registered model of scene {scene!r} has the alias {alias!r}: "
+                         f"set one with MlflowClient().set_registered_model_alias("
+                         f"'{scene}.force', '{alias}', <version>)")
+    features_md5 = {v.tags.get("eskin.features_md5") for v in by_task.values()}
+    if len(features_md5) != 1:
+        raise StackError(f"the {alias!r} models of {scene} were trained on different "
+                         f"features versions ({', '.join(sorted(map(str, features_md5)))}): "
+                         "give the alias to versions of one training")
+    features = versioned_file(root, features_path(scene), features_md5.pop(),
+                              f"features of {scene}")
+    meta = read_metadata(features)
+    models, skipped = {}, {}
+    for task in TASK_NAMES:
+        version = by_task.get(task)
+        if version is None:
+            skipped[task] = f"no {task} model has the alias {alias!r}"
+            continue
+        md5 = version.tags["eskin.model_md5"]
+        models[task] = load_models(versioned_file(root, model_path(scene, task), md5,
+                                                  f"{version.name} v{version.version}"), md5)
+    processed = versioned_file(root, processed_path(scene), meta["dataset"]["md5"],
+                               f"dataset of {scene}")
+    return SkinStack(scene, meta["kind"], featurizer_for(scene, meta, features, root),
+                     models, skipped, meta.get("device"), rest_reading(pd.read_parquet(processed)))

@@ -2,7 +2,7 @@
 
 A robot-side process needs the estimates, not eskin: the file takes ``counts`` (n × 20
 channel readings, float64, x1..x10 then y1..y10) and gives one output per estimate,
-named as :attr:`eskin.stack.SkinStack.columns` (``contact`` is boolean, the rest float64),
+named as :attr:`eskin.deploy.stack.SkinStack.columns` (``contact`` is boolean, the rest float64),
 with the same gating as the scikit-learn stack (no contact: x and y NaN, force 0). Its
 metadata (``metadata_props``) carries the scene, its kind, the board the training data
 came from, the training rest reading a tare is taken against, and the md5 of every model
@@ -13,9 +13,11 @@ file it was made from. Loading it takes onnxruntime and numpy only::
     force = session.run(["force"], {"counts": numpy.array([frame], dtype=numpy.float64)})[0]
 
 The conversion is skl2onnx's, with converters (registered in its registry, for this
-process) for what it lacks: eskin's own transformers (:class:`~eskin.models.ForceProfile`,
-:class:`~eskin.models.ActiveTerminals`, :class:`~eskin.features.BaselineDelta`), the
-rounding ``FunctionTransformer`` of ``eskin.models._scaled``, LinearSVC and eskin's
+process) for what it lacks: eskin's own transformers
+(:class:`~eskin.learning.estimators.ForceProfile`,
+:class:`~eskin.learning.estimators.ActiveTerminals`,
+:class:`~eskin.learning.features.BaselineDelta`), the rounding ``FunctionTransformer``
+of ``eskin.learning.estimators._scaled``, LinearSVC and eskin's
 Gaussian processes in float64, and the tree ensembles (random forests, extra trees,
 histogram gradient boosting). skl2onnx 1.20 writes those as ``ai.onnx.ml`` opset 1 tree
 ensembles, whose thresholds and outputs are float32 (and fails to build them for
@@ -46,8 +48,8 @@ from sklearn.preprocessing import FunctionTransformer
 
 from eskin.data.schema import CHANNELS
 from eskin.errors import EskinError
-from eskin.features import BaselineDelta
-from eskin.models import ActiveTerminals, ForceProfile
+from eskin.learning.estimators import ActiveTerminals, ForceProfile
+from eskin.learning.features import BaselineDelta
 
 OPSETS = {"": 21, "ai.onnx.ml": 5}
 # skl2onnx converts up to ai.onnx.ml opset 3, and every ai.onnx.ml operator it writes is
@@ -436,7 +438,7 @@ def _linear_svc_shape(operator) -> None:
 
 
 def _standardised_rbf(scope, operator, container) -> None:
-    """eskin.gp's Gaussian processes, as ``_StandardisedRBF.predict`` computes them:
+    """eskin.learning.gp's Gaussian processes, as ``_StandardisedRBF.predict`` computes them:
     k(x, centres) · weights, back in the target's units (the matrix products are
     onnxruntime's, so the last bits differ)."""
     model, nodes = operator.raw_operator, _Nodes(scope, container)
@@ -468,8 +470,8 @@ def _register() -> None:
     from skl2onnx import update_registered_converter
     from sklearn.svm import LinearSVC
 
-    from eskin.gp import FixedKernelGaussianProcess, SparseGaussianProcess
-    from eskin.models import SubsampledGaussianProcess
+    from eskin.learning.estimators import SubsampledGaussianProcess
+    from eskin.learning.gp import FixedKernelGaussianProcess, SparseGaussianProcess
 
     update_registered_converter(FunctionTransformer, "SklearnFunctionTransformer",
                                 _function_transformer_shape, _function_transformer)
@@ -540,7 +542,7 @@ def _convert_quietly(model, last, inputs) -> onnx.ModelProto:
 
 
 def stack_to_onnx(stack) -> onnx.ModelProto:
-    """One ONNX model for a :class:`~eskin.stack.SkinStack`: ``counts`` in, one output per
+    """One ONNX model for a :class:`~eskin.deploy.stack.SkinStack`: ``counts`` in, one output per
     estimate column."""
     _register()
     parts: list[onnx.ModelProto] = []
@@ -721,7 +723,7 @@ def export_scene(scene: str, root: Path = Path("."), *, check: bool = True) -> s
         processed_path,
         stack_path,
     )
-    from eskin.stack import ExportedStack, SkinStack, locked_md5s
+    from eskin.deploy.stack import ExportedStack, SkinStack, locked_md5s
 
     root = Path(root)
     stack = SkinStack.from_workspace(scene, root)

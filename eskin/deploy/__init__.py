@@ -1,0 +1,1 @@
+"""The trained stack on the robot side: load, export to ONNX, run live."""

@@ -1,0 +1,1 @@
+"""Features, estimators and training: the featurize and train steps."""

@@ -1,0 +1,1 @@
+"""MLflow runs, compare and audit, the model registry, a lab's server."""
