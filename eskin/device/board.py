@@ -10,9 +10,9 @@ gives the same dataset as a clean one. Transports live in ``simulate.py``.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
-from pathlib import Path
 
 import numpy as np
 
@@ -26,15 +26,56 @@ MAX_SAMPLE = 100_000
 FIRMWARE = f"sim-{__version__}"
 
 
+# The fixed questions whose answers are the simulated board's identity: each thing that
+# shapes a reading at least once — the rest reading with its drift and noise, stretches
+# beyond rest (through the rig's rest length), a seated weight on a node, a light one not
+# seated (its placement and tilt), two at once (one at an edge, one heavy), two on
+# neighbouring nodes (saturating), three on one row at full stretch (the CAV424 clipped to
+# its supply), and a new trial's stream for each. 100 frames, 2000 readings: a shift of a
+# hundredth of an ADC count in every reading moves about twenty of them. HELLO is left
+# out: its line carries the identity itself.
+PROBE = (
+    "STRETCH 0", "SIM TRIAL 1", "SAMPLE 16",
+    "SIM TRIAL 2", "SIM PRESS 6 6 5.2136", "SAMPLE 16",
+    "SIM CLEAR", "SIM TRIAL 3", "SIM PRESS 4 7 1.2936", "SAMPLE 16",
+    "SIM CLEAR", "STRETCH 8", "SIM TRIAL 4", "SAMPLE 16",
+    "SIM PRESS 1 1 3.2536", "SIM PRESS 10 6 20", "SAMPLE 16",
+    "SIM CLEAR", "STRETCH 16", "SIM TRIAL 5", "SIM PRESS 6 6 5.2136", "SIM PRESS 6 7 50",
+    "SAMPLE 16",
+    "SIM CLEAR", "STRETCH 40", "SIM TRIAL 6", "SIM PRESS 2 6 50", "SIM PRESS 5 6 50",
+    "SIM PRESS 8 6 50", "SAMPLE 4",
+)
+PROBE_FRAME_PERIOD_MS = 12  # fixed: the link's timing (sim_board) is not the skin's
+
+
 def simulator_identity(params: SkinParams, rest_length_mm: float) -> str:
-    """A device id that changes whenever the simulated skin would read differently:
-    any parameter, the seed, the rig's rest length, or the simulator's own code."""
-    settings = {**params.as_dict(), "rest_length_mm": rest_length_mm}
-    digest = hashlib.sha256(json.dumps(settings, sort_keys=True).encode())
-    here = Path(__file__).parent
-    for module in ("physics.py", "board.py"):
-        digest.update((here / module).read_bytes())
+    """A device id that changes whenever the simulated skin would read differently.
+
+    It hashes the settings (every parameter, the seed, the rig's rest length) with what
+    a fresh board built from them answers to :data:`PROBE`, byte for byte: so a change
+    in the simulator's behaviour re-keys, and redraws, every simulated dataset, while a
+    comment, a docstring or a refactor that reads the same keeps them. Computed once per
+    settings in a process (a board is built again after every injected reset).
+    """
+    settings = {**params.as_dict(), "rest_length_mm": float(rest_length_mm)}
+    return _identity(json.dumps(settings, sort_keys=True))
+
+
+@functools.lru_cache(maxsize=64)
+def _identity(settings: str) -> str:
+    """Keyed on the settings' canonical text, so that 3 and 3.0 are not confused."""
+    values = json.loads(settings)
+    rest_length_mm = values.pop("rest_length_mm")
+    digest = hashlib.sha256(settings.encode() + b"\n")
+    digest.update(probe_answers(SkinParams(**values), rest_length_mm))
     return f"sim-{digest.hexdigest()[:12]}"
+
+
+def probe_answers(params: SkinParams, rest_length_mm: float) -> bytes:
+    """What a fresh board with these settings answers to :data:`PROBE`."""
+    board = SimulatedBoard(params, rest_length_mm=rest_length_mm,
+                           frame_period_ms=PROBE_FRAME_PERIOD_MS)
+    return b"".join(board.handle(command.encode()) for command in PROBE)
 
 
 class SimulatedBoard:
@@ -61,7 +102,6 @@ class SimulatedBoard:
             raise ValueError(f"rest_length_mm must be positive, got {rest_length_mm}")
         self.model = SkinModel(params)
         self.rest_length_mm = rest_length_mm
-        self.device_id = simulator_identity(params, rest_length_mm)
         self.corrupt_fraction = corrupt_fraction
         self.frame_period_ms = frame_period_ms
         self.streaming = False
@@ -72,6 +112,11 @@ class SimulatedBoard:
         self._stretch = 1.0
         self._trial = Trial(self.model, [0])
         self._indenters: list[Indenter] = []
+
+    @functools.cached_property
+    def device_id(self) -> str:
+        """Worked out at the first HELLO: the probe's own board never asks for it."""
+        return simulator_identity(self.model.params, self.rest_length_mm)
 
     # ------------------------------------------------------------ output
 

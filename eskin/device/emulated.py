@@ -55,10 +55,11 @@ UNITS = 65535              # the harness's full scale (the supply): simavr keeps
 
 def cav424_volts(model: SkinModel, capacitance_pf: np.ndarray) -> np.ndarray:
     """The CAV424's output voltage, before the ADC: the first half of
-    :meth:`SkinModel.to_counts` (``tests/test_firmware.py`` checks that they agree). Not
-    split out of physics.py: that file's bytes are part of the simulated board's identity
-    (:func:`~eskin.device.board.simulator_identity`), so any edit there re-keys, and
-    redraws, every simulated dataset."""
+    :meth:`SkinModel.to_counts` (``tests/test_firmware.py`` checks that they agree). Splitting
+    it out of physics.py would now cost nothing: the simulated board's identity
+    (:func:`~eskin.device.board.simulator_identity`) is what the board answers to a fixed
+    probe, not physics.py's bytes, so a refactor that reads the same keeps every simulated
+    dataset; only a change in the counts re-keys, and redraws, them all."""
     p = model.params
     return p.cav424_offset_v + model.cav424_gain_v * (capacitance_pf - p.cav424_ref_pf) / (
         p.cav424_ref_pf)

@@ -15,10 +15,12 @@ seeded stream. Kinds, each a probability per frame line (``sim_board.faults``):
              and comes back ``vanish_s`` later, at the same path
 
 Byte corruption (a flipped byte or a truncated line) is the board's own
-``corrupt_fraction``: it lives in ``board.py``, whose bytes are part of the
-simulator's identity, so it stayed there. This layer still counts it — a
-frame line that leaves the board already failing its CRC is logged as
-``corrupt`` — so the fault log has every kind. With ``log`` set, every fault
+``corrupt_fraction``: it lives in ``board.py``. It stayed there while that
+file's bytes were part of the simulator's identity; now the identity is what
+the board answers to a fixed probe (with ``corrupt_fraction`` 0), so moving
+it would keep every dataset. This layer still counts it — a frame line that
+leaves the board already failing its CRC is logged as ``corrupt`` — so the
+fault log has every kind. With ``log`` set, every fault
 is appended to that file as it happens (``<kind>\\t<detail>``), flushed, so
 a test or the soak counts them even after the process was killed.
 """
