@@ -13,7 +13,6 @@ from pathlib import Path
 
 # Every kind has the same tasks (eskin/learning/tasks.py says what each means for each kind), so
 # the stage graph is scenes × tasks; a task a scene's data cannot support is skipped.
-KINDS: tuple[str, ...] = ("single_force", "two_force")
 TASK_NAMES: tuple[str, ...] = ("stretch", "force", "detect", "localise")
 SCHEMES: tuple[str, ...] = ("stratified", "grouped")
 # Where a scene's readings come from: the Python board, the firmware under simavr, a

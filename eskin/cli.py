@@ -61,7 +61,7 @@ def _live(args: argparse.Namespace) -> int:
 
     from eskin.acquisition.session import simulated_board
     from eskin.catalog import raw_dir, stack_path
-    from eskin.config import load_params, section, skin_params
+    from eskin.config import load_params, section
     from eskin.deploy.live import (
         LineBroadcast,
         LiveRecorder,
@@ -71,6 +71,7 @@ def _live(args: argparse.Namespace) -> int:
     )
     from eskin.deploy.stack import ExportedStack, SkinStack
     from eskin.device.link import SerialLink
+    from eskin.device.physics import skin_params
 
     def note(message: str) -> None:
         print(f"eskin live: {message}", file=sys.stderr, flush=True)

@@ -31,6 +31,7 @@ from eskin.data.schema import CHANNELS
 from eskin.evaluation import metrics
 from eskin.evaluation.crossval import parallel_backend
 from eskin.evaluation.folds import assign_folds
+from eskin.kinds import get_kind
 from eskin.learning.estimators import build_model
 from eskin.learning.tasks import Task, get_task
 
@@ -216,8 +217,9 @@ def bayes_bound(params: Mapping[str, Any], scene: str, dataset_path: Path, out_p
     :mod:`harness.pair_oracle` for two): for a scene it did not make, the file holds the
     sample keys alone and says why (``attrs["unavailable"]``), so the bench tables show
     "no bound" and the reason instead of stopping."""
-    from eskin.config import section, skin_params
+    from eskin.config import section
     from eskin.data.schema import read_dataset, read_metadata
+    from eskin.device.physics import skin_params
     from harness import oracle, pair_oracle
 
     meta = read_metadata(dataset_path)
@@ -246,7 +248,7 @@ def bayes_bound(params: Mapping[str, Any], scene: str, dataset_path: Path, out_p
     # from nodes_x × nodes_y, a force each).
     conditions = [settings["stretches"], settings["forces"]]
     sim = skin_params(params)
-    if meta.get("kind") == "two_force":
+    if get_kind(meta["kind"]).contacts > 1:
         # importance sampling: every sample's answer from each half of the points too
         found = pair_oracle.posterior_predictions(
             frame, sim, *conditions, settings["nodes_x"], settings["nodes_y"],

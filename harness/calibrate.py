@@ -1,7 +1,7 @@
 """Calibrate the simulated skin against the paper: its targets, the fit, the checks.
 
 The skin's mechanisms and their sizes are set from physics (``eskin/device/physics.py``
-and the README's table). Two quantities no datasheet gives are fitted: the skin's
+and docs/simulator.md's table). Two quantities no datasheet gives are fitted: the skin's
 stiffness under the indenter (``force_half_n``, which depends on the indenter's
 footprint and the Ecoflex layers) and the baseline drift between trials
 (``drift_offset_pf``, the lab's temperature and humidity). They are fitted to the
@@ -36,6 +36,7 @@ from eskin.data.schema import CHANNELS
 from eskin.device.physics import SkinModel, SkinParams, Trial
 from eskin.evaluation.crossval import cross_validate
 from eskin.evaluation.folds import assign_folds
+from eskin.kinds import ONE_CONTACT, TWO_CONTACTS, get_kind
 from eskin.learning.estimators import build_model
 from eskin.learning.tasks import get_task
 
@@ -64,7 +65,7 @@ def simulate_plan(sim: SkinParams, plan: ScenePlan, seed: int = 0) -> pd.DataFra
         block["stretch"] = condition.stretch
         block["trial"] = trial_no
         block["sample"] = np.arange(plan.samples)
-        if plan.kind == "single_force":
+        if get_kind(plan.kind).contacts == 1:
             (contact,) = condition.contacts
             block["force"], block["x"], block["y"] = contact.force, contact.x, contact.y
         else:
@@ -105,24 +106,27 @@ def scores(sim: SkinParams, scenes: Mapping[str, Mapping], *, full: bool = True,
            folds: int = 10) -> dict[str, object]:
     """The paper's models on both simulated scenes, as the paper scored them."""
     out: dict[str, object] = {}
-    single = simulate_plan(sim, plan_from_params("single_force", scenes["single_force"]))
-    force = evaluate(single, "single_force", "force", "paper", folds=folds)
+    # the first scene of each kind (params.yaml's are named after their kinds)
+    one, two = (next(name for name, scene in scenes.items() if scene["kind"] == kind.name)
+                for kind in (ONE_CONTACT, TWO_CONTACTS))
+    single = simulate_plan(sim, plan_from_params(one, scenes[one]))
+    force = evaluate(single, ONE_CONTACT.name, "force", "paper", folds=folds)
     out["single_force force r2"] = force.summary["force"]["r2"]
-    detect = evaluate(single, "single_force", "detect", "paper", folds=folds)
+    detect = evaluate(single, ONE_CONTACT.name, "detect", "paper", folds=folds)
     out["single_force contact accuracy"] = detect.summary["contact"]["accuracy"]
     if not full:
         return out
     out["single_force stretch r2"] = evaluate(
-        single, "single_force", "stretch", "paper").summary["stretch"]["r2"]
+        single, ONE_CONTACT.name, "stretch", "paper").summary["stretch"]["r2"]
     out["force by level"] = force_by_level(force)
-    localise = evaluate(single, "single_force", "localise", "paper")
+    localise = evaluate(single, ONE_CONTACT.name, "localise", "paper")
     out["single_force localise accuracy"] = float(np.mean(
         [localise.summary[a]["accuracy"] for a in ("x", "y")]))
     out["single_force wrong nodes one off"] = neighbour_share(localise)
-    grouped = evaluate(single, "single_force", "force", "paper", scheme="grouped")
+    grouped = evaluate(single, ONE_CONTACT.name, "force", "paper", scheme="grouped")
     out["single_force force r2 (grouped)"] = grouped.summary["force"]["r2"]
-    pairs = simulate_plan(sim, plan_from_params("two_force", scenes["two_force"]))
-    two = evaluate(pairs, "two_force", "force", "paper")
+    pairs = simulate_plan(sim, plan_from_params(two, scenes[two]))
+    two = evaluate(pairs, TWO_CONTACTS.name, "force", "paper")
     out["two_force force1 r2"] = two.summary["force1"]["r2"]
     out["two_force force2 r2"] = two.summary["force2"]["r2"]
     return out
@@ -187,7 +191,8 @@ def fit(base: SkinParams, scenes: Mapping[str, Mapping], log=print) -> SkinParam
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from eskin.config import load_params, section, skin_params
+    from eskin.config import load_params, section
+    from eskin.device.physics import skin_params
 
     parser = argparse.ArgumentParser(prog="python -m harness.calibrate", description=__doc__.split(
         "\n\n")[0])

@@ -128,7 +128,7 @@ def render(result: dict) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scene", default="single_force")
+    parser.add_argument("--scene", required=True, help="a scene of params.yaml")
     parser.add_argument("--json", type=Path)
     args = parser.parse_args()
     result = measure(args.scene)

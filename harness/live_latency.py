@@ -104,7 +104,7 @@ def render(results: list[dict]) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=FRAMES)
-    parser.add_argument("--scenes", nargs="+", default=["single_force", "two_force"])
+    parser.add_argument("--scenes", nargs="+", required=True, help="scenes of params.yaml")
     parser.add_argument("--json", type=Path)
     args = parser.parse_args()
     results = [measure(scene, args.frames) for scene in args.scenes]

@@ -22,12 +22,13 @@ import pyarrow as pa
 import pyarrow.csv as pacsv
 
 from eskin.data.schema import CHANNELS, LABELS
+from eskin.kinds import ONE_CONTACT
 
 
 def write_paper_csv(path: Path, rows: int, seed: int = 0, block: int = 500_000) -> int:
     """A valid single-force CSV of ``rows`` rows (trials of 20 samples); its size."""
     rng = np.random.default_rng(seed)
-    names = CHANNELS + LABELS["single_force"]
+    names = CHANNELS + LABELS[ONE_CONTACT.name]
     with pacsv.CSVWriter(path, pa.schema([(n, pa.float64()) for n in names])) as writer:
         for start in range(0, rows, block):
             n = min(block, rows - start)
@@ -45,9 +46,10 @@ _CHILD = """
 import json, resource, sys, time
 from pathlib import Path
 from eskin.data.importer import import_to_dataset
+from eskin.kinds import ONE_CONTACT
 started = time.perf_counter()
 if sys.argv[1] != "-":
-    import_to_dataset(Path(sys.argv[1]), "single_force", Path(sys.argv[2]), bad_rows="error")
+    import_to_dataset(Path(sys.argv[1]), ONE_CONTACT.name, Path(sys.argv[2]), bad_rows="error")
 print(json.dumps({"seconds": time.perf_counter() - started,
                   "peak_kib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss}))
 """

@@ -34,7 +34,8 @@ import pandas as pd
 from scipy.special import logsumexp, ndtr
 
 from eskin.data.schema import CHANNELS, contact_mask
-from eskin.device.physics import GRID, NODES, SkinModel, SkinParams, spread_kernel
+from eskin.device.physics import SKIN, X_NODES, Y_NODES, SkinModel, SkinParams, spread_kernel
+from eskin.kinds import ONE_CONTACT
 
 
 @dataclass(frozen=True)
@@ -124,8 +125,8 @@ def _pressed_means(model: SkinModel, stretch: float, newtons: float, x: int, ys:
     p = model.params
     stretched = model.baseline_pf * (1 + model.stretch_sensitivity * (stretch - 1))
     peaks = np.array([model.peak_strain(newtons, stretch, s) for s in seatings])
-    wx = spread_kernel(NODES[None, :] - (x + offsets_x[:, None]), p.reach_nodes)  # (ox, 10)
-    wy = spread_kernel(NODES[None, None, :] - (np.asarray(ys, dtype=float)[:, None, None]
+    wx = spread_kernel(X_NODES[None, :] - (x + offsets_x[:, None]), p.reach_nodes)  # (ox, 10)
+    wy = spread_kernel(Y_NODES[None, None, :] - (np.asarray(ys, dtype=float)[:, None, None]
                                                + offsets_y[None, :, None]), p.reach_nodes)
     field = (wx[None, :, None, None, :, None] * wy[:, None, :, None, None, :]
              * peaks[None, None, None, :, None, None])
@@ -133,7 +134,7 @@ def _pressed_means(model: SkinModel, stretch: float, newtons: float, x: int, ys:
     field = np.minimum(field * model.node_sensitivity, p.strain_max)
     gain = 1.0 / (1.0 - field) - 1.0
     indentation = np.concatenate([gain.mean(axis=5), gain.mean(axis=4)], axis=-1)
-    return (stretched * (1 + indentation)).reshape(len(ys), -1, 2 * GRID)
+    return (stretched * (1 + indentation)).reshape(len(ys), -1, SKIN.terminals)
 
 
 class _Latents:
@@ -162,14 +163,14 @@ class _Latents:
         """Contact-free: one mean, whatever the latents."""
         m = self.model
         stretched = m.baseline_pf * (1 + m.stretch_sensitivity * (stretch - 1))
-        return np.broadcast_to(stretched, (self.n, 2 * GRID))
+        return np.broadcast_to(stretched, (self.n, SKIN.terminals))
 
     def pressed(self, stretch: float, newtons: float, x: int) -> np.ndarray:
         """Means of a weight on (x, y) for every y: (10, latents, 20) in (ox, oy, seating)
         order."""
         key = (stretch, newtons, x)
         if key not in self._cache:
-            self._cache[key] = _pressed_means(self.model, stretch, newtons, x, NODES,
+            self._cache[key] = _pressed_means(self.model, stretch, newtons, x, Y_NODES,
                                               self.offsets, self.offsets, self.seatings)
         return self._cache[key]
 
@@ -205,18 +206,18 @@ class _Latents:
 
 
 def plan_conditions(params: SkinParams, stretches, forces) -> Conditions:
-    """The conditions of a single-force plan (DESIGN §5): labels and prior."""
+    """The conditions of a single-force plan (docs/scenes.md): labels and prior."""
     labels = []
     for stretch in np.asarray(stretches, dtype=float):
         labels.append((stretch, 0.0, 0, 0, "free"))
         for newtons in (float(f) for f in forces if f > 0):
             labels += [(stretch, newtons, x, y, "contact")
-                       for x in range(1, GRID + 1) for y in range(1, GRID + 1)]
+                       for x, y in SKIN.nodes()]
     stretch_l, force_l, x_l, y_l, kind = zip(*labels, strict=True)
     kind = np.array(kind)
     # The plan records every node at 0 N and node 0 at every force as contact-free
-    # (see README, label convention): per stretch, nodes × 1 + 1 × forces such rows.
-    free_share = GRID * GRID + len(forces)
+    # (docs/scenes.md, label convention): per stretch, nodes × 1 + 1 × forces such rows.
+    free_share = SKIN.n_nodes + len(forces)
     prior = np.where(kind == "free", float(free_share), 1.0)
     return Conditions(log_prior=np.log(prior / prior.sum()), stretch=np.array(stretch_l),
                       force=np.array(force_l), x=np.array(x_l), y=np.array(y_l))
@@ -250,7 +251,7 @@ def _log_marginal(readings: np.ndarray, inverse_variance: np.ndarray, means: np.
     weighted = readings * inverse_variance
     squares = (readings * weighted).sum(1)[:, None]
     for start in range(0, n_cond, step):
-        flat = means[start:start + step].reshape(-1, 2 * GRID).T
+        flat = means[start:start + step].reshape(-1, SKIN.terminals).T
         quad = squares - 2.0 * weighted @ flat + inverse_variance @ (flat * flat)
         loglik = -0.5 * quad.reshape(len(readings), -1, n_lat)
         out[:, start:start + step] = logsumexp(loglik + log_weights, axis=2)
@@ -268,8 +269,8 @@ def posterior_predictions(frame: pd.DataFrame, params: SkinParams, stretches, fo
     readings = counts_to_pf(model, frame[CHANNELS].to_numpy(dtype=float))
     inverse = 1.0 / reading_variance(model, frame["sample"].to_numpy())
     contact = cond.x > 0
-    x_onehot = (cond.x[:, None] == NODES[None, :].astype(int)) & contact[:, None]
-    y_onehot = (cond.y[:, None] == NODES[None, :].astype(int)) & contact[:, None]
+    x_onehot = (cond.x[:, None] == X_NODES[None, :].astype(int)) & contact[:, None]
+    y_onehot = (cond.y[:, None] == Y_NODES[None, :].astype(int)) & contact[:, None]
     # The coarse pass ranks the conditions of every row; rows it finds alike share their
     # candidates, so the fine pass takes them in chunks of alike rows.
     coarse_post = np.concatenate([
@@ -323,7 +324,7 @@ def oracle_scores(answers: pd.DataFrame, frame: pd.DataFrame) -> dict[str, float
     where a level is constant), contact accuracy, x and y accuracy over contacts."""
     from eskin.learning.tasks import get_task
 
-    force = get_task("single_force", "force").target_values(frame)["force"]
+    force = get_task(ONE_CONTACT.name, "force").target_values(frame)["force"]
     stretch = frame["stretch"].to_numpy()
     touching = contact_mask(frame)
     out = {f"{name}_mse": mse_over_variance(truth, answers[name].to_numpy())

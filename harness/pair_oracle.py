@@ -43,7 +43,8 @@ from scipy.stats import qmc
 
 from eskin.acquisition.plan import two_force_plan
 from eskin.data.schema import CHANNELS
-from eskin.device.physics import NODES, SkinModel, SkinParams, spread_kernel
+from eskin.device.physics import X_NODES, Y_NODES, SkinModel, SkinParams, spread_kernel
+from eskin.kinds import TWO_CONTACTS
 from harness.oracle import counts_to_pf, mse_over_variance, reading_variance
 
 LATENTS = 6        # per contact: placement offset x, y (SDs) and seating (SDs of its log)
@@ -115,8 +116,8 @@ class PairSkin:
                           p.placement_max_nodes)
         seating = np.exp(p.seating_variation * latents[:, 2])
         peak = self._peak(newtons, stretch, seating)
-        wx = spread_kernel(NODES[None, :] - (x + offsets[:, 0])[:, None], p.reach_nodes)
-        wy = spread_kernel(NODES[None, :] - (y + offsets[:, 1])[:, None], p.reach_nodes)
+        wx = spread_kernel(X_NODES[None, :] - (x + offsets[:, 0])[:, None], p.reach_nodes)
+        wy = spread_kernel(Y_NODES[None, :] - (y + offsets[:, 1])[:, None], p.reach_nodes)
         return peak[:, None, None] * wx[:, :, None] * wy[:, None, :]
 
     def means(self, cond: PairConditions, which: np.ndarray, latents: np.ndarray) -> np.ndarray:
@@ -296,7 +297,8 @@ def _decide(log_post: np.ndarray, cond: PairConditions) -> pd.DataFrame:
     out = {"stretch": post @ cond.stretch, "force1": post @ cond.force1,
            "force2": post @ cond.force2}
     for name in POSITIONS:
-        onehot = getattr(cond, name)[:, None] == NODES[None, :].astype(int)
+        nodes = X_NODES if name.startswith("x") else Y_NODES
+        onehot = getattr(cond, name)[:, None] == nodes[None, :].astype(int)
         out[name] = np.argmax(post @ onehot, axis=1) + 1
     return pd.DataFrame(out)
 
@@ -337,7 +339,7 @@ def oracle_scores(answers: pd.DataFrame, frame: pd.DataFrame) -> dict[str, float
     from eskin.learning.tasks import get_task
 
     out = {f"{name}_mse": mse_over_variance(truth, answers[name].to_numpy())
-           for name, truth in get_task("two_force", "force").target_values(frame).items()}
+           for name, truth in get_task(TWO_CONTACTS.name, "force").target_values(frame).items()}
     for name in POSITIONS:
         out[f"{name}_accuracy"] = float(np.mean(answers[name].to_numpy()
                                                 == frame[name].to_numpy()))

@@ -29,7 +29,7 @@ import numpy as np
 import pandas as pd
 import yaml
 
-from eskin.config import scene_plan
+from eskin.acquisition.plan import scene_plan
 from eskin.data import build
 from eskin.data.schema import CHANNELS, LABELS
 from eskin.device.faults import KINDS

@@ -30,6 +30,7 @@ import numpy as np
 import pandas as pd
 
 from eskin.data.schema import CHANNELS
+from eskin.kinds import ONE_CONTACT
 from eskin.learning.tasks import Task
 
 # Invariance tolerances of a `same` case: regression predictions within this share of
@@ -37,7 +38,7 @@ from eskin.learning.tasks import Task
 TOLERANCE = {"regression_prediction": 1e-6, "labels_changed": 0.0, "score": 1e-6}
 WARNING_FLOOD = 5  # distinct warnings, or this many of any one, in a run is a flood
 # The kind of scene the cases are written for (node labels, one contact's force).
-KIND = "single_force"
+KIND = ONE_CONTACT.name
 
 
 def _channels(transform: Callable[[np.ndarray], np.ndarray]):

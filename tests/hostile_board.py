@@ -1,6 +1,6 @@
 """An independent protocol-v1 board that misbehaves on cue, for the host's tests.
 
-Written from the README's protocol text alone: it imports nothing from
+Written from the protocol's text alone (docs/protocol.md): it imports nothing from
 ``eskin`` (its own CRC-8, its own frame encoding, its own command parser), so
 the host is tested against a counterpart that does not share its mistakes.
 It speaks the simulated-board extension too (``SIM CLEAR``, ``SIM TRIAL n``,

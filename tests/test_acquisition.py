@@ -13,11 +13,12 @@ import pytest
 from conftest import eskin, small_scenes, write_params
 
 from eskin.acquisition import acquire
+from eskin.acquisition.plan import scene_plan
 from eskin.acquisition.rawlog import read_log
 from eskin.acquisition.session import acquire_scene, simulated_board
-from eskin.config import scene_plan, skin_params
 from eskin.data import build
 from eskin.data.schema import CHANNELS, LABELS, read_metadata
+from eskin.device.physics import skin_params
 from harness.soak import run_soak, wait_for_conditions
 
 # What a sample is, independent of how the link delivered it (seq and t_ms count wire

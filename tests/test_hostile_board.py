@@ -19,10 +19,10 @@ import pytest
 from conftest import eskin, small_scenes, write_params
 from hostile_board import HostileBoard, Served, frame_line
 
+from eskin.acquisition.plan import scene_plan
 from eskin.acquisition.rawlog import MAGIC, read_log
 from eskin.acquisition.runner import AcquisitionError, SimulatedPlacer
 from eskin.acquisition.session import run_session
-from eskin.config import scene_plan
 from eskin.data.ingest import ingest_log
 from eskin.data.schema import CHANNELS, LABELS
 from eskin.device.host import (

@@ -291,7 +291,7 @@ def test_folds_give_the_same_predictions_on_every_joblib_backend(backend, projec
 
 
 def test_ray_is_no_backend_and_params_say_which_are(repo_params):
-    """Ray was dropped for Dask (README: a lab's scale): params.yaml naming it is one line
+    """Ray was dropped for Dask (docs/lab.md): params.yaml naming it is one line
     listing the backends there are."""
     import copy
 

@@ -16,7 +16,7 @@ import pandas as pd
 import pytest
 
 from eskin.acquisition.session import simulated_board
-from eskin.config import section, skin_params
+from eskin.config import section
 from eskin.data.schema import read_dataset, read_metadata
 from eskin.deploy.export import write_stack
 from eskin.deploy.live import (
@@ -31,6 +31,7 @@ from eskin.deploy.stack import ExportedStack, SkinStack, StackError, rest_readin
 from eskin.deploy.view import LiveView
 from eskin.device.host import HostProtocol, StreamFrame, StreamGap
 from eskin.device.link import SerialLink
+from eskin.device.physics import skin_params
 from eskin.device.protocol import encode_frame
 from eskin.evaluation.crossval import fit_final
 from eskin.learning.estimators import build_model, model_settings

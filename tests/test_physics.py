@@ -1,4 +1,4 @@
-"""The simulated skin's physics, pinned (DESIGN §8)."""
+"""The simulated skin's physics, pinned (docs/simulator.md)."""
 
 import dataclasses
 

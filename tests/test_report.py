@@ -7,8 +7,9 @@ import pandas as pd
 import pytest
 from conftest import headless_chromium, needs_chromium
 
+from eskin.kinds import get_kind
 from eskin.reporting import report
-from eskin.reporting.page import HEADLINES, headline_rows
+from eskin.reporting.page import headline_rows
 
 
 def fake_outputs(root):
@@ -140,8 +141,8 @@ def test_the_page_loads_every_image_in_headless_chromium(built):
         skipped = page.inner_text("#scene-two_force ul")
         models = page.inner_text("h2:text('Models') + p + table")
     assert len(widths) == 12 and all(w > 0 for w in widths), widths
-    assert [h.split(' [')[0] for h in headline] == [row.label for row in HEADLINES
-                                                    if row.kind == "single_force"]
+    rows = get_kind("single_force").headlines
+    assert [h.split(' [')[0] for h in headline] == [row.label for row in rows]
     assert "stretch: stretch regression needs two or more stretch levels" in skipped
-    assert headline[0] == f"{HEADLINES[0].label} [paper]"
+    assert headline[0] == f"{rows[0].label} [paper]"
     assert "00000000000000000000000000force" in models

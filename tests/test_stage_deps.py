@@ -278,3 +278,29 @@ def params_mismatches(project: Path, trace_dir: Path, *,
             problems.append(f"{name} ({', '.join(addresses)}): declare {unused}, which none "
                             "of them reads")
     return problems
+
+
+# ------------------------------------------------------------------ imports point one way
+
+def test_a_robot_side_stack_imports_neither_mlflow_nor_dvc():
+    """Loading and running a stack (deploy/) pulls in no tracking: a robot needs neither."""
+    import subprocess
+    import sys
+
+    code = ("import sys; import eskin.deploy.stack, eskin.deploy.live, eskin.deploy.view; "
+            "print(sorted(m for m in ('mlflow', 'dvc') if m in sys.modules))")
+    done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True,
+                          text=True, timeout=120, check=True)
+    assert done.stdout.strip() == "[]", done.stdout
+    for module in ("eskin.deploy.stack", "eskin.deploy.live", "eskin.deploy.export"):
+        reached = {module_name(p) for p in closure(module)}
+        wrong = sorted(m for m in reached if m.startswith(("eskin.tracking", "eskin.evaluation"))
+                       or m == "eskin.learning.train")
+        assert not wrong, f"{module} imports {wrong}"
+
+
+def test_params_schema_imports_no_device_or_acquisition_code():
+    """A physics edit reruns acquisition and what follows from its data, not training."""
+    reached = {module_name(p) for p in closure("eskin.config")}
+    wrong = sorted(m for m in reached if m.startswith(("eskin.device", "eskin.acquisition")))
+    assert not wrong, f"eskin.config imports {wrong}"

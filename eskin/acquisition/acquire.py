@@ -11,11 +11,13 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from eskin.acquisition.plan import scene_plan
 from eskin.acquisition.session import acquire_scene
-from eskin.config import scene_plan, section, skin_params, validating
+from eskin.config import section, validating
 from eskin.data.importer import check_layout, copy_import
 from eskin.data.schema import DatasetError
 from eskin.device.faults import LinkFaults
+from eskin.device.physics import skin_params
 
 
 def acquire(params: dict[str, Any], scene: str, raw_dir: Path, *, progress: bool = True) -> str:

@@ -6,7 +6,7 @@ condition recorded once on a device is never recorded again on it — when a
 plan grows, only the new conditions are acquired — while another device, or
 a simulator with other settings, starts afresh.
 
-Label conventions (see the README):
+Label conventions (docs/scenes.md):
 
 * single force — node 0 means "no indenter on the skin". As in the paper's
   data, node 0 is recorded at every force level and every node at 0 N; a
@@ -23,8 +23,9 @@ import json
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
-from eskin.catalog import KINDS
-from eskin.device.physics import GRID
+from eskin.config import section
+from eskin.kinds import KINDS, ONE_CONTACT, TWO_CONTACTS
+from eskin.skin import PAPER_SKIN, Skin
 
 
 @dataclass(frozen=True, order=True)
@@ -85,13 +86,13 @@ class ScenePlan:
 
 
 def single_force_plan(name: str, stretches: Sequence[float], forces: Sequence[float],
-                      samples: int) -> ScenePlan:
-    """Every stretch × force × node 0..100, node 0 being no contact."""
-    nodes = [(0, 0)] + [(x, y) for x in range(1, GRID + 1) for y in range(1, GRID + 1)]
+                      samples: int, skin: Skin = PAPER_SKIN) -> ScenePlan:
+    """Every stretch × force × node (node 0 being no contact, then every node of the skin)."""
+    nodes = [(0, 0), *skin.nodes()]
     conditions = tuple(
         Condition(float(s), (Contact(x, y, float(f)),))
         for s in stretches for f in forces for x, y in nodes)
-    return ScenePlan(name, "single_force", conditions, samples)
+    return ScenePlan(name, ONE_CONTACT.name, conditions, samples)
 
 
 def two_force_plan(name: str, stretches: Sequence[float], forces: Sequence[float],
@@ -103,14 +104,15 @@ def two_force_plan(name: str, stretches: Sequence[float], forces: Sequence[float
         for s in stretches
         for a, b in itertools.combinations(nodes, 2)  # a < b: a is contact 1
         for fa in forces for fb in forces)
-    return ScenePlan(name, "two_force", conditions, samples)
+    return ScenePlan(name, TWO_CONTACTS.name, conditions, samples)
 
 
-def plan_from_params(name: str, section: Mapping[str, object]) -> ScenePlan:
+def plan_from_params(name: str, section: Mapping[str, object],
+                     skin: Skin = PAPER_SKIN) -> ScenePlan:
     """The plan of scene ``name`` from its params.yaml section, checked."""
     kind = section.get("kind")
     if kind not in KINDS:
-        raise ValueError(f"scenes.{name}.kind must be one of {KINDS}, got {kind!r}")
+        raise ValueError(f"scenes.{name}.kind must be one of {tuple(KINDS)}, got {kind!r}")
     samples = int(section["samples"])
     if samples < 1:
         raise ValueError(f"scenes.{name}.samples must be ≥ 1")
@@ -118,11 +120,18 @@ def plan_from_params(name: str, section: Mapping[str, object]) -> ScenePlan:
     forces = [float(f) for f in section["forces"]]
     if any(s < 1 for s in stretches) or any(f < 0 for f in forces):
         raise ValueError(f"scenes.{name}: stretches must be ≥ 1 and forces ≥ 0")
-    if kind == "single_force":
-        return single_force_plan(name, stretches, forces, samples)
+    if KINDS[kind].contacts == 1:
+        return single_force_plan(name, stretches, forces, samples, skin)
     nodes_x, nodes_y = section["nodes_x"], section["nodes_y"]
-    if not all(1 <= int(v) <= GRID for v in [*nodes_x, *nodes_y]):
-        raise ValueError(f"scenes.{name}: contact nodes must be in 1..{GRID}")
+    if not all(1 <= int(v) <= skin.rows for v in nodes_x) or \
+            not all(1 <= int(v) <= skin.columns for v in nodes_y):
+        raise ValueError(f"scenes.{name}: contact nodes must be in 1..{skin.rows} (x) and "
+                         f"1..{skin.columns} (y)")
     if any(f <= 0 for f in forces):
         raise ValueError(f"scenes.{name}: two-force levels must be > 0 (both indenters touch)")
     return two_force_plan(name, stretches, forces, nodes_x, nodes_y, samples)
+
+
+def scene_plan(params: Mapping[str, object], scene: str) -> ScenePlan:
+    """The plan of ``scene`` from the whole params (``scenes.<scene>``)."""
+    return plan_from_params(scene, section(params, f"scenes.{scene}"))

@@ -6,8 +6,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from eskin.acquisition.plan import scene_plan
 from eskin.acquisition.rawlog import LOG_NAME
-from eskin.config import scene_plan, section
+from eskin.config import section
 from eskin.data.importer import find_import, import_to_dataset
 from eskin.data.ingest import ingest_log, live_frames
 from eskin.data.schema import write_dataset, write_quarantine

@@ -38,6 +38,7 @@ from eskin.data.ingest import Ingested, check_policy
 from eskin.data.schema import (
     CHANNELS,
     LABELS,
+    SKIN,
     DatasetError,
     arrow_schema,
     columns,
@@ -47,8 +48,9 @@ from eskin.data.schema import (
     sha256_file,
     with_metadata,
 )
+from eskin.kinds import KINDS, get_kind
 
-WIDTHS = {"single_force": (24,), "two_force": (26, 27)}
+WIDTHS = {name: kind.file_widths(SKIN) for name, kind in KINDS.items()}
 CHUNK_ROWS = 20_000  # rows held at once: memory is a few chunks, whatever the file's size
 
 
@@ -251,7 +253,7 @@ def _labels(kind: str, width: int, path: Path) -> list[str]:
         hint = f" — that is the {other} layout" if other and other != kind else ""
         raise DatasetError(f"{path}: {width} columns, but the {kind} layout has "
                            f"{' or '.join(map(str, WIDTHS[kind]))}{hint}")
-    return LABELS[kind] if width > 26 or kind == "single_force" else LABELS[kind][:-1]
+    return get_kind(kind).file_labels(width, SKIN)
 
 
 def _check_text(path: Path) -> None:

@@ -18,6 +18,7 @@ import pandas as pd
 from eskin.acquisition.plan import ScenePlan
 from eskin.acquisition.rawlog import LogContents, acquisition_sessions, read_log_if_any
 from eskin.data.schema import CHANNELS, DatasetError, sha256_file
+from eskin.kinds import get_kind
 
 BAD_ROW_POLICIES = ("error", "quarantine")
 
@@ -127,15 +128,10 @@ def live_frames(contents: LogContents | None) -> pd.DataFrame:
 
 
 def _labels(conditions: list, kind: str) -> dict[str, np.ndarray]:
-    if kind == "single_force":
-        return {"force": np.array([c.contacts[0].force for c in conditions]),
-                "x": np.array([c.contacts[0].x for c in conditions], dtype=np.int64),
-                "y": np.array([c.contacts[0].y for c in conditions], dtype=np.int64),
-                "stretch": np.array([c.stretch for c in conditions])}
     out: dict[str, np.ndarray] = {}
-    for i in (0, 1):
-        out[f"force{i + 1}"] = np.array([c.contacts[i].force for c in conditions])
-        out[f"x{i + 1}"] = np.array([c.contacts[i].x for c in conditions], dtype=np.int64)
-        out[f"y{i + 1}"] = np.array([c.contacts[i].y for c in conditions], dtype=np.int64)
+    for i, (force, x, y) in enumerate(get_kind(kind).contact_columns):
+        out[force] = np.array([c.contacts[i].force for c in conditions])
+        out[x] = np.array([c.contacts[i].x for c in conditions], dtype=np.int64)
+        out[y] = np.array([c.contacts[i].y for c in conditions], dtype=np.int64)
     out["stretch"] = np.array([c.stretch for c in conditions])
     return out

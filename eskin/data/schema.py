@@ -1,6 +1,6 @@
 """The processed dataset: columns, checks, and Parquet with provenance metadata.
 
-One row per sample (DESIGN §6):
+One row per sample (docs/data.md):
 
 * ``cx1..cx10, cy1..cy10`` — channel readings, float64 (ADC counts for
   acquired data; whatever unit an import carries);
@@ -26,14 +26,14 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from eskin.errors import EskinError
+from eskin.kinds import KINDS, get_kind
+from eskin.skin import PAPER_SKIN
 
-X_CHANNELS = [f"cx{i}" for i in range(1, 11)]
-Y_CHANNELS = [f"cy{i}" for i in range(1, 11)]
-CHANNELS = X_CHANNELS + Y_CHANNELS
-LABELS = {
-    "single_force": ["force", "x", "y", "stretch"],
-    "two_force": ["force1", "x1", "y1", "force2", "x2", "y2", "stretch"],
-}
+SKIN = PAPER_SKIN
+X_CHANNELS = SKIN.x_channels
+Y_CHANNELS = SKIN.y_channels
+CHANNELS = SKIN.channels
+LABELS = {name: kind.labels for name, kind in KINDS.items()}
 PROVENANCE = ["session", "trial", "sample", "seq", "t_ms"]
 SCHEMA_VERSION = "1"
 
@@ -60,11 +60,11 @@ def arrow_schema(kind: str) -> pa.Schema:
 
 
 def node_columns(kind: str) -> list[str]:
-    return ["x", "y"] if kind == "single_force" else ["x1", "y1", "x2", "y2"]
+    return get_kind(kind).node_columns
 
 
 def force_columns(kind: str) -> list[str]:
-    return ["force"] if kind == "single_force" else ["force1", "force2"]
+    return get_kind(kind).force_columns
 
 
 def row_problems(frame: pd.DataFrame, kind: str) -> pd.Series:
@@ -76,8 +76,9 @@ def row_problems(frame: pd.DataFrame, kind: str) -> pd.Series:
                    (np.isinf(values), f"{column} is infinite")]
     for column in node_columns(kind):
         values = frame[column].to_numpy(dtype=float)
-        checks.append(((values < 0) | (values > 10) | (values != np.round(values)),
-                       f"{column} is not a node number 0..10"))
+        top = SKIN.rows if column.startswith("x") else SKIN.columns
+        checks.append(((values < 0) | (values > top) | (values != np.round(values)),
+                       f"{column} is not a node number 0..{top}"))
     for column in force_columns(kind):
         checks.append((frame[column].to_numpy(dtype=float) < 0, f"{column} is negative"))
     checks.append((frame["stretch"].to_numpy(dtype=float) <= 0, "stretch is not positive"))
@@ -119,10 +120,8 @@ def contact_mask(frame: pd.DataFrame) -> np.ndarray:
 
 
 def node_id(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Node number 1..100 in row-major order ((x − 1)·10 + y); 0 where x is 0 (no node)."""
-    x = np.asarray(x, dtype=np.int64)
-    y = np.asarray(y, dtype=np.int64)
-    return np.where(x > 0, (x - 1) * 10 + y, 0)
+    """The skin's node number of (x, y); 0 where x is 0 (no node)."""
+    return SKIN.node_id(x, y)
 
 
 def md5_file(path: Path) -> str:

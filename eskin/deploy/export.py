@@ -48,6 +48,7 @@ from sklearn.preprocessing import FunctionTransformer
 
 from eskin.data.schema import CHANNELS
 from eskin.errors import EskinError
+from eskin.kinds import get_kind
 from eskin.learning.estimators import ActiveTerminals, ForceProfile
 from eskin.learning.features import BaselineDelta
 
@@ -155,7 +156,8 @@ def _baseline_delta(scope, operator, container) -> None:
 def _force_profile(scope, operator, container) -> None:
     """:meth:`ForceProfile.transform`, step for step."""
     model, nodes = operator.raw_operator, _Nodes(scope, container)
-    half = model.CHANNELS // 2
+    # A square skin's axes: both ``half`` wide (a rectangular skin is not exported yet).
+    half = model.ROWS
     level = nodes.round(nodes.op("Div", nodes.op("Sub", operator.inputs[0].full_name,
                                                  nodes.const(model.rest_mean_)),
                                  nodes.const(model.rest_sd_)), 6)
@@ -188,7 +190,7 @@ def _active_terminals(scope, operator, container) -> None:
     change = nodes.round(nodes.op("Div", nodes.op("Sub", operator.inputs[0].full_name,
                                                   nodes.const(model.rest_)),
                                   nodes.const(model.unit_)), 6)
-    width = model.n_features_in_ // 2
+    width = model.ROWS  # both axes this wide: a square skin, as _force_profile
     minus_inf = nodes.const([[-np.inf]])
     columns, signs = [change], []
     for a in (0, width):
@@ -584,11 +586,12 @@ def stack_to_onnx(stack) -> onnx.ModelProto:
             return regression(task, target)  # NaN
         return found[0]
 
+    kind = get_kind(stack.kind)
     outputs["stretch"] = regression("stretch", "stretch")
-    if stack.kind != "single_force":
-        for target in ("x1", "y1", "x2", "y2"):
+    if not kind.detects:
+        for target in kind.node_columns:
             outputs[target] = located("localise", target)
-        for target in ("force1", "force2"):
+        for target in kind.force_columns:
             outputs[target] = regression("force", target)
     else:
         detected = label("detect", "contact")
@@ -608,9 +611,10 @@ def stack_to_onnx(stack) -> onnx.ModelProto:
                     "nan", TensorProto.DOUBLE, [1], [np.nan]))
         outputs["contact"], outputs["contact_probability"] = contact, probability
         nan, zero = built.const(np.nan), built.const(0.0)
-        for target in ("x", "y"):
+        for target in kind.node_columns:
             outputs[target] = built.node("Where", contact, located("localise", target), nan)
-        outputs["force"] = built.node("Where", contact, regression("force", "force"), zero)
+        for target in kind.force_columns:
+            outputs[target] = built.node("Where", contact, regression("force", target), zero)
     for name, value in outputs.items():
         graph_nodes.append(helper.make_node("Identity", [value], [name]))
     graph = helper.make_graph(

@@ -27,6 +27,7 @@ from threadpoolctl import ThreadpoolController
 from eskin.catalog import TASK_NAMES, features_path, featurizer_path, model_path, processed_path
 from eskin.data.schema import CHANNELS, read_metadata
 from eskin.errors import EskinError
+from eskin.kinds import get_kind
 from eskin.learning.saved import load_models
 
 # A few frames are too little work to share between OpenMP threads (gradient boosting):
@@ -94,9 +95,7 @@ class SkinStack:
 
     @property
     def columns(self) -> list[str]:
-        if self.kind == "single_force":
-            return ["stretch", "contact", "contact_probability", "x", "y", "force"]
-        return ["stretch", "x1", "y1", "x2", "y2", "force1", "force2"]
+        return get_kind(self.kind).stack_outputs
 
     def predict(self, counts) -> pd.DataFrame:
         """Estimates for each row of ``counts`` (n × 20 channel readings, x1..x10 then
@@ -116,26 +115,30 @@ class SkinStack:
         n = len(features)
         out = pd.DataFrame(index=range(n))
         out["stretch"] = self._regress("stretch", "stretch", features)
-        if self.kind != "single_force":
+        kind = get_kind(self.kind)
+        if not kind.detects:
             located = self._each("localise", features)
             weighed = self._each("force", features)
-            for name in ("x1", "y1", "x2", "y2"):
+            for name in kind.node_columns:
                 out[name] = located.get(name, np.full(n, np.nan))
-            for name in ("force1", "force2"):
+            for name in kind.force_columns:
                 out[name] = weighed.get(name, np.full(n, np.nan))
             return out
         contact, probability = self._detect(features)
         out["contact"] = contact
         out["contact_probability"] = probability
-        out["x"], out["y"] = np.full(n, np.nan), np.full(n, np.nan)
-        out["force"] = np.zeros(n)
+        for name in kind.node_columns:
+            out[name] = np.full(n, np.nan)
+        for name in kind.force_columns:
+            out[name] = np.zeros(n)
         if contact.any():
             touched = features[contact]
             located = self._each("localise", touched)
-            for name in ("x", "y"):
+            for name in kind.node_columns:
                 if name in located:
                     out.loc[contact, name] = located[name]
-            out.loc[contact, "force"] = self._regress("force", "force", touched)
+            for name in kind.force_columns:
+                out.loc[contact, name] = self._regress("force", name, touched)
         return out
 
     def _each(self, task: str, features: pd.DataFrame) -> dict[str, np.ndarray]:

@@ -2,7 +2,7 @@
 
 A person pressing the skin looks at it: the 10×10 map with the estimated contact(s)
 (marked by force), the force, the location, the stretch, whether there is contact and
-how sure the detector is, the drift since the tare, the 20 channels' change since the
+how sure the detector is, the drift since the tare, every channel's change since the
 tare as bars, and the frame rate. The page holds an ``EventSource`` on ``/events``;
 every client is sent the newest state only (a slow browser skips frames, nothing queues),
 and ``/state`` answers it once as JSON.
@@ -19,6 +19,8 @@ import threading
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Any
 
+from eskin.skin import PAPER_SKIN as SKIN
+
 KEEPALIVE_S = 10.0  # an idle stream sends a comment this often, so a dead client is noticed
 
 PAGE = """<!doctype html>
@@ -27,7 +29,7 @@ PAGE = """<!doctype html>
 body {{ font-family: system-ui, sans-serif; margin: 1.5em; background: #fafafa; color: #222; }}
 h1 {{ font-size: 1.2em; margin: 0 0 .8em; }}
 main {{ display: flex; gap: 2em; align-items: flex-start; }}
-#map {{ display: grid; grid-template-columns: 1.6em repeat(10, 2.6em); gap: 3px; }}
+#map {{ display: grid; grid-template-columns: 1.6em repeat({rows}, 2.6em); gap: 3px; }}
 #map div {{ height: 2.6em; display: flex; align-items: center; justify-content: center;
   font-size: .75em; color: #777; }}
 #map .cell {{ background: #e4e7eb; border-radius: 4px; color: #222; }}
@@ -35,10 +37,10 @@ main {{ display: flex; gap: 2em; align-items: flex-start; }}
 #readout p {{ margin: .3em 0; font-size: 1.1em; }}
 #readout b {{ display: inline-block; min-width: 9.5em; font-weight: 600; color: #555; }}
 #contact.touch {{ color: #b3261e; font-weight: 700; }}
-#bars {{ display: grid; grid-template-columns: repeat(20, 30px); gap: 3px; align-items: end;
-  height: 8em; margin-top: 1.5em; }}
+#bars {{ display: grid; grid-template-columns: repeat({terminals}, 30px); gap: 3px;
+  align-items: end; height: 8em; margin-top: 1.5em; }}
 #bars div {{ background: #4a78b5; min-height: 1px; }}
-#barlabels {{ display: grid; grid-template-columns: repeat(20, 30px); gap: 3px;
+#barlabels {{ display: grid; grid-template-columns: repeat({terminals}, 30px); gap: 3px;
   font-size: .7em; color: #777; text-align: center; }}
 </style></head>
 <body>
@@ -60,18 +62,18 @@ main {{ display: flex; gap: 2em; align-items: flex-start; }}
 <script>
 const map = document.getElementById("map");
 map.appendChild(document.createElement("div"));
-for (let x = 1; x <= 10; x++) {{
+for (let x = 1; x <= {rows}; x++) {{
   const label = document.createElement("div"); label.textContent = "x" + x; map.appendChild(label);
 }}
-for (let y = 10; y >= 1; y--) {{
+for (let y = {columns}; y >= 1; y--) {{
   const label = document.createElement("div"); label.textContent = "y" + y; map.appendChild(label);
-  for (let x = 1; x <= 10; x++) {{
+  for (let x = 1; x <= {rows}; x++) {{
     const cell = document.createElement("div");
     cell.className = "cell"; cell.id = `cell-${{x}}-${{y}}`; map.appendChild(cell);
   }}
 }}
-const names = [...Array(10).keys()].map(i => "x" + (i + 1))
-  .concat([...Array(10).keys()].map(i => "y" + (i + 1)));
+const names = [...Array({rows}).keys()].map(i => "x" + (i + 1))
+  .concat([...Array({columns}).keys()].map(i => "y" + (i + 1)));
 for (const name of names) {{
   const bar = document.createElement("div"); bar.id = "bar-" + name;
   document.getElementById("bars").appendChild(bar);
@@ -131,7 +133,8 @@ class LiveView:
     """Serve the page; :meth:`show` each record of :func:`eskin.deploy.live.live_estimates`."""
 
     def __init__(self, *, scene: str, kind: str, device: str, port: int = 0) -> None:
-        self.page = PAGE.format(scene=scene, kind=kind, device=device).encode()
+        self.page = PAGE.format(scene=scene, kind=kind, device=device, rows=SKIN.rows,
+                                columns=SKIN.columns, terminals=SKIN.terminals).encode()
         self._state: dict[str, Any] = {"estimate": None, "lost": 0, "rejected": 0, "tare": None}
         self._version = 0
         self._changed = threading.Condition()

@@ -17,7 +17,7 @@ import json
 import numpy as np
 
 from eskin import __version__
-from eskin.device.physics import GRID, Indenter, SkinModel, SkinParams, Trial
+from eskin.device.physics import SKIN, Indenter, SkinModel, SkinParams, Trial
 from eskin.device.protocol import MAX_LINE_BYTES, SEQ_MAX, encode_frame
 
 MAX_EXTENSION_MM = 40.0
@@ -121,7 +121,7 @@ class SimulatedBoard:
     # ------------------------------------------------------------ output
 
     def hello(self) -> bytes:
-        return (f"#HELLO eskin {FIRMWARE} terminals={2 * GRID} "
+        return (f"#HELLO eskin {FIRMWARE} terminals={SKIN.terminals} "
                 f"adc_bits={self.model.params.adc_bits} id={self.device_id}\n").encode()
 
     def frames(self, n: int) -> bytes:
@@ -189,8 +189,8 @@ class SimulatedBoard:
             self._trial = Trial(self.model, [n])
             return f"#OK SIM TRIAL {n}\n".encode()
         if sub == "PRESS" and len(args) == 3:
-            x = _number(args[0], int, 1, GRID)
-            y = _number(args[1], int, 1, GRID)
+            x = _number(args[0], int, 1, SKIN.rows)
+            y = _number(args[1], int, 1, SKIN.columns)
             newtons = _number(args[2], float, 0.0, MAX_NEWTONS)
             self._indenters.append(self._trial.place(x, y, newtons))
             return f"#OK SIM PRESS {x} {y} {args[2]}\n".encode()

@@ -41,8 +41,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-GRID = 10
-NODES = np.arange(1, GRID + 1, dtype=float)
+from eskin.skin import PAPER_SKIN
+
+SKIN = PAPER_SKIN
+X_NODES = np.arange(1, SKIN.rows + 1, dtype=float)     # node positions, in pitches
+Y_NODES = np.arange(1, SKIN.columns + 1, dtype=float)
 
 
 @dataclass(frozen=True)
@@ -106,6 +109,11 @@ class SkinParams:
         return dataclasses.asdict(self)
 
 
+def skin_params(params: Mapping[str, object]) -> SkinParams:
+    """The simulated skin of a whole params file (its ``sim:`` section)."""
+    return SkinParams.from_mapping(params["sim"])
+
+
 @dataclass(frozen=True)
 class Indenter:
     """A weight on node (x, y), both 1..10; ``offset`` is its placement error in node pitches,
@@ -140,7 +148,7 @@ class SkinModel:
         params.validate()
         self.params = params
         rng = np.random.default_rng([params.seed, 0])
-        n = 2 * GRID
+        n = SKIN.terminals
         spread = params.baseline_spread * rng.standard_normal(n)
         self.baseline_pf = params.baseline_pf * (1 + spread)
         self.stretch_sensitivity = 1 + params.stretch_sensitivity_spread * rng.standard_normal(n)
@@ -148,7 +156,7 @@ class SkinModel:
             1 + params.cav424_gain_spread * rng.standard_normal(n))
         # Drawn after the others, so that adding it left this skin's other draws alone.
         self.node_sensitivity = np.exp(
-            params.node_sensitivity_spread * rng.standard_normal((GRID, GRID)))
+            params.node_sensitivity_spread * rng.standard_normal((SKIN.rows, SKIN.columns)))
 
     # ----------------------------------------------------------- physics
 
@@ -166,15 +174,15 @@ class SkinModel:
         return p.strain_max * pressing * ratio / (1 + ratio)
 
     def strain_field(self, indenters: Sequence[Indenter], stretch: float) -> np.ndarray:
-        """Strain at each of the 10×10 nodes, shape (10, 10) indexed [x-1, y-1]."""
+        """Strain at each node, shape (rows, columns) indexed [x-1, y-1]."""
         p = self.params
-        field = np.zeros((GRID, GRID))
+        field = np.zeros((SKIN.rows, SKIN.columns))
         for ind in indenters:
             peak = self.peak_strain(ind.newtons, stretch, ind.seating)
             if peak == 0.0:
                 continue
-            wx = spread_kernel(NODES - (ind.x + ind.offset[0]), p.reach_nodes)
-            wy = spread_kernel(NODES - (ind.y + ind.offset[1]), p.reach_nodes)
+            wx = spread_kernel(X_NODES - (ind.x + ind.offset[0]), p.reach_nodes)
+            wy = spread_kernel(Y_NODES - (ind.y + ind.offset[1]), p.reach_nodes)
             field += peak * np.outer(wx, wy)
         # Two indenters cannot squeeze the dielectric past what one can.
         return np.minimum(field * self.node_sensitivity, p.strain_max)
@@ -215,7 +223,7 @@ class Trial:
         self.model = model
         self.rng = np.random.default_rng([model.params.seed, 1, *seed_words])
         p = model.params
-        self._drift = p.drift_offset_pf * self.rng.standard_normal(2 * GRID)
+        self._drift = p.drift_offset_pf * self.rng.standard_normal(SKIN.terminals)
 
     def place(self, x: int, y: int, newtons: float) -> Indenter:
         """The indenter as it lands: off-centre, and more or less squarely seated."""
@@ -228,9 +236,9 @@ class Trial:
         p = self.model.params
         clean = self.model.capacitance(stretch, indenters)
         walk = self._drift + np.cumsum(
-            p.drift_step_pf * self.rng.standard_normal((n, 2 * GRID)), axis=0)
+            p.drift_step_pf * self.rng.standard_normal((n, SKIN.terminals)), axis=0)
         self._drift = walk[-1] if n else self._drift
-        noise = p.noise_pf * self.rng.standard_normal((n, 2 * GRID))
+        noise = p.noise_pf * self.rng.standard_normal((n, SKIN.terminals))
         return clean + walk + noise
 
     def sample_counts(self, n: int, stretch: float, indenters: Sequence[Indenter]) -> np.ndarray:

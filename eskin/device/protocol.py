@@ -21,7 +21,9 @@ import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
-N_TERMINALS = 20
+from eskin.skin import PAPER_SKIN
+
+N_TERMINALS = PAPER_SKIN.terminals  # protocol v1 carries N; this host reads the paper's skin
 ADC_MAX = 1023
 SEQ_MAX = 2**32 - 1
 # Longest valid frame: "D," + 2 × 10-digit counters + 20 × 4 digits + commas + "*CC".

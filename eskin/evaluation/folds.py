@@ -21,16 +21,13 @@ import pandas as pd
 from sklearn.model_selection import StratifiedGroupKFold, StratifiedKFold
 
 from eskin.catalog import SCHEMES
-from eskin.data.schema import node_id
+from eskin.data.schema import SKIN
+from eskin.kinds import get_kind
 
 
 def strata(frame: pd.DataFrame, kind: str) -> np.ndarray:
-    """The stratum of each row: its node (0..100), or its pair of nodes."""
-    if kind == "single_force":
-        return node_id(frame["x"], frame["y"])
-    first = node_id(frame["x1"], frame["y1"])
-    second = node_id(frame["x2"], frame["y2"])
-    return first * 101 + second
+    """The stratum of each row: its node (0 for none), or its pair of nodes."""
+    return get_kind(kind).strata(frame, SKIN)
 
 
 def assign_folds(frame: pd.DataFrame, kind: str, scheme: str, n_splits: int,

@@ -1,6 +1,6 @@
 """Two contacts scored as a set: match predicted to true contacts, then score.
 
-Which contact is "first" is a labelling convention (README: row-major order),
+Which contact is "first" is a labelling convention (docs/scenes.md: row-major order),
 so a model that finds both contacts but names them in the other order has not
 failed. Per sample, predicted contacts are assigned to true ones by
 ``scipy.optimize.linear_sum_assignment`` on a cost that counts a wrong node as

@@ -39,12 +39,14 @@ from sklearn.preprocessing import FunctionTransformer, StandardScaler
 from sklearn.svm import SVC, LinearSVC
 from sklearn.utils.validation import check_is_fitted, validate_data
 
+from eskin.kinds import ONE_CONTACT
 from eskin.learning.gp import (
     FixedKernelGaussianProcess,
     SparseGaussianProcess,
     rbf_gp_kernel,
     subsample_rows,
 )
+from eskin.skin import PAPER_SKIN
 
 ROLES = ("stretch", "force", "detect", "localise")
 
@@ -109,11 +111,13 @@ class ActiveTerminals(TransformerMixin, BaseEstimator):
     goes with which y — the harder press is larger on both axes. Per row this adds, per
     axis, the two strongest local peaks of the change from rest (lower terminal first),
     their amplitudes, the log ratio of the two, and whether the two axes' ratios agree
-    in sign (the pairing the amplitudes vote for), after the 20 changes themselves.
+    in sign (the pairing the amplitudes vote for), after the changes themselves.
 
     The rest reading is each channel's ``rest_quantile`` over the training rows: in a
     two-contact scene a terminal is unpressed in most of them.
     """
+
+    ROWS = PAPER_SKIN.rows  # the x terminals, which come first; then the y terminals
 
     def __init__(self, rest_quantile: float = 0.05) -> None:
         self.rest_quantile = rest_quantile
@@ -133,7 +137,7 @@ class ActiveTerminals(TransformerMixin, BaseEstimator):
         # rounded as _scaled does: ADC steps tie neighbours exactly, and a tie must break
         # the same way in counts as in farads
         change = np.round((X - self.rest_) / self.unit_, 6)
-        half = change.shape[1] // 2
+        half = self.ROWS
         columns, ratios = [change], []
         for axis in (change[:, :half], change[:, half:]):
             padded = np.pad(axis, ((0, 0), (1, 1)), constant_values=-np.inf)
@@ -164,7 +168,8 @@ class ForceProfile(TransformerMixin, BaseEstimator):
     Per-channel units and offsets cancel (counts, volts, farads).
     """
 
-    CHANNELS = 20
+    CHANNELS = PAPER_SKIN.terminals
+    ROWS = PAPER_SKIN.rows  # the x terminals, which come first; then the y terminals
     # +1: force rises with it; 0: no constraint. Order as transform's columns.
     MONOTONE = [0] * CHANNELS + [0] + [1, 1, 1, 0] * 2
 
@@ -188,7 +193,7 @@ class ForceProfile(TransformerMixin, BaseEstimator):
         X = validate_data(self, X, dtype=np.float64, reset=False)
         # rounded as _scaled does, so that units and offsets leave no last-bit differences
         level = np.round((X - self.rest_mean_) / self.rest_sd_, 6)
-        half = self.CHANNELS // 2
+        half = self.ROWS
         axes = (level[:, :half], level[:, half:])
         stretch = np.mean([np.sort(a, axis=1)[:, :self.quiet].mean(axis=1) for a in axes],
                           axis=0)
@@ -302,7 +307,7 @@ CONFIGURATIONS = ("tuned", "paper")
 
 
 def model_settings(task_params: Mapping[str, Any], configuration: str = "tuned",
-                   kind: str = "single_force") -> tuple[str, dict[str, Any]]:
+                   kind: str = ONE_CONTACT.name) -> tuple[str, dict[str, Any]]:
     """(model name, its hyperparameters) from a ``train.<task>`` section, for a scene of
     ``kind``.
 

@@ -28,8 +28,9 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from eskin.catalog import HEADLINE_METRIC, KINDS, TASK_NAMES
+from eskin.catalog import HEADLINE_METRIC
 from eskin.data.schema import contact_mask
+from eskin.kinds import KINDS, Kind
 
 
 def _all_rows(frame: pd.DataFrame) -> np.ndarray:
@@ -89,26 +90,22 @@ class Task:
         return None
 
 
-TASKS: dict[str, dict[str, Task]] = {
-    "single_force": {
-        "stretch": Task("stretch", "stretch", "regression", {"stretch": _column("stretch")}),
-        "force": Task("force", "force", "regression", {"force": _physical_force()}),
-        "detect": Task("detect", "detect", "detection", {"contact": contact_mask}),
-        "localise": Task("localise", "localise", "localisation",
-                         {"x": _column("x"), "y": _column("y")},
-                         rows=contact_mask, row_note="contact samples"),
-    },
-    "two_force": {
+def _tasks(kind: Kind) -> dict[str, Task]:
+    """The tasks of a kind of scene, in TASK_NAMES order."""
+    # With one contact the detector decides first: localisation learns from contacts only.
+    localise_rows = {"rows": contact_mask, "row_note": "contact samples"} if kind.detects else {}
+    return {
         "stretch": Task("stretch", "stretch", "regression", {"stretch": _column("stretch")}),
         "force": Task("force", "force", "regression",
-                      {"force1": _physical_force("1"), "force2": _physical_force("2")}),
+                      {force: _physical_force(force.removeprefix("force"))
+                       for force in kind.force_columns}),
         "detect": Task("detect", "detect", "detection", {"contact": contact_mask}),
         "localise": Task("localise", "localise", "localisation",
-                         {name: _column(name) for name in ("x1", "y1", "x2", "y2")}),
-    },
-}
+                         {name: _column(name) for name in kind.node_columns}, **localise_rows),
+    }
 
-assert tuple(TASKS) == KINDS and all(tuple(tasks) == TASK_NAMES for tasks in TASKS.values())
+
+TASKS: dict[str, dict[str, Task]] = {name: _tasks(kind) for name, kind in KINDS.items()}
 
 
 def get_task(kind: str, name: str) -> Task:

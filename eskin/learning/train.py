@@ -22,6 +22,7 @@ from eskin.config import section
 from eskin.data.schema import describe_source, md5_file, read_dataset, read_metadata
 from eskin.evaluation.crossval import cross_validate, fit_final, parallel_backend
 from eskin.evaluation.folds import assign_folds
+from eskin.kinds import KINDS
 from eskin.learning.estimators import build_model, model_settings
 from eskin.learning.saved import save_models
 from eskin.learning.tasks import Task, get_task
@@ -158,7 +159,8 @@ def score_pairs(scene: str, predictions_dir: Path, metrics_path: Path, scores_pa
         write_json({**scores_doc, "status": "skipped", "reason": reason}, scores_path)
         write_json({}, metrics_path)
 
-    if localise.get("kind") != "two_force":
+    kind = KINDS.get(localise.get("kind", ""))
+    if kind is None or kind.contacts < 2:
         reason = f"a {localise.get('kind')} scene has one contact; pairs need two"
         skip(reason)
         return f"{scene}/pairs: skipped — {reason}"

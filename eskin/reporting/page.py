@@ -9,61 +9,12 @@ from __future__ import annotations
 import base64
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
 
 from eskin.catalog import SCHEMES
+from eskin.kinds import Headline, get_kind
 
 # (scene, kind, {task: scores document}) for each scene of params.yaml, in its order.
 Scenes = list[tuple[str, str, Mapping[str, Mapping]]]
-
-
-@dataclass(frozen=True)
-class Headline:
-    """One row of a scene's headline table: where its number is, and the paper's value
-    for that kind of scene."""
-
-    label: str
-    kind: str
-    task: str
-    target: str | None     # None: the scores sit directly under the scheme (pairs)
-    metric: str
-    paper: str = "—"
-
-
-HEADLINES = (
-    Headline("stretch R²", "single_force", "stretch", "stretch", "r2",
-             "0.996"),
-    Headline("stretch MSE", "single_force", "stretch", "stretch", "mse", "2 × 10⁻⁵"),
-    Headline("force R²", "single_force", "force", "force", "r2", "0.827"),
-    Headline("force RMSE (N)", "single_force", "force", "force", "rmse"),
-    Headline("contact detection accuracy", "single_force", "detect", "contact",
-             "accuracy", "0.96"),
-    Headline("contact detection balanced accuracy", "single_force", "detect", "contact",
-             "balanced_accuracy"),
-    Headline("contact detection ROC AUC", "single_force", "detect", "contact", "roc_auc"),
-    Headline("x accuracy", "single_force", "localise", "x", "accuracy",
-             "“effective” (Fig. 7)"),
-    Headline("x within one node", "single_force", "localise", "x", "within_one"),
-    Headline("y accuracy", "single_force", "localise", "y", "accuracy",
-             "“effective” (Fig. 7)"),
-    Headline("y within one node", "single_force", "localise", "y", "within_one"),
-    Headline("two forces: stretch R²", "two_force", "stretch", "stretch", "r2"),
-    Headline("two forces: force 1 R²", "two_force", "force", "force1", "r2",
-             "0.695"),
-    Headline("two forces: force 2 R²", "two_force", "force", "force2", "r2",
-             "0.771"),
-    *(Headline(f"two forces: {t} accuracy", "two_force", "localise", t,
-               "accuracy", "“high” (Fig. 8)") for t in ("x1", "y1", "x2", "y2")),
-    Headline("two forces: pair accuracy, order-free", "two_force", "pairs", None,
-             "pair_accuracy"),
-    Headline("two forces: pair accuracy, in label order", "two_force", "pairs", None,
-             "pair_accuracy_ordered"),
-    Headline("two forces: contact accuracy, order-free", "two_force", "pairs", None,
-             "contact_accuracy"),
-    Headline("two forces: ghost pairs (the other pairing of the same rows and columns)",
-             "two_force", "pairs", None, "ghost_share"),
-    Headline("two forces: force R², order-free", "two_force", "pairs", None, "force_r2"),
-)
 
 
 def _value(scores: Mapping[str, Mapping], row: Headline, scheme: str) -> str:
@@ -89,7 +40,7 @@ def headline_rows(kind: str, scores: Mapping[str, Mapping]) -> list[list[str]]:
     """[metric, stratified, grouped, paper] per headline of a ``kind`` scene whose scores
     documents are ``scores`` (by task), as display strings."""
     return [[_label(scores, row), *(_value(scores, row, s) for s in SCHEMES), row.paper]
-            for row in HEADLINES if row.kind == kind]
+            for row in get_kind(kind).headlines]
 
 
 def _label(scores: Mapping[str, Mapping], row: Headline) -> str:
@@ -136,7 +87,7 @@ def results_markdown(scenes: Scenes) -> str:
                  else "no trained task")
         skips = "".join(f"\n- {scene}/{task} skipped: {reason}"
                         for task, reason in skipped(scores))
-        parts.append(f"## {scene} ({kind.replace('_', ' ')})\n\n{about}.\n\n"
+        parts.append(f"## {scene} ({get_kind(kind).label})\n\n{about}.\n\n"
                      f"{headline_markdown(kind, scores)}" + (f"\n{skips}" if skips else ""))
     return "\n\n".join(parts) + "\n\nMean ± std over folds.\n"
 
@@ -172,7 +123,7 @@ def render_page(scenes: Scenes, figures: Mapping[str, list[tuple[str, str, bytes
         loader=jinja2.PackageLoader("eskin.reporting", "templates"),
         autoescape=True, undefined=jinja2.StrictUndefined)
     context = [{
-        "name": scene, "kind": kind.replace("_", " "),
+        "name": scene, "kind": get_kind(kind).label,
         "dataset": dict(zip(("md5", "rows", "source"), data, strict=True)) if (
             data := dataset(scores)) else None,
         "headline": headline_rows(kind, scores), "skipped": skipped(scores),

@@ -19,37 +19,17 @@ import pandas as pd
 from eskin.catalog import SCORED_TASKS
 from eskin.config import section
 from eskin.data.schema import force_columns, node_columns
+from eskin.kinds import Figure, get_kind
 from eskin.reporting import figures as fig
 from eskin.reporting.page import render_page, results_markdown
 
-# (figure id, task, caption, builder(oof, kind)), by kind; a figure is drawn when its task
-# has predictions.
-FIGURES = {
-    "single_force": (
-        ("stretch_parity", "stretch", "Stretch: predicted against true λ, mean ± std per "
-         "level (paper Fig. 5)", lambda oof: fig.stretch_parity(oof)),
-        ("force_parity", "force", "Force: predicted against true force, mean ± std per level "
-         "and stretch (paper Fig. 6)", lambda oof: fig.force_parity(oof)),
-        ("localisation_confusion", "localise", "Localisation of a single contact: rows (x) "
-         "and columns (y); counts, colour normalised per true row (paper Fig. 7)",
-         lambda oof: fig.confusion_grid(oof, ["x", "y"], ["x terminal", "y terminal"],
-                                        title="localisation, one contact")),
-        ("detection", "detect", "Contact detection: confusion matrix and ROC curve",
-         lambda oof: fig.detection(oof)),
-    ),
-    "two_force": (
-        ("stretch_parity", "stretch", "Stretch: predicted against true λ, mean ± std per "
-         "level", lambda oof: fig.stretch_parity(oof)),
-        ("two_force_localisation", "localise", "Two contacts: x and y of contact 1 (top) and "
-         "contact 2 (bottom) (paper Fig. 8)",
-         lambda oof: fig.confusion_grid(oof, ["x1", "y1", "x2", "y2"],
-                                        ["x1 terminal", "y1 terminal", "x2 terminal",
-                                         "y2 terminal"],
-                                        title="localisation, two contacts")),
-        ("two_force_parity", "force", "Two contacts: force of contact 1 and contact 2, "
-         "mean ± std per level (paper Fig. 9)", lambda oof: fig.two_force_parity(oof)),
-    ),
-}
+
+def draw(figure: Figure, oof: pd.DataFrame):
+    """One of a kind's figures (eskin/kinds.py) from its task's out-of-fold predictions."""
+    build = getattr(fig, figure.draw)
+    if figure.targets:
+        return build(oof, list(figure.targets), list(figure.axis_labels), title=figure.title)
+    return build(oof)
 
 
 def _task_files(directory: Path, scene: str, suffix: str, reader) -> dict[str, Any]:
@@ -85,7 +65,7 @@ def plot_data(scene: str, kind: str, predictions: dict[str, pd.DataFrame]
         frame = predictions.get(task)
         if frame is not None and not frame.empty:
             columns = {f"{target}_true": "actual", f"{target}_pred": "predicted"}
-            if task == "force" and kind == "single_force":
+            if task == "force" and get_kind(kind).contacts == 1:
                 columns["stretch"] = "stretch"
             points = frame[list(columns)].rename(columns=columns)
             step = -(-len(points) // PLOT_POINTS)
@@ -121,13 +101,13 @@ def report(params: dict[str, Any], *, scores_dir: Path, predictions_dir: Path,
     written = 0
     for scene, kind in kinds.items():
         # each figure under every scheme, one after the other on the page
-        for fid, task, caption, build in FIGURES[kind]:
-            frame = predictions[scene].get(task)
+        for spec in get_kind(kind).figures:
+            frame = predictions[scene].get(spec.task)
             if frame is None or frame.empty:
                 continue
             for scheme in settings["schemes"]:
-                figure = build(frame[frame["scheme"] == scheme])
-                name = f"{fid}_{scheme}"
+                figure = draw(spec, frame[frame["scheme"] == scheme])
+                name = f"{spec.id}_{scheme}"
                 (figures_dir / scene).mkdir(parents=True, exist_ok=True)
                 for fmt in ("png", "svg"):
                     figure.savefig(figures_dir / scene / f"{name}.{fmt}", dpi=int(settings["dpi"]),
@@ -135,7 +115,7 @@ def report(params: dict[str, Any], *, scores_dir: Path, predictions_dir: Path,
                 buffer = io.BytesIO()
                 figure.savefig(buffer, format="png", dpi=int(settings["page_dpi"]))
                 plt.close(figure)
-                page_figures[scene].append((f"{scene}-{name}", f"{caption} — {scheme} CV.",
+                page_figures[scene].append((f"{scene}-{name}", f"{spec.caption} — {scheme} CV.",
                                             buffer.getvalue()))
                 written += 1
         chosen = {task: frame[frame["scheme"] == settings["plots_scheme"]]

@@ -1,4 +1,4 @@
-// eskin board firmware: wire protocol v1 (README, "Wire protocol v1") on an Arduino Uno.
+// eskin board firmware: wire protocol v1 (docs/protocol.md) on an Arduino Uno.
 //
 // Board → host: #HELLO at start and on HELLO; D,<seq>,<t_ms>,<x1..x10>,<y1..y10>*<CC>
 // frames (CC: CRC-8, polynomial 0x07, init 0x00, of every byte before '*'); #OK / #ERR.

@@ -1,0 +1,190 @@
+"""The kinds of scene: what each one labels, learns, reports and exports. Defined once.
+
+A scene's kind (``scenes.<s>.kind`` in params.yaml) is the number of contacts its
+conditions place on the skin; everything that differs between kinds is an attribute of
+its :class:`Kind`, so the rest of eskin asks the kind instead of testing its name:
+
+* the label columns (``force, x, y`` for one contact; ``force1, x1, y1, force2, x2, y2``
+  for two), then ``stretch``;
+* the file widths an import accepts (the paper's two-contact files have no stretch);
+* the strata of cross-validation (the node, or the pair of nodes);
+* whether the localise task trains on contacts only (one contact: the detector decides
+  first) and whether the stack gates its estimates on the detector;
+* the report's headline rows and figures, and the stack's outputs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from eskin.skin import Skin
+
+
+@dataclass(frozen=True)
+class Headline:
+    """One row of a scene's headline table: where its number is, and the paper's value."""
+
+    label: str
+    task: str
+    target: str | None     # None: the scores sit directly under the scheme (pairs)
+    metric: str
+    paper: str = "—"
+
+
+@dataclass(frozen=True)
+class Figure:
+    """One figure of a scene's report: drawn by ``draw`` (a function of
+    eskin.reporting.figures) from one task's out-of-fold predictions."""
+
+    id: str
+    task: str
+    caption: str
+    draw: str
+    targets: tuple[str, ...] = ()   # a confusion grid's targets, with their axis labels
+    axis_labels: tuple[str, ...] = ()
+    title: str = ""
+
+
+@dataclass(frozen=True)
+class Kind:
+    """A kind of scene: ``contacts`` indenters per condition."""
+
+    name: str
+    contacts: int
+    # The paper's two-contact files carry no stretch column (λ = 1): an import may omit it.
+    stretch_column_optional: bool
+    headlines: tuple[Headline, ...] = ()
+    figures: tuple[Figure, ...] = ()
+    label: str = field(init=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "label", self.name.replace("_", " "))
+
+    def _suffixes(self) -> list[str]:
+        return [""] if self.contacts == 1 else [str(i) for i in range(1, self.contacts + 1)]
+
+    @property
+    def force_columns(self) -> list[str]:
+        return [f"force{s}" for s in self._suffixes()]
+
+    @property
+    def node_columns(self) -> list[str]:
+        """x then y of each contact: ``x, y`` or ``x1, y1, x2, y2``."""
+        return [f"{axis}{s}" for s in self._suffixes() for axis in ("x", "y")]
+
+    @property
+    def contact_columns(self) -> list[tuple[str, str, str]]:
+        """(force, x, y) column names of each contact, in label order."""
+        return [(f"force{s}", f"x{s}", f"y{s}") for s in self._suffixes()]
+
+    @property
+    def labels(self) -> list[str]:
+        """The label columns of a dataset, in file order: each contact's force, x, y, then
+        stretch."""
+        return [name for contact in self.contact_columns for name in contact] + ["stretch"]
+
+    def file_widths(self, skin: Skin) -> tuple[int, ...]:
+        """The column counts an imported file of this kind may have."""
+        full = skin.terminals + len(self.labels)
+        return (full - 1, full) if self.stretch_column_optional else (full,)
+
+    def file_labels(self, width: int, skin: Skin) -> list[str]:
+        """The label columns of an imported file ``width`` columns wide."""
+        return self.labels if width == skin.terminals + len(self.labels) else self.labels[:-1]
+
+    @property
+    def detects(self) -> bool:
+        """Whether a contact detector decides first: one contact localises and weighs only
+        the frames it calls touched (the paper's localisation "assumes that there is
+        pressure"); with two contacts every sample presses, and nothing gates."""
+        return self.contacts == 1
+
+    def strata(self, frame, skin: Skin) -> np.ndarray:
+        """The stratum of each row for CV: its node, or its combination of nodes."""
+        out = np.zeros(len(frame), dtype=np.int64)
+        for _, x, y in self.contact_columns:
+            node = skin.node_id(frame[x], frame[y])
+            out = out * (skin.n_nodes + 1) + node
+        return out
+
+    @property
+    def stack_outputs(self) -> list[str]:
+        """The estimates a stack gives for each frame, in order."""
+        if self.detects:
+            return ["stretch", "contact", "contact_probability", *self.node_columns,
+                    *self.force_columns]
+        return ["stretch", *self.node_columns, *self.force_columns]
+
+
+ONE_CONTACT = Kind(
+    "single_force", contacts=1, stretch_column_optional=False,
+    headlines=(
+        Headline("stretch R²", "stretch", "stretch", "r2", "0.996"),
+        Headline("stretch MSE", "stretch", "stretch", "mse", "2 × 10⁻⁵"),
+        Headline("force R²", "force", "force", "r2", "0.827"),
+        Headline("force RMSE (N)", "force", "force", "rmse"),
+        Headline("contact detection accuracy", "detect", "contact", "accuracy", "0.96"),
+        Headline("contact detection balanced accuracy", "detect", "contact",
+                 "balanced_accuracy"),
+        Headline("contact detection ROC AUC", "detect", "contact", "roc_auc"),
+        Headline("x accuracy", "localise", "x", "accuracy", "“effective” (Fig. 7)"),
+        Headline("x within one node", "localise", "x", "within_one"),
+        Headline("y accuracy", "localise", "y", "accuracy", "“effective” (Fig. 7)"),
+        Headline("y within one node", "localise", "y", "within_one"),
+    ),
+    figures=(
+        Figure("stretch_parity", "stretch", "Stretch: predicted against true λ, mean ± std "
+               "per level (paper Fig. 5)", "stretch_parity"),
+        Figure("force_parity", "force", "Force: predicted against true force, mean ± std per "
+               "level and stretch (paper Fig. 6)", "force_parity"),
+        Figure("localisation_confusion", "localise", "Localisation of a single contact: rows "
+               "(x) and columns (y); counts, colour normalised per true row (paper Fig. 7)",
+               "confusion_grid", ("x", "y"), ("x terminal", "y terminal"),
+               "localisation, one contact"),
+        Figure("detection", "detect", "Contact detection: confusion matrix and ROC curve",
+               "detection"),
+    ),
+)
+
+TWO_CONTACTS = Kind(
+    "two_force", contacts=2, stretch_column_optional=True,
+    headlines=(
+        Headline("two forces: stretch R²", "stretch", "stretch", "r2"),
+        Headline("two forces: force 1 R²", "force", "force1", "r2", "0.695"),
+        Headline("two forces: force 2 R²", "force", "force2", "r2", "0.771"),
+        *(Headline(f"two forces: {t} accuracy", "localise", t, "accuracy", "“high” (Fig. 8)")
+          for t in ("x1", "y1", "x2", "y2")),
+        Headline("two forces: pair accuracy, order-free", "pairs", None, "pair_accuracy"),
+        Headline("two forces: pair accuracy, in label order", "pairs", None,
+                 "pair_accuracy_ordered"),
+        Headline("two forces: contact accuracy, order-free", "pairs", None,
+                 "contact_accuracy"),
+        Headline("two forces: ghost pairs (the other pairing of the same rows and columns)",
+                 "pairs", None, "ghost_share"),
+        Headline("two forces: force R², order-free", "pairs", None, "force_r2"),
+    ),
+    figures=(
+        Figure("stretch_parity", "stretch", "Stretch: predicted against true λ, mean ± std "
+               "per level", "stretch_parity"),
+        Figure("two_force_localisation", "localise", "Two contacts: x and y of contact 1 "
+               "(top) and contact 2 (bottom) (paper Fig. 8)", "confusion_grid",
+               ("x1", "y1", "x2", "y2"),
+               ("x1 terminal", "y1 terminal", "x2 terminal", "y2 terminal"),
+               "localisation, two contacts"),
+        Figure("two_force_parity", "force", "Two contacts: force of contact 1 and contact 2, "
+               "mean ± std per level (paper Fig. 9)", "two_force_parity"),
+    ),
+)
+
+KINDS: dict[str, Kind] = {kind.name: kind for kind in (ONE_CONTACT, TWO_CONTACTS)}
+KIND_NAMES: tuple[str, ...] = tuple(KINDS)
+
+
+def get_kind(name: str) -> Kind:
+    """The kind called ``name``; an error listing the known ones."""
+    try:
+        return KINDS[name]
+    except KeyError:
+        raise ValueError(f"unknown scene kind {name!r}; known: {', '.join(KINDS)}") from None
