@@ -33,3 +33,16 @@ def test_one_setting_changes_one_line_of_params_yaml(tmp_path, key, value):
     changed = [line for line in difflib.unified_diff(before, after, lineterm="", n=0)
                if line[:1] in "+-" and not line.startswith(("+++", "---"))]
     assert len(changed) == 2, "\n".join(changed)  # one line out, one line in
+
+
+def test_the_sim_section_names_every_simulator_parameter():
+    """config declares the sim section itself (so that a physics edit reruns only what
+    reads the physics); it must name exactly SkinParams' fields, each required."""
+    import dataclasses
+
+    from eskin.config import Sim
+    from eskin.device.physics import SkinParams
+
+    fields = {f.name for f in dataclasses.fields(SkinParams)}
+    assert set(Sim.model_fields) == fields
+    assert all(field.is_required() for field in Sim.model_fields.values())
