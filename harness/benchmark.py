@@ -30,7 +30,7 @@ from sklearn.base import BaseEstimator, clone
 from eskin.data.schema import CHANNELS
 from eskin.evaluation import metrics
 from eskin.evaluation.crossval import parallel_backend
-from eskin.evaluation.folds import assign_folds
+from eskin.evaluation.folds import FoldSplit, assign_folds, fold_splitter
 from eskin.kinds import get_kind
 from eskin.learning.estimators import build_model
 from eskin.learning.tasks import Task, get_task
@@ -81,9 +81,10 @@ def _fit_predict(estimator: BaseEstimator, X: np.ndarray, y: np.ndarray, train: 
     return predicted, fit_s, time.perf_counter() - start, model
 
 
-def run_variant(task: Task, data: pd.DataFrame, fold_of: np.ndarray, fold_ids: list[int],
+def run_variant(task: Task, data: pd.DataFrame, splitter: FoldSplit,
                 estimator: BaseEstimator, share: bool) -> dict[str, Any]:
-    """Score one variant on the given folds: per-target mean scores, seconds, peak MiB."""
+    """Score one variant on the splitter's folds (:func:`eskin.evaluation.folds.fold_splitter`
+    over ``data``'s rows): per-target mean scores, seconds, peak MiB."""
     X = data[CHANNELS].to_numpy(dtype=np.float64)
     score: Callable = metrics.SCORERS[task.scorer]
     per_target: dict[str, list[dict[str, float]]] = {}
@@ -92,8 +93,7 @@ def run_variant(task: Task, data: pd.DataFrame, fold_of: np.ndarray, fold_ids: l
     for name, y in task.target_values(data).items():
         per_target[name] = []
         shared = estimator
-        for k, fold in enumerate(fold_ids):
-            train, test = np.flatnonzero(fold_of != fold), np.flatnonzero(fold_of == fold)
+        for k, (train, test) in enumerate(splitter.split(X)):
             predicted, f_s, p_s, fitted = _fit_predict(shared, X, y, train, test)
             if share and k == 0:
                 # Hyperparameters fitted once (on the first training fold, timed above)
@@ -102,7 +102,7 @@ def run_variant(task: Task, data: pd.DataFrame, fold_of: np.ndarray, fold_ids: l
             fit_s += f_s
             predict_s += p_s
             per_target[name].append(score(y[test], predicted))
-    n = len(fold_ids)
+    n = splitter.get_n_splits()
     return {"scores": {name: metrics.summarise(folds) for name, folds in per_target.items()},
             "fit_seconds_per_fold": fit_s / n, "predict_seconds_per_fold": predict_s / n,
             "seconds_per_fold": (fit_s + predict_s) / n, "peak_memory_mb": peak_memory_mb()}
@@ -125,15 +125,14 @@ def scaling(task: Task, data: pd.DataFrame, estimator: BaseEstimator, fractions:
             "growth_per_doubling": [b / a for a, b in zip(ordered, ordered[1:], strict=False)]}
 
 
-def bound_scores(task: Task, data: pd.DataFrame, oracle: pd.DataFrame, fold_of: np.ndarray,
-                 fold_ids: list[int]) -> dict[str, dict[str, float]]:
+def bound_scores(task: Task, data: pd.DataFrame, oracle: pd.DataFrame,
+                 splitter: FoldSplit) -> dict[str, dict[str, float]]:
     """The oracle's scores on the same folds (``oracle`` aligned with ``data``'s rows)."""
     score: Callable = metrics.SCORERS[task.scorer]
     out = {}
     for name, y in task.target_values(data).items():
         folds = []
-        for fold in fold_ids:
-            test = np.flatnonzero(fold_of == fold)
+        for _, test in splitter.split(data):
             extra = oracle["contact_probability"].to_numpy()[test] if name == "contact" else None
             folds.append(score(y[test], oracle[name].to_numpy()[test], extra))
         out[name] = metrics.summarise(folds)
@@ -177,12 +176,13 @@ def benchmark_task(task: Task, frame: pd.DataFrame, kind: str, variants: Mapping
     doc: dict[str, Any] = {"task": task.name, "kind": kind, "rows": int(rows.sum()),
                            "evaluate_folds": evaluate_folds, "folds": folds, "schemes": {}}
     for scheme in schemes:
-        fold_of = assign_folds(frame, kind, scheme, folds, seed)[rows]
-        fold_ids = [f for f in np.unique(fold_of) if f >= 0][:evaluate_folds]
-        log(f"  {task.name} {scheme}: {len(variants)} variants, {len(fold_ids)} folds …")
+        # The first evaluate_folds folds of the scene's split, on this task's rows
+        splitter = fold_splitter(assign_folds(frame, kind, scheme, folds, seed)[rows],
+                                 evaluate_folds)
+        log(f"  {task.name} {scheme}: {len(variants)} variants, "
+            f"{splitter.get_n_splits()} folds …")
         runs = Parallel(n_jobs=n_jobs, return_as="generator")(
-            delayed(run_variant)(task, data, fold_of, fold_ids,
-                                 *variant_estimator(task.role, spec))
+            delayed(run_variant)(task, data, splitter, *variant_estimator(task.role, spec))
             for spec in variants.values())
         results = {}
         for (name, spec), outcome in zip(variants.items(), runs, strict=True):
@@ -193,7 +193,7 @@ def benchmark_task(task: Task, frame: pd.DataFrame, kind: str, variants: Mapping
                   for n, r in results.items()}
         entry: dict[str, Any] = {"variants": results, "pareto_front": pareto_front(points)}
         if oracle_rows is not None:
-            bound = bound_scores(task, data, oracle_rows, fold_of, fold_ids)
+            bound = bound_scores(task, data, oracle_rows, splitter)
             bound_error = headline_error(task, bound)
             paper_error = points["paper"][1] if "paper" in points else float("nan")
             gap = paper_error - bound_error

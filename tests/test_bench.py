@@ -10,6 +10,7 @@ from sklearn.utils.estimator_checks import check_estimator
 
 from eskin.data.schema import CHANNELS, contact_mask, read_dataset
 from eskin.device.physics import SkinModel, SkinParams
+from eskin.evaluation.folds import fold_splitter
 from eskin.learning.estimators import build_model
 from eskin.learning.gp import FixedKernelGaussianProcess, SparseGaussianProcess, stable_cholesky
 from eskin.learning.tasks import get_task
@@ -142,7 +143,7 @@ def test_bound_scores_use_the_task_metrics(small_dataset):
     oracle = task_labels(frame).assign(contact_probability=contact_mask(frame).astype(float))
     task = get_task("single_force", "detect")
     folds = np.arange(len(frame)) % 3
-    scores = benchmark.bound_scores(task, frame, oracle, folds, [0, 1, 2])
+    scores = benchmark.bound_scores(task, frame, oracle, fold_splitter(folds))
     assert scores["contact"]["accuracy"] == 1.0
 
 
@@ -151,7 +152,7 @@ def test_a_variant_is_scored_on_the_given_folds_only(small_dataset):
     task = get_task("single_force", "stretch")
     folds = np.arange(len(frame)) % 5
     estimator, share = benchmark.variant_estimator("stretch", {"model": "paper"})
-    result = benchmark.run_variant(task, frame, folds, [0, 1], estimator, share)
+    result = benchmark.run_variant(task, frame, fold_splitter(folds, 2), estimator, share)
     assert result["scores"]["stretch"]["r2"] > 0.9
     assert result["seconds_per_fold"] > 0
     assert result["peak_memory_mb"] is None or result["peak_memory_mb"] > 0
@@ -171,7 +172,8 @@ def test_shared_hyperparameters_are_fitted_once(small_dataset, monkeypatch):
     for share, expected in ((True, 1), (False, 3)):
         calls.clear()
         estimator, _ = benchmark.variant_estimator("force", spec)
-        result = benchmark.run_variant(task, frame, folds, [0, 1, 2], estimator, share)
+        result = benchmark.run_variant(task, frame, fold_splitter(folds, 3), estimator,
+                                       share)
         assert len(calls) == expected
         assert np.isfinite(result["scores"]["force"]["r2"])
 

@@ -23,6 +23,7 @@ from tqdm import tqdm
 
 from eskin.data.schema import CHANNELS
 from eskin.evaluation import metrics
+from eskin.evaluation.folds import FoldSplit, fold_splitter
 from eskin.learning.tasks import Task
 
 
@@ -54,7 +55,7 @@ def parallel_backend(name: str = "loky"):
     joblib's own. ``dask`` runs them on a ``dask.distributed`` cluster: the one
     ``DASK_SCHEDULER_ADDRESS`` names (a lab's, ``tcp://host:8786``), else the client
     already open in this process, else a local cluster on 127.0.0.1. The features,
-    targets and fold numbers go to every worker once per cross-validation, not with
+    targets and the fold splitter go to every worker once per cross-validation, not with
     every fold (:func:`_shared_with_cluster`); a fold whose worker dies is run again on
     another. Results do not depend on the backend.
     """
@@ -115,9 +116,9 @@ def decision_scores(model: BaseEstimator, X: np.ndarray) -> np.ndarray | None:
 
 
 def _fit_predict_fold(estimator: BaseEstimator, X: np.ndarray, targets: pd.DataFrame,
-                      fold_of: np.ndarray, fold: int,
+                      splitter: FoldSplit, k: int,
                       binary: bool) -> tuple[dict, float, float, set, dict]:
-    train, test = np.flatnonzero(fold_of != fold), np.flatnonzero(fold_of == fold)
+    train, test = splitter.fold(k)
     predictions, fit_s, predict_s, notes, scores = {}, 0.0, 0.0, set(), {}
     for name in targets.columns:
         y = targets[name].to_numpy()
@@ -144,20 +145,20 @@ def cross_validate(task: Task, frame: pd.DataFrame, folds: np.ndarray, estimator
     fold_of = np.asarray(folds)[rows]
     X = data[CHANNELS].to_numpy(dtype=np.float64)
     targets = task.target_values(data)
-    fold_ids = [f for f in np.unique(fold_of) if f >= 0]
-    splits = [(np.flatnonzero(fold_of != f), np.flatnonzero(fold_of == f)) for f in fold_ids]
+    splitter = fold_splitter(fold_of)
+    splits = list(splitter.split(X))
     binary = task.scorer == "detection"
-    # What every fold shares goes to a cluster's workers once (each fold task carries a
-    # fold number): the targets as one frame, not a dict, which joblib would send with
-    # every task.
+    # What every fold shares goes to a cluster's workers once (each fold task carries its
+    # position in the splitter, and takes its rows from it: not its index arrays): the
+    # targets as one frame, not a dict, which joblib would send with every task.
     target_frame = pd.DataFrame(targets)
-    with (_shared_with_cluster(X, target_frame, fold_of),
-          tqdm(total=len(fold_ids), desc=progress, unit="fold", disable=progress is None,
+    with (_shared_with_cluster(X, target_frame, splitter),
+          tqdm(total=len(splits), desc=progress, unit="fold", disable=progress is None,
                file=sys.stderr, leave=False) as bar):
         outcomes = []
         for outcome in Parallel(n_jobs=n_jobs, return_as="generator")(
-                delayed(_fit_predict_fold)(estimator, X, target_frame, fold_of, fold, binary)
-                for fold in fold_ids):
+                delayed(_fit_predict_fold)(estimator, X, target_frame, splitter, k, binary)
+                for k in range(len(splits))):
             outcomes.append(outcome)
             bar.update()
 

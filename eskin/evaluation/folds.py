@@ -10,15 +10,26 @@
 Folds are drawn on the whole scene; a task that uses only some rows (say,
 localisation on contacts) keeps their fold numbers, so every task and every
 model variant is scored on the same splits.
+
+One fold runner: cross-validation (:func:`eskin.evaluation.crossval.cross_validate`,
+and so training and ``eskin reproduce``) and the bench (:mod:`harness.benchmark`) split
+a task's rows with :func:`fold_splitter`, a scikit-learn splitter over their fold numbers.
 """
 
 from __future__ import annotations
 
 import warnings
+from itertools import islice
 
 import numpy as np
 import pandas as pd
-from sklearn.model_selection import StratifiedGroupKFold, StratifiedKFold
+from sklearn.model_selection import (
+    BaseCrossValidator,
+    PredefinedSplit,
+    StratifiedGroupKFold,
+    StratifiedKFold,
+)
+from sklearn.utils.validation import _num_samples
 
 from eskin.catalog import SCHEMES
 from eskin.data.schema import SKIN
@@ -67,3 +78,57 @@ def assign_folds(frame: pd.DataFrame, kind: str, scheme: str, n_splits: int,
                 f"samples, {n_groups} trials, smallest stratum {smallest} sample(s)): {err} "
                 "Acquire more samples or lower cv.folds.") from None
     return folds
+
+
+class FoldSplit(BaseCrossValidator):
+    """A scikit-learn splitter over fold numbers: :class:`~sklearn.model_selection.PredefinedSplit`,
+    optionally cut to its first ``n_folds`` folds (the bench scores ``bench.evaluate_folds``).
+
+    ``test_fold``: a fold number per row, -1 for a row no fold tests. Folds come in
+    increasing order of their number; each tests the rows of that number and trains on
+    every other row, rows of -1 included — as PredefinedSplit does, and as the loops over
+    ``fold_of != fold`` that this replaced did. A negative number other than -1 is
+    refused: PredefinedSplit would test it as a fold, those loops skipped it.
+    """
+
+    def __init__(self, test_fold, n_folds: int | None = None):
+        self.test_fold = np.asarray(test_fold)
+        self.n_folds = n_folds
+        if self.test_fold.ndim != 1:
+            raise ValueError(f"fold numbers must be one per row, got shape {self.test_fold.shape}")
+        if (self.test_fold < -1).any():
+            raise ValueError("fold numbers must be -1 (never tested) or 0 and above, "
+                             f"got {int(self.test_fold.min())}")
+        if n_folds is not None and n_folds < 1:
+            raise ValueError(f"n_folds must be at least 1 (or None for all), got {n_folds}")
+
+    def _predefined(self) -> PredefinedSplit:
+        # Made when asked, not kept: a splitter sent to a cluster's workers carries the
+        # fold numbers once.
+        return PredefinedSplit(self.test_fold)
+
+    def get_n_splits(self, X=None, y=None, groups=None) -> int:
+        n = self._predefined().get_n_splits()
+        return n if self.n_folds is None else min(n, self.n_folds)
+
+    def split(self, X=None, y=None, groups=None):
+        """(train, test) row indices of each fold, in increasing fold number."""
+        if X is not None and _num_samples(X) != len(self.test_fold):
+            raise ValueError(f"X has {_num_samples(X)} rows, the fold numbers "
+                             f"{len(self.test_fold)}")
+        # groups: the folds are given, so there is nothing to group (PredefinedSplit would
+        # warn that it ignores them; cross_val_score passes None).
+        return islice(self._predefined().split(), self.get_n_splits())
+
+    def fold(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """(train, test) of the ``k``-th split (0-based), as :meth:`split` yields it: what a
+        worker that holds the splitter computes from a fold's position alone."""
+        if not 0 <= k < self.get_n_splits():
+            raise IndexError(f"fold {k} of {self.get_n_splits()}")
+        return next(islice(self._predefined().split(), k, None))
+
+
+def fold_splitter(fold_of: np.ndarray, n_folds: int | None = None) -> FoldSplit:
+    """The splitter over a task's rows given their fold numbers (``assign_folds``' array
+    restricted to the task's rows): every fold, or the first ``n_folds``."""
+    return FoldSplit(fold_of, n_folds)
