@@ -14,7 +14,7 @@ export DVC_NO_ANALYTICS := 1
 export MLFLOW_ENABLE_TELEMETRY := false
 export DO_NOT_TRACK := 1
 
-.PHONY: setup plots-page browser avr firmware postgres lab-server repro bench stress test lint clean
+.PHONY: setup plots-page browser avr firmware postgres lab-server repro bench stress test docs lint clean
 
 # `dvc plots show|diff` pages that draw offline (DVC's own page loads vega from a CDN):
 # vega, vega-lite and vega-embed, pinned, from npm's registry, checked against the
@@ -122,8 +122,14 @@ stress: setup
 # under two workers' load, Dask cancelled the sweep for "lost dependencies" once in three
 # runs; the cause is not found yet).
 test: setup browser firmware postgres
+	mkdocs build --strict --quiet
 	pytest -q -n 2 --dist loadfile -m "not alone" --durations=15
 	pytest -q -m alone
+
+# The documentation site (mkdocs.yml, docs/) into site/; --strict: a broken link, a missing
+# anchor or a page left out of the nav is an error.
+docs: setup
+	mkdocs build --strict --site-dir site
 
 lint: setup
 	ruff check eskin stages tests
