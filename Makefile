@@ -13,6 +13,8 @@ export PATH := $(BIN):$(PATH)
 export DVC_NO_ANALYTICS := 1
 export MLFLOW_ENABLE_TELEMETRY := false
 export DO_NOT_TRACK := 1
+# Material for MkDocs prints an end-of-life banner at every build; not a warning.
+export NO_MKDOCS_2_WARNING := 1
 
 .PHONY: setup plots-page browser avr firmware postgres lab-server repro bench stress test docs lint clean
 
