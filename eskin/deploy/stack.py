@@ -1,15 +1,18 @@
-"""The stack: a scene's whole trained model set, as one object from the 20 channels to
-the estimates — what a robot loop holds.
+"""The stack: a scene's whole trained model set, as one object from the skin's channels
+to the estimates — what a robot loop holds.
 
 :class:`SkinStack` is the scikit-learn stack: the scene's featurizer and its task models
 (stretch, contact, location, force), loaded from the workspace with every file's md5
-checked against dvc.lock, or from the MLflow registry by alias. :class:`ExportedStack` is
-the same stack as one ONNX file (:mod:`eskin.deploy.export`), run by onnxruntime. Both have
-``predict(counts)`` from n × 20 channel readings to a DataFrame of estimates.
+checked against dvc.lock (or from the MLflow registry by alias:
+:func:`eskin.tracking.registry.stack_from_registry`, which imports MLflow; this module
+does not). :class:`ExportedStack` is the same stack as one ONNX file
+(:mod:`eskin.deploy.export`), run by onnxruntime. Both have ``predict(counts)`` from
+n rows of channel readings (x terminals, then y) to a DataFrame of estimates.
 
-A single-force stack detects contact, and locates and weighs a contact only where it
-detects one (elsewhere x and y are NaN and the force 0); stretch is estimated on every
-frame. A two-force stack always has two contacts: x1, y1, x2, y2, force1, force2.
+A kind whose detector gates (one contact: eskin/kinds.py) detects contact, and locates
+and weighs a contact only where it detects one (elsewhere x and y are NaN and the force
+0); stretch is estimated on every frame. A two-contact stack always has two contacts:
+x1, y1, x2, y2, force1, force2.
 """
 
 from __future__ import annotations
