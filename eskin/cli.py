@@ -34,16 +34,17 @@ def _ports(args: argparse.Namespace) -> int:
 
 
 def _simulate(args: argparse.Namespace) -> int:
-    from eskin.config import load_params, section
+    from eskin.config import load_params
     from eskin.device.simulate import serve_config
 
     params = load_params(args.params)
-    config = {"sim": section(params, "sim"),
-              "rest_length_mm": section(params, "acquire.rest_length_mm"),
-              "corrupt_fraction": section(params, "sim_board.corrupt_fraction")
+    board = params.sim_board
+    config = {"sim": params.sim.model_dump(),
+              "rest_length_mm": params.acquire.rest_length_mm,
+              "corrupt_fraction": board.corrupt_fraction
               if args.corrupt is None else args.corrupt,
-              "frame_period_ms": section(params, "sim_board.frame_period_ms"),
-              "faults": section(params, "sim_board.faults")}
+              "frame_period_ms": board.frame_period_ms,
+              "faults": board.faults.model_dump(exclude_unset=True)}
     serve_config(config, socket_port=args.socket, link=args.link)
     return 0
 
@@ -61,7 +62,7 @@ def _live(args: argparse.Namespace) -> int:
 
     from eskin.acquisition.session import simulated_board
     from eskin.catalog import raw_dir, stack_path
-    from eskin.config import load_params, section
+    from eskin.config import load_params
     from eskin.deploy.live import (
         LineBroadcast,
         LiveRecorder,
@@ -79,7 +80,7 @@ def _live(args: argparse.Namespace) -> int:
     if args.tare_frames < 0 or args.frames < 0:
         raise ValueError("--tare-frames and --frames count frames: 0 or more")
     params = load_params(args.params)
-    settings = section(params, "acquire")
+    settings = params.acquire
     if args.onnx is not None:
         stack = ExportedStack.from_file(Path(args.onnx) if args.onnx else stack_path(args.scene))
         if stack.scene != args.scene:
@@ -90,11 +91,11 @@ def _live(args: argparse.Namespace) -> int:
         stack = stack_from_registry(args.scene, args.alias)
     else:
         stack = SkinStack.from_workspace(args.scene)
-    scene_params = section(params, "scenes").get(args.scene) or {}
-    if args.record and scene_params.get("source") == "import":
+    scene_params = params.scenes.get(args.scene)
+    if args.record and scene_params is not None and scene_params.source == "import":
         raise ValueError(f"--record keeps a board's frames in the raw log of a scene acquired "
                          f"from a board; {args.scene} is imported from a file")
-    declared = scene_params.get("kind")
+    declared = scene_params.kind if scene_params is not None else None
     if declared is not None and declared != stack.kind:
         raise ValueError(f"scenes.{args.scene} is a {declared} scene in {args.params}, but its "
                          f"trained stack is {stack.kind}: run `dvc repro` to train it again")
@@ -102,17 +103,17 @@ def _live(args: argparse.Namespace) -> int:
         port = args.port
         if args.simulated:
             board = resources.enter_context(simulated_board(
-                skin_params(params), rest_length_mm=float(settings["rest_length_mm"]),
-                frame_period_ms=int(section(params, "sim_board.frame_period_ms"))))
+                skin_params(params.sim), rest_length_mm=float(settings.rest_length_mm),
+                frame_period_ms=int(params.sim_board.frame_period_ms)))
             port = board.port
-        link = resources.enter_context(SerialLink(port, timeout_s=float(settings["timeout_s"])))
+        link = resources.enter_context(SerialLink(port, timeout_s=float(settings.timeout_s)))
         hello = link.connect()
         if not args.any_device:
             stack.check_board(hello.device_id)
         note(f"{args.scene} stack on {hello.device_id} ({port}); tare: keep the skin "
              f"untouched for {args.tare_frames} frames")
         events = resources.enter_context(contextlib.closing(stream_events(
-            link, reconnect_s=float(settings["reconnect_s"]), notify=note)))
+            link, reconnect_s=float(settings.reconnect_s), notify=note)))
         recorder = None
         if args.record:
             source = "simulated" if args.simulated else "serial"
@@ -378,30 +379,38 @@ def _learning_step(args: argparse.Namespace) -> int:
 
     params = load_params(args.params)
     if args.command == "featurize":
-        print(featurize_scene(params, args.scene, PROCESSED_DIR, FEATURES_DIR, MODELS_DIR))
+        print(featurize_scene(args.scene, PROCESSED_DIR, FEATURES_DIR, MODELS_DIR,
+                              featurize=params.featurize).summary)
     else:
-        print(train.train(params, args.scene, args.task, FEATURES_DIR,
-                          params_text=Path(args.params).read_text(), track=not args.no_track,
-                          **task_outputs(args.scene, args.task)))
+        print(train.train(args.scene, args.task, task_params=getattr(params.train, args.task),
+                          configuration=params.train.configuration, cv=params.cv,
+                          features_dir=FEATURES_DIR, pipeline_params=params,
+                          track=not args.no_track, **task_outputs(args.scene, args.task)).summary)
     return 0
 
 
 def _pipeline_step(args: argparse.Namespace) -> int:
     from eskin.acquisition import acquire
-    from eskin.config import load_params, section
+    from eskin.config import load_params, validating
     from eskin.data import build
 
     params = load_params(args.params)
+    if args.scene not in params.scenes:
+        raise KeyError(f"params.yaml has no scenes.{args.scene}")
+    scene = params.scenes[args.scene]
     if args.command == "acquire":
-        scene = section(params, f"scenes.{args.scene}")
-        if args.source:
-            scene["source"] = args.source
-        if args.port:
-            scene["port"] = args.port
-        print(acquire.acquire(params, args.scene, RAW_DIR / args.scene,
-                            progress=not args.no_progress))
+        override = {key: value for key, value in (("source", args.source), ("port", args.port))
+                    if value}
+        if override:
+            scene = scene.model_copy(update=override)
+        with validating():  # every scene is checked, but only this one's settings are used
+            acquire.check_scenes({**params.scenes, args.scene: scene}, params.cv)
+        print(acquire.acquire(args.scene, scene, RAW_DIR / args.scene, acquire=params.acquire,
+                              sim=params.sim, board=params.sim_board,
+                              progress=not args.no_progress).summary)
     else:
-        print(build.ingest(params, args.scene, RAW_DIR / args.scene, PROCESSED_DIR))
+        print(build.ingest(args.scene, scene, RAW_DIR / args.scene, PROCESSED_DIR,
+                           ingest=params.ingest).summary)
     return 0
 
 

@@ -1,4 +1,4 @@
-"""params.yaml: the one place every knob lives, checked once at load, read by section.
+"""params.yaml: the one place every knob lives, checked once at load, read as typed sections.
 
 :func:`load_params` validates the whole file against a declared schema
 (pydantic, strict: types, ranges, required keys, no unknown keys) before any
@@ -19,7 +19,15 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, create_model, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    WrapValidator,
+    create_model,
+    model_validator,
+)
 
 from eskin.catalog import SCHEMES, SOURCES, TASK_NAMES
 from eskin.errors import EskinError
@@ -43,9 +51,22 @@ class _Section(BaseModel):
     model_config = ConfigDict(extra="forbid", strict=True, allow_inf_nan=False)
 
 
-Probability = Annotated[float, Field(ge=0, lt=1)]
-Positive = Annotated[float, Field(gt=0)]
-NonNegative = Annotated[float, Field(ge=0)]
+def _as_written(value: Any, handler: Any) -> Any:
+    """A number checked as a float but kept as written: ``40`` stays the int 40, so the
+    values the library reads (and MLflow logs) are the file's, as before the model."""
+    checked = handler(value)
+    return value if type(value) is int else checked
+
+
+def _real(**constraints: Any) -> Any:
+    """A float field (strict: no strings, no bools) that keeps an int as written."""
+    return Annotated[float, Field(**constraints), WrapValidator(_as_written)]
+
+
+Real = _real()
+Probability = _real(ge=0, lt=1)
+Positive = _real(gt=0)
+NonNegative = _real(ge=0)
 Count = Annotated[int, Field(ge=1)]
 Seed = Annotated[int, Field(ge=0)]
 Scheme = Literal[SCHEMES]  # type: ignore[valid-type]
@@ -64,14 +85,14 @@ class Sim(_Section):
     baseline_pf: Positive
     baseline_spread: NonNegative
     stretch_sensitivity_spread: NonNegative
-    strain_max: Annotated[float, Field(gt=0, lt=1)]
+    strain_max: _real(gt=0, lt=1)
     force_half_n: Positive
     force_hill: Positive
-    stretch_stiffening: float
+    stretch_stiffening: Real
     reach_nodes: Annotated[int, Field(ge=0)]
     placement_sd_nodes: NonNegative
     # below half a pitch, so that an indenter stays on its node
-    placement_max_nodes: Annotated[float, Field(lt=0.5)]
+    placement_max_nodes: _real(lt=0.5)
     node_sensitivity_spread: NonNegative
     seating_force_n: NonNegative
     seating_variation: NonNegative
@@ -81,7 +102,7 @@ class Sim(_Section):
     cav424_ref_pf: Positive
     cav424_gain_v: Positive
     cav424_gain_spread: NonNegative
-    cav424_offset_v: float
+    cav424_offset_v: Real
     supply_v: Positive
     adc_bits: Annotated[int, Field(ge=1, le=16)]
 
@@ -121,7 +142,7 @@ class Soak(_Section):
     timeout_s: Positive
     max_attempts: Count
     reconnect_s: NonNegative
-    kill_at: list[Annotated[float, Field(gt=0, lt=1)]]
+    kill_at: list[_real(gt=0, lt=1)]
 
 
 class Fuzz(_Section):
@@ -141,7 +162,7 @@ class Scene(_Section):
     source: Source
     port: str | None = None      # serial: /dev/ttyACM0, socket://127.0.0.1:5000, ...
     import_path: str | None = None  # import: a CSV or Parquet file in the paper's layout
-    stretches: Annotated[list[Annotated[float, Field(ge=1)]], Field(min_length=1)]
+    stretches: Annotated[list[_real(ge=1)], Field(min_length=1)]
     forces: Annotated[list[NonNegative], Field(min_length=1)]
     samples: Count
     nodes_x: list[Annotated[int, Field(ge=1, le=PAPER_SKIN.rows)]] | None = None
@@ -228,7 +249,7 @@ class Bench(_Section):
 
 
 class NoiseScene(_Section):
-    stretches: Annotated[list[Annotated[float, Field(ge=1)]], Field(min_length=1)]
+    stretches: Annotated[list[_real(ge=1)], Field(min_length=1)]
     forces: Annotated[list[NonNegative], Field(min_length=1)]
     samples: Count
 
@@ -277,21 +298,23 @@ def _describe(error: dict) -> str:
     return f"{key} = {value!r}: {message}" if key else message
 
 
-def validate_params(params: Any, path: Path = DEFAULT_PARAMS) -> dict[str, Any]:
-    """``params`` checked against the schema; ParamsError naming the first mistake."""
+def validate_params(params: Any, path: Path = DEFAULT_PARAMS) -> Params:
+    """``params`` (a mapping, as YAML gives it) checked against the schema: the typed
+    model, or ParamsError naming the first mistake."""
     if not isinstance(params, dict):
         raise ParamsError(f"{path}: expected a mapping of sections, got "
                           f"{type(params).__name__}")
     try:
-        Params.model_validate(params)
+        return Params.model_validate(params)
     except ValidationError as err:
         errors = err.errors()
         more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
         raise ParamsError(f"{path}: {_describe(errors[0])}{more}") from None
-    return params
 
 
-def load_params(path: Path = DEFAULT_PARAMS) -> dict[str, Any]:
+def load_params(path: Path = DEFAULT_PARAMS) -> Params:
+    """The params file, validated, as :class:`Params` (with ``ESKIN_PARAMS_TRACE`` set,
+    a proxy of it that notes the keys read)."""
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: no params file (run from the project root)")
@@ -312,60 +335,105 @@ def load_params(path: Path = DEFAULT_PARAMS) -> dict[str, Any]:
     return _traced(params, trace_dir) if trace_dir else params
 
 
+def required(params: Params, name: str) -> Any:
+    """An optional section (``bench``, ``soak``, ``fuzz``, ``stress``: ``make bench`` and
+    ``make stress`` only), with an error naming it when the params file leaves it out."""
+    value = getattr(params, name)
+    if value is None:
+        raise KeyError(f"params.yaml has no {name}")
+    return value
+
+
 # ------------------------------------------------------------------ read tracing
+#
+# With ESKIN_PARAMS_TRACE set, load_params returns a proxy over the model: a leaf value
+# read (an attribute or an item that is not a section: a number, a string, a list)
+# notes its dotted key; a section read whole (iterated, model_dump, model_extra,
+# model_copy, items(), values()) notes the section's key; a section reached on the way
+# (params.scenes[name]) notes nothing by itself.
 
-class _TracedSection(dict):
-    """A params mapping that notes the keys read from it: a value's dotted key when a
-    value is read, a section's when the section is read whole (iterated, copied)."""
+class _Traced:
+    """A params model (or one of its sections) that notes the keys read from it."""
 
-    def __init__(self, data: Mapping[str, Any], key: str, reads: set[str]) -> None:
-        # Sections wrapped once, here, so a section read twice is one object (and a
-        # change made through one reference is seen through the other).
-        super().__init__({name: _TracedSection(value, self._join(key, name), reads)
-                          if isinstance(value, dict) else value
-                          for name, value in data.items()})
-        self._key, self._reads = key, reads
+    __slots__ = ("_target", "_key", "_reads")
 
-    @staticmethod
-    def _join(key: str, name: str) -> str:
-        return f"{key}.{name}" if key else str(name)
+    def __init__(self, target: Any, key: str, reads: set[str]) -> None:
+        object.__setattr__(self, "_target", target)
+        object.__setattr__(self, "_key", key)
+        object.__setattr__(self, "_reads", reads)
 
-    def _child(self, name: str, value: Any) -> Any:
-        if not isinstance(value, _TracedSection) and _recording[0]:
-            self._reads.add(self._join(self._key, name))
+    def _child(self, name: Any, value: Any) -> Any:
+        key = f"{self._key}.{name}" if self._key else str(name)
+        if isinstance(value, BaseModel):
+            return _TracedModel(value, key, self._reads)
+        if isinstance(value, Mapping):
+            return _TracedMapping(value, key, self._reads)
+        if _recording[0]:
+            self._reads.add(key)
         return value
 
     def _whole(self) -> None:
         if _recording[0]:
             self._reads.add(self._key or "*")
 
-    def __getitem__(self, name: str) -> Any:
-        return self._child(name, super().__getitem__(name))
+    def __repr__(self) -> str:
+        return f"traced({self._target!r})"
 
-    def get(self, name: str, default: Any = None) -> Any:
-        return self[name] if name in self else default
+
+_WHOLE_METHODS = {"model_dump", "model_dump_json", "model_copy"}
+
+
+class _TracedModel(_Traced):
+    """A pydantic section: fields (and extras) are read as attributes."""
+
+    def __getattr__(self, name: str) -> Any:
+        target = self._target
+        if name in type(target).model_fields or name in (target.model_extra or {}):
+            return self._child(name, getattr(target, name))
+        if name == "model_extra":
+            self._whole()
+            return target.model_extra
+        if name in _WHOLE_METHODS:
+            self._whole()
+        return getattr(target, name)
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        raise AttributeError(f"params are read-only ({self._key or 'params'}.{name})")
+
+    def __eq__(self, other: object) -> bool:
+        self._whole()
+        return self._target == untraced(other)
+
+    __hash__ = None  # type: ignore[assignment]
+
+
+class _TracedMapping(_Traced, Mapping):
+    """A mapping in the params (scenes, a task's model per kind, hyperparameters)."""
+
+    def __getitem__(self, name: Any) -> Any:
+        return self._child(name, self._target[name])
+
+    def __contains__(self, name: object) -> bool:  # asking is not reading a knob
+        return name in self._target
+
+    def __len__(self) -> int:
+        return len(self._target)
 
     def __iter__(self):
         self._whole()
-        return super().__iter__()
+        return iter(self._target)
 
-    def keys(self):
+    def __eq__(self, other: object) -> bool:
         self._whole()
-        return super().keys()
+        return self._target == untraced(other)
 
-    def items(self):
-        self._whole()
-        return super().items()
+    __hash__ = None  # type: ignore[assignment]
 
-    def values(self):
-        self._whole()
-        return super().values()
 
-    def __deepcopy__(self, memo: dict) -> dict:
-        import copy
-
-        self._whole()
-        return copy.deepcopy(dict(super().items()), memo)
+def untraced(params: Any) -> Any:
+    """The model (or mapping) under a traced proxy, ``params`` itself otherwise: for
+    bookkeeping that is not a stage's knob (the whole file logged to MLflow)."""
+    return object.__getattribute__(params, "_target") if isinstance(params, _Traced) else params
 
 
 _recording = [True]
@@ -382,7 +450,7 @@ def validating():
         _recording[0] = was
 
 
-def _traced(params: dict[str, Any], trace_dir: str) -> dict[str, Any]:
+def _traced(params: Params, trace_dir: str) -> Params:
     reads: set[str] = set()
     out = Path(trace_dir) / f"params-read-{os.getpid()}.json"
 
@@ -391,18 +459,4 @@ def _traced(params: dict[str, Any], trace_dir: str) -> dict[str, Any]:
         out.write_text(json.dumps({"argv": sys.argv, "reads": sorted(reads)}))
 
     atexit.register(write)
-    return _TracedSection(params, "", reads)
-
-
-def section(params: Mapping[str, Any], dotted: str) -> Any:
-    """``section(params, "scenes.single_force")``, with an error naming what is missing."""
-    node: Any = params
-    for i, part in enumerate(dotted.split(".")):
-        if not isinstance(node, Mapping) or part not in node:
-            where = ".".join(dotted.split(".")[:i + 1])
-            raise KeyError(f"params.yaml has no {where}")
-        node = node[part]
-    return node
-
-
-
+    return _TracedModel(params, "", reads)  # type: ignore[return-value]

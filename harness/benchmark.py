@@ -20,7 +20,7 @@ import json
 import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
@@ -34,6 +34,9 @@ from eskin.evaluation.folds import FoldSplit, assign_folds, fold_splitter
 from eskin.kinds import get_kind
 from eskin.learning.estimators import build_model
 from eskin.learning.tasks import Task, get_task
+
+if TYPE_CHECKING:
+    from eskin.config import CV, Bench, Scene, Sim
 
 
 def peak_memory_mb() -> float | None:
@@ -56,15 +59,20 @@ def reset_peak_memory() -> None:
         pass
 
 
-def variant_settings(spec: Mapping[str, Any]) -> tuple[str, dict[str, Any], bool]:
+def variant_settings(spec: Any) -> tuple[str, dict[str, Any], bool]:
     """(model name, hyperparameters, share hyperparameters across folds) of a ``bench.tasks``
-    entry."""
-    hyper = dict(spec)
+    entry (an :class:`eskin.config.Variant`, or a mapping as written)."""
+    hyper = variant_spec(spec)
     model = hyper.pop("model")
     return model, hyper, bool(hyper.pop("share_hyperparameters", False))
 
 
-def variant_estimator(role: str, spec: Mapping[str, Any]) -> tuple[BaseEstimator, bool]:
+def variant_spec(spec: Any) -> dict[str, Any]:
+    """A ``bench.tasks`` entry as written: ``model`` and its hyperparameters."""
+    return spec.model_dump() if hasattr(spec, "model_dump") else dict(spec)
+
+
+def variant_estimator(role: str, spec: Any) -> tuple[BaseEstimator, bool]:
     """(estimator, share hyperparameters across folds) from a ``bench.tasks`` entry."""
     model, hyper, share = variant_settings(spec)
     return build_model(role, model, hyper), share
@@ -186,7 +194,7 @@ def benchmark_task(task: Task, frame: pd.DataFrame, kind: str, variants: Mapping
             for spec in variants.values())
         results = {}
         for (name, spec), outcome in zip(variants.items(), runs, strict=True):
-            results[name] = {"spec": dict(spec), **outcome}
+            results[name] = {"spec": variant_spec(spec), **outcome}
             log(f"  {task.name} {scheme}: {name} {outcome['seconds_per_fold']:.2f} s/fold, "
                 f"error {headline_error(task, outcome['scores']):.4f}")
         points = {n: (r["seconds_per_fold"], headline_error(task, r["scores"]))
@@ -209,15 +217,16 @@ def benchmark_task(task: Task, frame: pd.DataFrame, kind: str, variants: Mapping
 CONVERGENCE_ROWS = 200  # samples on which the one-contact bound doubles its grid (two: all)
 
 
-def bayes_bound(params: Mapping[str, Any], scene: str, dataset_path: Path, out_path: Path, *,
-                log=print) -> str:
+def bayes_bound(scene: str, settings: Scene, dataset_path: Path, out_path: Path, *, sim: Sim,
+                seed: int, log=print) -> str:
     """The oracle's answers for every sample of a scene's dataset → Parquet.
 
     Only the simulator knows the answers (:mod:`harness.oracle` for one contact,
     :mod:`harness.pair_oracle` for two): for a scene it did not make, the file holds the
     sample keys alone and says why (``attrs["unavailable"]``), so the bench tables show
-    "no bound" and the reason instead of stopping."""
-    from eskin.config import section
+    "no bound" and the reason instead of stopping. ``settings`` is the scene's params
+    section, ``sim`` the simulator's, ``seed`` ``bench.seed`` (the Sobol points of two
+    contacts)."""
     from eskin.data.schema import read_dataset, read_metadata
     from eskin.device.physics import skin_params
     from harness import oracle, pair_oracle
@@ -236,7 +245,6 @@ def bayes_bound(params: Mapping[str, Any], scene: str, dataset_path: Path, out_p
         keys.attrs["unavailable"] = reason
         keys.to_parquet(out_path, index=False)
         return f"{scene}: no Bayes bound — {reason} → {out_path}"
-    settings = section(params, f"scenes.{scene}")
     last = [0.0]
 
     def progress(done: int, total: int) -> None:
@@ -246,13 +254,13 @@ def bayes_bound(params: Mapping[str, Any], scene: str, dataset_path: Path, out_p
 
     # The plan's conditions: one contact (stretch, force, node) or two (a pair of nodes
     # from nodes_x × nodes_y, a force each).
-    conditions = [settings["stretches"], settings["forces"]]
-    sim = skin_params(params)
+    conditions = [settings.stretches, settings.forces]
+    sim = skin_params(sim)
     if get_kind(meta["kind"]).contacts > 1:
         # importance sampling: every sample's answer from each half of the points too
         found = pair_oracle.posterior_predictions(
-            frame, sim, *conditions, settings["nodes_x"], settings["nodes_y"],
-            seed=int(section(params, "bench.seed")), progress=progress)
+            frame, sim, *conditions, settings.nodes_x, settings.nodes_y,
+            seed=int(seed), progress=progress)
         answers, moves = found.all, pair_oracle.convergence(found, frame)
     else:
         answers = oracle.posterior_predictions(frame, sim, *conditions, progress=progress)
@@ -284,18 +292,17 @@ def read_bound(bound_path: Path, frame: pd.DataFrame) -> tuple[pd.DataFrame | No
     return oracle, None
 
 
-def bench(params: Mapping[str, Any], scene: str, task_name: str, features_path: Path,
-          bound_path: Path, out_dir: Path, *, log=print) -> str:
-    """One task's variants on one scene's folds, with the bound → ``<out>/<task>.json``.
+def bench(scene: str, task_name: str, features_path: Path, bound_path: Path, out_dir: Path, *,
+          bench: Bench, cv: CV, log=print) -> str:
+    """One task's variants on one scene's folds, with the bound → ``<out>/<task>.json``,
+    with the ``bench`` section (its ``tasks.<task>`` variants) and the ``cv`` split.
 
     A task the scene's data cannot support is written as skipped, with the reason."""
     import json
 
-    from eskin.config import section
     from eskin.data.schema import read_dataset, read_metadata
 
-    settings = section(params, "bench")
-    cv = section(params, "cv")
+    settings = bench
     meta = read_metadata(features_path)
     frame = read_dataset(features_path)
     task = get_task(meta["kind"], task_name)
@@ -310,12 +317,11 @@ def bench(params: Mapping[str, Any], scene: str, task_name: str, features_path: 
                                        indent=2, sort_keys=True) + "\n")
         return f"{scene}/{task_name}: skipped — {reason}"
     oracle, no_bound = read_bound(bound_path, frame)
-    with parallel_backend(settings.get("backend", "loky")):
-        doc = benchmark_task(task, frame, meta["kind"],
-                             section(params, f"bench.tasks.{task_name}"),
-                             schemes=list(settings["schemes"]), folds=int(cv["folds"]),
-                             seed=int(cv["seed"]), evaluate_folds=int(settings["evaluate_folds"]),
-                             oracle=oracle, n_jobs=int(settings.get("n_jobs", 1)), log=log)
+    with parallel_backend(settings.backend):
+        doc = benchmark_task(task, frame, meta["kind"], settings.tasks[task_name],
+                             schemes=list(settings.schemes), folds=int(cv.folds),
+                             seed=int(cv.seed), evaluate_folds=int(settings.evaluate_folds),
+                             oracle=oracle, n_jobs=int(settings.n_jobs), log=log)
     doc.update(header)
     if no_bound is not None:
         doc["bayes_bound_unavailable"] = no_bound
@@ -327,15 +333,12 @@ def bench(params: Mapping[str, Any], scene: str, task_name: str, features_path: 
                      for scheme, entry in doc["schemes"].items())
 
 
-def default_variant(params: Mapping[str, Any], kind: str, task_name: str,
-                    variants: Mapping[str, Mapping]) -> str:
+def default_variant(train: Any, kind: str, task_name: str, variants: Mapping[str, Any]) -> str:
     """The bench variant whose model and hyperparameters the training stage uses by default
-    for a scene of ``kind``."""
-    from eskin.config import section
+    for a scene of ``kind`` (``train``: the ``train`` section)."""
     from eskin.learning.estimators import model_settings
 
-    model, hyper = model_settings(section(params, f"train.{task_name}"),
-                                  section(params, "train.configuration"), kind)
+    model, hyper = model_settings(getattr(train, task_name), train.configuration, kind)
     for name, spec in variants.items():
         if variant_settings(spec) == (model, hyper, False):
             return name
@@ -343,16 +346,16 @@ def default_variant(params: Mapping[str, Any], kind: str, task_name: str,
                      f"among the benchmark's variants (bench.tasks.{task_name}); add it there")
 
 
-def summarise(params: Mapping[str, Any], scene: str, bench_dir: Path, features_path: Path, *,
+def summarise(scene: str, bench_dir: Path, features_path: Path, *, bench: Bench, train: Any,
               log=print) -> str:
-    """One scene's targets (as ratios measured in its bench runs), tables, a plot per task."""
+    """One scene's targets (as ratios measured in its bench runs), tables, a plot per task,
+    with the ``bench`` and ``train`` sections."""
     import json
 
     from eskin.catalog import TASK_NAMES
-    from eskin.config import section
     from eskin.data.schema import read_dataset, read_metadata
 
-    settings = section(params, "bench")
+    settings = bench
     bench_dir = Path(bench_dir)
     docs = {task: json.loads((bench_dir / f"{task}.json").read_text()) for task in TASK_NAMES}
     summary: dict[str, Any] = {"scene": scene, "defaults": {}, "targets": {},
@@ -366,8 +369,8 @@ def summarise(params: Mapping[str, Any], scene: str, bench_dir: Path, features_p
     for task_name, doc in docs.items():
         if doc.get("status") == "skipped":
             continue
-        variants = section(params, f"bench.tasks.{task_name}")
-        doc["default"] = default_variant(params, meta["kind"], task_name, variants)
+        variants = settings.tasks[task_name]
+        doc["default"] = default_variant(train, meta["kind"], task_name, variants)
         summary["defaults"][task_name] = doc["default"]
         summary["targets"].update(targets(doc))
         figure = benchmark_figure(doc)
@@ -378,11 +381,10 @@ def summarise(params: Mapping[str, Any], scene: str, bench_dir: Path, features_p
         task = get_task(meta["kind"], "force")
         frame = read_dataset(features_path)
         default = summary["defaults"]["force"]
-        estimator, _ = variant_estimator("force",
-                                         section(params, f"bench.tasks.force.{default}"))
-        log(f"{scene} scaling: {default} at {settings['scaling_fractions']} × the data …")
+        estimator, _ = variant_estimator("force", settings.tasks["force"][default])
+        log(f"{scene} scaling: {default} at {settings.scaling_fractions} × the data …")
         grown = scaling(task, frame[task.rows(frame)].reset_index(drop=True), estimator,
-                        list(settings["scaling_fractions"]), seed=int(settings["seed"]))
+                        list(settings.scaling_fractions), seed=int(settings.seed))
         worst = max(grown["growth_per_doubling"])
         summary["targets"]["cost_on_doubling"] = {
             **grown, "met": bool(worst <= 2.3),

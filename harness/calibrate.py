@@ -27,6 +27,7 @@ import sys
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -102,12 +103,12 @@ def neighbour_share(result) -> float:
     return float(np.mean(np.abs(wrong) == 1)) if len(wrong) else float("nan")
 
 
-def scores(sim: SkinParams, scenes: Mapping[str, Mapping], *, full: bool = True,
+def scores(sim: SkinParams, scenes: Mapping[str, Any], *, full: bool = True,
            folds: int = 10) -> dict[str, object]:
     """The paper's models on both simulated scenes, as the paper scored them."""
     out: dict[str, object] = {}
     # the first scene of each kind (params.yaml's are named after their kinds)
-    one, two = (next(name for name, scene in scenes.items() if scene["kind"] == kind.name)
+    one, two = (next(name for name, scene in scenes.items() if scene.kind == kind.name)
                 for kind in (ONE_CONTACT, TWO_CONTACTS))
     single = simulate_plan(sim, plan_from_params(one, scenes[one]))
     force = evaluate(single, ONE_CONTACT.name, "force", "paper", folds=folds)
@@ -170,7 +171,7 @@ def qualitative(values: Mapping[str, object], log=print) -> int:
     return failed
 
 
-def fit(base: SkinParams, scenes: Mapping[str, Mapping], log=print) -> SkinParams:
+def fit(base: SkinParams, scenes: Mapping[str, Any], log=print) -> SkinParams:
     """The grid point whose stratified force R² and contact accuracy are nearest the paper's
     (each in units of its tolerance)."""
     best, best_cost = base, float("inf")
@@ -191,7 +192,7 @@ def fit(base: SkinParams, scenes: Mapping[str, Mapping], log=print) -> SkinParam
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from eskin.config import load_params, section
+    from eskin.config import load_params
     from eskin.device.physics import skin_params
 
     parser = argparse.ArgumentParser(prog="python -m harness.calibrate", description=__doc__.split(
@@ -201,8 +202,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help=f"search {', '.join(FITTED)} on a grid first")
     args = parser.parse_args(argv)
     params = load_params(args.params)
-    sim = skin_params(params)
-    scenes = section(params, "scenes")
+    sim = skin_params(params.sim)
+    scenes = params.scenes
     print("targets: " + "; ".join(f"{name} {paper} ± {tol} ({'fitted' if fitted else 'predicted'})"
                                   for name, (paper, tol, fitted) in TARGETS.items()))
     if args.fit:

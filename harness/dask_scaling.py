@@ -27,7 +27,7 @@ from distributed import Client, LocalCluster, WorkerPlugin
 from joblib import parallel_config
 
 from eskin.catalog import features_path
-from eskin.config import load_params, section
+from eskin.config import Params, load_params
 from eskin.data.schema import read_metadata
 from eskin.evaluation.crossval import cross_validate
 from eskin.evaluation.folds import assign_folds
@@ -71,13 +71,13 @@ def clear(client: Client) -> None:
     client.run(lambda dask_worker: dask_worker.plugins[ShippedData.name].runs.clear())
 
 
-def run_cv(scene: str, params: dict, backend: str, n_jobs: int) -> tuple[object, float]:
+def run_cv(scene: str, params: Params, backend: str, n_jobs: int) -> tuple[object, float]:
     frame = pd.read_parquet(features_path(scene))
     kind = read_metadata(features_path(scene))["kind"]
     task = get_task(kind, TASK)
-    cv = section(params, "cv")
-    folds = assign_folds(frame, kind, "grouped", int(cv["folds"]), int(cv["seed"]))
-    name, hyper = model_settings(section(params, f"train.{TASK}"), "tuned", kind)
+    cv = params.cv
+    folds = assign_folds(frame, kind, "grouped", int(cv.folds), int(cv.seed))
+    name, hyper = model_settings(getattr(params.train, TASK), "tuned", kind)
     estimator = build_model(task.role, name, hyper)
     started = time.perf_counter()
     with parallel_config(backend=backend):

@@ -14,11 +14,11 @@ import sys
 import time
 
 import serial
-import yaml
 
 from eskin.acquisition.plan import plan_from_params
+from eskin.config import load_params
 from eskin.device.emulated import emulated_board
-from eskin.device.physics import SkinParams
+from eskin.device.physics import SkinParams, skin_params
 from eskin.device.protocol import Frame, parse_line
 
 BAUD = 115200
@@ -55,8 +55,8 @@ def measure(sim: SkinParams, frames: int) -> dict[str, float]:
 def main(argv: list[str] | None = None) -> int:
     args = sys.argv[1:] if argv is None else argv
     frames = int(args[0]) if args else 500
-    params = yaml.safe_load(open("params.yaml"))
-    sim = SkinParams.from_mapping(params["sim"])
+    params = load_params()
+    sim = skin_params(params.sim)
     m = measure(sim, frames)
     print(f"{m['frames']} frames in {m['board_s']:.2f} s of board time: "
           f"{m['frames_per_s']:.1f} frames/s")
@@ -65,10 +65,10 @@ def main(argv: list[str] | None = None) -> int:
           f"{m['share_of_line']:.0%} of it")
     print(f"emulation: {m['wall_s']:.2f} s wall for {m['board_s']:.2f} s of board time "
           f"({m['emulation_speed']:.2f}× real time)")
-    for name, section in params["scenes"].items():
-        if section.get("source") != "simulated":
+    for name, scene in params.scenes.items():
+        if scene.source != "simulated":
             continue
-        plan = plan_from_params(name, section)
+        plan = plan_from_params(name, scene)
         n = len(plan.conditions) * plan.samples
         print(f"scene {name}: {len(plan.conditions):,} conditions × {plan.samples} samples = "
               f"{n:,} frames: {n / m['frames_per_s'] / 60:.1f} min of sampling on a real "

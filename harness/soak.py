@@ -13,7 +13,6 @@ retried condition uses more wire traffic, and a reset restarts them).
 
 from __future__ import annotations
 
-import copy
 import os
 import signal
 import subprocess
@@ -29,7 +28,8 @@ import numpy as np
 import pandas as pd
 import yaml
 
-from eskin.acquisition.plan import scene_plan
+from eskin.acquisition.plan import plan_from_params
+from eskin.config import Params, Soak, untraced, validate_params
 from eskin.data import build
 from eskin.data.schema import CHANNELS, LABELS
 from eskin.device.faults import KINDS
@@ -90,16 +90,24 @@ class SoakResult:
         return "\n".join(lines) + "\n"
 
 
-def soak_params(params: dict[str, Any], settings: dict[str, Any], fault_log: Path) -> dict:
-    """The project's params with the soak's faults, timeouts and attempts."""
-    out = copy.deepcopy(params)
-    out["sim_board"]["corrupt_fraction"] = float(settings["corrupt_fraction"])
-    out["sim_board"]["faults"] = {**settings["faults"], "log": str(fault_log)}
-    out["acquire"].update(timeout_s=float(settings["timeout_s"]),
-                          max_attempts=int(settings["max_attempts"]),
-                          reconnect_s=float(settings["reconnect_s"]))
-    for scene in out["scenes"].values():
-        scene.update(source="simulated")
+def soak_params(params: Params, settings: Soak, fault_log: Path, scene: str) -> dict[str, Any]:
+    """The project's params (as written) with the soak's faults, timeouts and attempts, and
+    ``scene`` alone, simulated. What the soak reads is the ``sim``, ``sim_board``,
+    ``acquire``, ``ingest`` and ``soak`` sections and the scene's; the rest only makes a
+    whole params file for `eskin acquire`."""
+    out = untraced(params).model_dump(exclude_unset=True)
+    out.update(sim=params.sim.model_dump(exclude_unset=True),
+               sim_board=params.sim_board.model_dump(exclude_unset=True),
+               acquire=params.acquire.model_dump(exclude_unset=True),
+               ingest=params.ingest.model_dump(exclude_unset=True),
+               scenes={scene: {**params.scenes[scene].model_dump(exclude_unset=True),
+                               "source": "simulated"}})
+    out["sim_board"]["corrupt_fraction"] = float(settings.corrupt_fraction)
+    out["sim_board"]["faults"] = {**settings.faults.model_dump(exclude_unset=True),
+                                  "log": str(fault_log)}
+    out["acquire"].update(timeout_s=float(settings.timeout_s),
+                          max_attempts=int(settings.max_attempts),
+                          reconnect_s=float(settings.reconnect_s))
     return out
 
 
@@ -119,7 +127,7 @@ def compare(reference: pd.DataFrame, frame: pd.DataFrame, kind: str) -> dict[str
             "differing": int(differs.sum())}
 
 
-def run_soak(params: dict[str, Any], settings: dict[str, Any], workdir: Path,
+def run_soak(params: Params, settings: Soak, workdir: Path,
              reference: pd.DataFrame, *, scene: str,
              kill_at: Sequence[float] = (1 / 3, 2 / 3), run_timeout_s: float = 3600.0,
              say=print) -> SoakResult:
@@ -128,9 +136,10 @@ def run_soak(params: dict[str, Any], settings: dict[str, Any], workdir: Path,
     workdir = Path(workdir)
     workdir.mkdir(parents=True, exist_ok=True)
     fault_log = workdir / "faults.log"
-    params = soak_params(params, settings, fault_log)
-    (workdir / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
-    plan = scene_plan(params, scene)
+    written = soak_params(params, settings, fault_log, scene)
+    (workdir / "params.yaml").write_text(yaml.safe_dump(written, sort_keys=False))
+    soaked = validate_params(written, workdir / "params.yaml")
+    plan = plan_from_params(scene, soaked.scenes[scene])
     raw_dir = workdir / "data" / "raw" / scene
     log = raw_dir / "acquisition.log"
     started = time.monotonic()
@@ -164,7 +173,8 @@ def run_soak(params: dict[str, Any], settings: dict[str, Any], workdir: Path,
             raise SoakError(f"run {number} failed ({process.returncode}): {_tail(stderr_path)}")
         runs.append(out.strip())
         say(f"soak: {runs[-1]}")
-    build.ingest(params, scene, raw_dir, workdir / "data" / "processed")
+    build.ingest(scene, soaked.scenes[scene], raw_dir, workdir / "data" / "processed",
+                 ingest=soaked.ingest)
     frame = pd.read_parquet(workdir / "data" / "processed" / f"{scene}.parquet")
     counted = Counter(line.split("\t", 1)[0] for line in fault_log.read_text().splitlines())
     # Asked again because a frame passed its CRC with digits lost (eskin.device.link).

@@ -140,16 +140,17 @@ CASES: tuple[Case, ...] = (
 )
 
 
-def models_under_test(params: Mapping[str, Any]) -> list[tuple[str, str, dict[str, Any]]]:
-    """(task, model name, hyperparameters) of the tuned and paper configurations."""
+def models_under_test(train: Any) -> list[tuple[str, str, dict[str, Any]]]:
+    """(task, model name, hyperparameters) of the tuned and paper configurations of the
+    ``train`` section."""
     from eskin.catalog import TASK_NAMES
     from eskin.learning.estimators import model_settings
 
     out = []
     for task in TASK_NAMES:
-        section = params["train"][task]
+        task_params = getattr(train, task)
         for configuration in ("tuned", "paper"):
-            name, hyper = model_settings(section, configuration, KIND)
+            name, hyper = model_settings(task_params, configuration, KIND)
             if (task, name, hyper) not in out:
                 out.append((task, name, hyper))
     return out
@@ -244,20 +245,21 @@ def _same(predictions: np.ndarray, reference: Mapping[str, Any], scorer: str
     return changed <= TOLERANCE["labels_changed"], {"labels_changed": changed}
 
 
-def run_suite(frames: Mapping[str, pd.DataFrame], params: Mapping[str, Any], *,
+def run_suite(frames: Mapping[str, pd.DataFrame], params: Any, *,
               cases: tuple[Case, ...] = CASES, folds: int = 3, seed: int = 0,
               models: list[tuple[str, str, dict[str, Any]]] | None = None,
               log=print) -> list[dict[str, Any]]:
     """Every case × model, each fit in a worker process; rows for reports/stress.json.
 
     ``frames``: ``default`` (the features the cases transform) and one frame per
-    other dataset a case names (``noise_zero``, ``noise_x10``)."""
+    other dataset a case names (``noise_zero``, ``noise_x10``); ``params``: the
+    :class:`eskin.config.Params` (its ``train`` and ``sim`` sections)."""
     from joblib.externals.loky import get_reusable_executor
 
     from eskin.learning.tasks import get_task
 
-    models = models or models_under_test(params)
-    context = {"sim": params["sim"]}
+    models = models or models_under_test(params.train)
+    context = {"sim": params.sim.model_dump()}
     rows, references = [], {}
     for case in cases:
         if case.dataset not in frames:
@@ -309,23 +311,23 @@ def large_factorisation(frame: pd.DataFrame, rows: int, seed: int) -> dict[str, 
             "seconds": round(time.perf_counter() - start, 1), "warnings": 0}
 
 
-def stress(params: Mapping[str, Any], scene: str, features_path, out_dir, *, scratch,
-           log=print) -> str:
+def stress(params: Any, scene: str, features_path, out_dir, *, scratch, log=print) -> str:
     """The DVC stage: the suite on a scene's features (subsampled by trial), noise
     datasets acquired from the simulated skin (a simulated scene only), and the large
     factorisation → ``<out_dir>/<scene>.{json,md,html}``. A scene of another kind is
-    written as skipped, with the reason."""
-    import copy
+    written as skipped, with the reason. ``params``: the :class:`eskin.config.Params` (its
+    ``stress``, ``sim`` and ``train`` sections and the scene's; the noise datasets are
+    acquired, ingested and featurized with the pipeline's sections)."""
     import json
     from pathlib import Path
 
     from eskin.acquisition import acquire
-    from eskin.config import section
+    from eskin.config import required
     from eskin.data import build
     from eskin.data.schema import describe_source, read_dataset, read_metadata
     from eskin.learning.features import featurize_scene
 
-    settings = section(params, "stress")
+    settings = required(params, "stress")
     meta = read_metadata(features_path)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -340,8 +342,8 @@ def stress(params: Mapping[str, Any], scene: str, features_path, out_dir, *, scr
         return f"stress {scene}: skipped — {reason}"
     features = read_dataset(features_path)
     trials = features["trial"].drop_duplicates().sample(
-        n=min(int(settings["trials"]), features["trial"].nunique()),
-        random_state=int(settings["seed"]))
+        n=min(int(settings.trials), features["trial"].nunique()),
+        random_state=int(settings.seed))
     frames = {"default": features[features["trial"].isin(trials)].reset_index(drop=True)}
     simulated = meta.get("source", {}).get("kind") == "simulated"
     noise_note = ("run" if simulated else "skipped: they simulate the skin again, and this "
@@ -349,29 +351,31 @@ def stress(params: Mapping[str, Any], scene: str, features_path, out_dir, *, scr
     if not simulated:
         log(f"stress {scene}: noise cases {noise_note}")
     for name, factor in (("noise_zero", 0.0), ("noise_x10", 10.0)) if simulated else ():
-        noisy = copy.deepcopy(dict(params))
-        for knob in ("noise_pf", "drift_offset_pf", "drift_step_pf"):
-            noisy["sim"][knob] = params["sim"][knob] * factor
-        noisy["scenes"][scene].update(settings["noise_scene"])
+        sim = params.sim.model_copy(update={
+            knob: getattr(params.sim, knob) * factor
+            for knob in ("noise_pf", "drift_offset_pf", "drift_step_pf")})
+        noisy = params.scenes[scene].model_copy(update=settings.noise_scene.model_dump())
         root = Path(scratch) / name
-        acquire.acquire(noisy, scene, root / "raw", progress=False)
-        build.ingest(noisy, scene, root / "raw", root / "processed")
-        featurize_scene(noisy, scene, root / "processed", root / "features", root / "models")
+        acquire.acquire(scene, noisy, root / "raw", acquire=params.acquire, sim=sim,
+                        board=params.sim_board, progress=False)
+        build.ingest(scene, noisy, root / "raw", root / "processed", ingest=params.ingest)
+        featurize_scene(scene, root / "processed", root / "features", root / "models",
+                        featurize=params.featurize)
         frames[name] = read_dataset(root / "features" / f"{scene}.parquet")
     log(f"stress: {len(frames['default']):,} samples of {len(trials)} trials, "
-        f"{int(settings['folds'])}-fold grouped CV")
-    rows = run_suite(frames, params, folds=int(settings["folds"]), seed=int(settings["seed"]),
+        f"{int(settings.folds)}-fold grouped CV")
+    rows = run_suite(frames, params, folds=int(settings.folds), seed=int(settings.seed),
                      log=log)
-    if int(settings["large_gp_rows"]) > 0:
-        log(f"  large_exact_gp: exact GP on {int(settings['large_gp_rows']):,} samples …")
-        rows.append(large_factorisation(features, int(settings["large_gp_rows"]),
-                                        int(settings["seed"])))
+    if int(settings.large_gp_rows) > 0:
+        log(f"  large_exact_gp: exact GP on {int(settings.large_gp_rows):,} samples …")
+        rows.append(large_factorisation(features, int(settings.large_gp_rows),
+                                        int(settings.seed)))
         log(f"  large_exact_gp     force     exact_gp                {rows[-1]['outcome']} "
             f"({rows[-1]['seconds']} s, R² {rows[-1]['score']:.3f})")
     doc = {"scene": scene, "source": describe_source(meta), "noise_cases": noise_note,
            "tolerance": TOLERANCE,
            "warning_flood": WARNING_FLOOD, "rows": rows,
-           "samples": len(frames["default"]), "folds": int(settings["folds"]),
+           "samples": len(frames["default"]), "folds": int(settings.folds),
            "failed": sum(r["outcome"].startswith("FAIL") for r in rows)}
     out_json.write_text(json.dumps(doc, indent=2, sort_keys=True) + "\n")
     out_md.write_text(stress_markdown(rows))

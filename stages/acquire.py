@@ -4,9 +4,18 @@ import sys
 
 from eskin.acquisition import acquire
 from eskin.catalog import RAW_DIR
-from eskin.config import load_params
+from eskin.config import load_params, validating
 from eskin.errors import run_friendly
 
+
+def main(scene: str) -> str:
+    params = load_params()
+    with validating():  # every scene is checked, but only this one's settings are used
+        acquire.check_scenes(params.scenes, params.cv)
+    return acquire.acquire(scene, params.scenes[scene], RAW_DIR / scene,
+                           acquire=params.acquire, sim=params.sim,
+                           board=params.sim_board).summary
+
+
 if __name__ == "__main__":
-    scene = sys.argv[1]
-    sys.exit(run_friendly(lambda: print(acquire.acquire(load_params(), scene, RAW_DIR / scene))))
+    sys.exit(run_friendly(lambda: print(main(sys.argv[1]))))

@@ -4,7 +4,7 @@ against error, and the summary."""
 import sys
 
 from eskin.catalog import bayes_bound_path, bench_dir, features_path, processed_path
-from eskin.config import load_params
+from eskin.config import load_params, required
 from eskin.errors import run_friendly
 from harness import benchmark
 
@@ -13,12 +13,14 @@ def main(what: str, scene: str, task: str | None = None) -> str:
     params = load_params()
     out = bench_dir(scene)
     if what == "bound":
-        return benchmark.bayes_bound(params, scene, processed_path(scene),
-                                     bayes_bound_path(scene))
+        return benchmark.bayes_bound(scene, params.scenes[scene], processed_path(scene),
+                                     bayes_bound_path(scene), sim=params.sim,
+                                     seed=required(params, "bench").seed)
     if what == "summary":
-        return benchmark.summarise(params, scene, out, features_path(scene))
-    return benchmark.bench(params, scene, task, features_path(scene),
-                           bayes_bound_path(scene), out)
+        return benchmark.summarise(scene, out, features_path(scene),
+                                   bench=required(params, "bench"), train=params.train)
+    return benchmark.bench(scene, task, features_path(scene), bayes_bound_path(scene), out,
+                           bench=required(params, "bench"), cv=params.cv)
 
 
 if __name__ == "__main__":

@@ -7,7 +7,11 @@ from eskin.config import load_params
 from eskin.errors import run_friendly
 from eskin.learning.features import featurize_scene
 
+
+def main(scene: str) -> str:
+    return featurize_scene(scene, PROCESSED_DIR, FEATURES_DIR, MODELS_DIR,
+                           featurize=load_params().featurize).summary
+
+
 if __name__ == "__main__":
-    scene = sys.argv[1]
-    sys.exit(run_friendly(lambda: print(
-        featurize_scene(load_params(), scene, PROCESSED_DIR, FEATURES_DIR, MODELS_DIR))))
+    sys.exit(run_friendly(lambda: print(main(sys.argv[1]))))

@@ -7,7 +7,12 @@ from eskin.config import load_params
 from eskin.data import build
 from eskin.errors import run_friendly
 
+
+def main(scene: str) -> str:
+    params = load_params()
+    return build.ingest(scene, params.scenes[scene], RAW_DIR / scene, PROCESSED_DIR,
+                        ingest=params.ingest).summary
+
+
 if __name__ == "__main__":
-    scene = sys.argv[1]
-    sys.exit(run_friendly(
-        lambda: print(build.ingest(load_params(), scene, RAW_DIR / scene, PROCESSED_DIR))))
+    sys.exit(run_friendly(lambda: print(main(sys.argv[1]))))

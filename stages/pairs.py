@@ -3,12 +3,16 @@
 import sys
 
 from eskin.catalog import PAIRS, PREDICTIONS_DIR, metrics_path, scores_path
-from eskin.config import DEFAULT_PARAMS
+from eskin.config import load_params
 from eskin.errors import run_friendly
 from eskin.learning import train
 
+
+def main(scene: str) -> str:
+    # The params only go to the MLflow pipeline run: the stage reads none of them.
+    return train.score_pairs(scene, PREDICTIONS_DIR, metrics_path(scene, PAIRS),
+                             scores_path(scene, PAIRS), pipeline_params=load_params()).summary
+
+
 if __name__ == "__main__":
-    scene = sys.argv[1]
-    sys.exit(run_friendly(lambda: print(train.score_pairs(
-        scene, PREDICTIONS_DIR, metrics_path(scene, PAIRS), scores_path(scene, PAIRS),
-        params_text=DEFAULT_PARAMS.read_text()))))
+    sys.exit(run_friendly(lambda: print(main(sys.argv[1]))))

@@ -8,17 +8,17 @@ from pathlib import Path
 import pandas as pd
 
 from eskin.catalog import SOAK_DIR, processed_path
-from eskin.config import load_params, section
+from eskin.config import load_params, required
 from eskin.errors import run_friendly
 from harness.soak import run_soak
 
 
 def main(scene: str) -> int:
     params = load_params()
-    settings = section(params, "soak")
+    settings = required(params, "soak")
     SOAK_DIR.mkdir(parents=True, exist_ok=True)
     json_path, md_path = SOAK_DIR / f"{scene}.json", SOAK_DIR / f"{scene}.md"
-    source = section(params, f"scenes.{scene}.source")
+    source = params.scenes[scene].source
     if source != "simulated":
         # The soak compares with a clean run of the same seed: only the simulator has one.
         reason = f"a soak needs the simulated board; this scene's data comes from {source}"
@@ -31,7 +31,7 @@ def main(scene: str) -> int:
     reference = pd.read_parquet(processed_path(scene))
     with tempfile.TemporaryDirectory(prefix="eskin-soak-") as scratch:
         result = run_soak(params, settings, Path(scratch), reference, scene=scene,
-                          kill_at=settings["kill_at"])
+                          kill_at=settings.kill_at)
     json_path.write_text(json.dumps(result.as_dict(), indent=2) + "\n")
     md_path.write_text(result.markdown())
     print(result.markdown())

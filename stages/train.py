@@ -3,12 +3,18 @@
 import sys
 
 from eskin.catalog import FEATURES_DIR, task_outputs
-from eskin.config import DEFAULT_PARAMS, load_params
+from eskin.config import load_params
 from eskin.errors import run_friendly
 from eskin.learning import train
 
+
+def main(scene: str, task: str) -> str:
+    params = load_params()
+    return train.train(scene, task, task_params=getattr(params.train, task),
+                       configuration=params.train.configuration, cv=params.cv,
+                       features_dir=FEATURES_DIR, pipeline_params=params,
+                       **task_outputs(scene, task)).summary
+
+
 if __name__ == "__main__":
-    scene, task = sys.argv[1], sys.argv[2]
-    sys.exit(run_friendly(lambda: print(train.train(
-        load_params(), scene, task, FEATURES_DIR, params_text=DEFAULT_PARAMS.read_text(),
-        **task_outputs(scene, task)))))
+    sys.exit(run_friendly(lambda: print(main(sys.argv[1], sys.argv[2]))))

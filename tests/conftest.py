@@ -61,14 +61,57 @@ def small_scenes(repo_params: dict) -> dict:
     return params
 
 
+def typed(params):
+    """A scratch params dict (the tests edit them as the YAML reads) validated into the
+    :class:`eskin.config.Params` the steps take; a Params as it is."""
+    from eskin.config import Params, validate_params
+
+    return params if isinstance(params, Params) else validate_params(params)
+
+
+def acquire_step(params, scene: str, raw_dir: Path, **kwargs):
+    """The acquisition step as its stage runs it: every scene checked, then ``scene``."""
+    from eskin.acquisition import acquire
+    from eskin.config import validating
+
+    params = typed(params)
+    with validating():
+        acquire.check_scenes(params.scenes, params.cv)
+    return acquire.acquire(scene, params.scenes[scene], raw_dir, acquire=params.acquire,
+                           sim=params.sim, board=params.sim_board, **kwargs)
+
+
+def ingest_step(params, scene: str, raw_dir: Path, processed_dir: Path):
+    from eskin.data import build
+
+    params = typed(params)
+    return build.ingest(scene, params.scenes[scene], raw_dir, processed_dir,
+                        ingest=params.ingest)
+
+
+def featurize_step(params, scene: str, processed_dir: Path, features_dir: Path,
+                   models_dir: Path):
+    from eskin.learning.features import featurize_scene
+
+    return featurize_scene(scene, processed_dir, features_dir, models_dir,
+                           featurize=typed(params).featurize)
+
+
+def train_step(params, scene: str, task: str, features_dir: Path, **kwargs):
+    """The training step as its stage runs it (``track`` and the outputs in ``kwargs``)."""
+    from eskin.learning import train
+
+    params = typed(params)
+    return train.train(scene, task, task_params=getattr(params.train, task),
+                       configuration=params.train.configuration, cv=params.cv,
+                       features_dir=features_dir, pipeline_params=params, **kwargs)
+
+
 def prepared_scene(params: dict, scene: str, root: Path) -> Path:
     """``scene`` acquired from the simulated board over a pty and ingested under ``root``
     (raw/<scene>, processed/); returns the dataset's path."""
-    from eskin.acquisition import acquire
-    from eskin.data import build
-
-    acquire.acquire(params, scene, root / "raw" / scene, progress=False)
-    build.ingest(params, scene, root / "raw" / scene, root / "processed")
+    acquire_step(params, scene, root / "raw" / scene, progress=False)
+    ingest_step(params, scene, root / "raw" / scene, root / "processed")
     return root / "processed" / f"{scene}.parquet"
 
 

@@ -10,13 +10,12 @@ import time
 
 import pandas as pd
 import pytest
-from conftest import eskin, small_scenes, write_params
+from conftest import acquire_step, eskin, ingest_step, small_scenes, typed, write_params
 
-from eskin.acquisition import acquire
-from eskin.acquisition.plan import scene_plan
+from eskin.acquisition.plan import plan_from_params
 from eskin.acquisition.rawlog import read_log
 from eskin.acquisition.session import acquire_scene, simulated_board
-from eskin.data import build
+from eskin.config import Soak
 from eskin.data.schema import CHANNELS, LABELS, read_metadata
 from eskin.device.physics import skin_params
 from harness.soak import run_soak, wait_for_conditions
@@ -27,8 +26,8 @@ CONTENT = ["trial", "sample", *CHANNELS]
 
 
 def acquire_and_ingest(params, root, scene="single_force"):
-    summary = acquire.acquire(params, scene, root / "raw" / scene, progress=False)
-    build.ingest(params, scene, root / "raw" / scene, root / "processed")
+    summary = acquire_step(params, scene, root / "raw" / scene, progress=False).summary
+    ingest_step(params, scene, root / "raw" / scene, root / "processed")
     return summary, pd.read_parquet(root / "processed" / f"{scene}.parquet")
 
 
@@ -58,7 +57,7 @@ def clean_run(tmp_path_factory, repo_params):
 
 def test_small_scene_has_exactly_the_planned_rows_and_labels(clean_run):
     params, summary, frame = clean_run
-    plan = scene_plan(params, "single_force")
+    plan = plan_from_params("single_force", typed(params).scenes["single_force"])
     assert len(frame) == plan.n_samples == 2 * 2 * 101 * 5
     assert "404 condition(s) acquired, 0 reused" in summary
     assert not frame[["session", "trial", "sample"]].duplicated().any()
@@ -110,26 +109,26 @@ def test_sigkill_midway_then_resume_gives_every_planned_row_once(clean_run, tmp_
 
 def test_a_grown_plan_acquires_only_the_new_conditions(clean_run, tmp_path):
     params, _, _ = clean_run
-    first = acquire.acquire(params, "single_force", tmp_path, progress=False)
+    first = acquire_step(params, "single_force", tmp_path, progress=False).summary
     assert "404 condition(s) acquired" in first
     grown = copy.deepcopy(params)
     grown["scenes"]["single_force"]["stretches"].append(1.15842)
-    second = acquire.acquire(grown, "single_force", tmp_path, progress=False)
+    second = acquire_step(grown, "single_force", tmp_path, progress=False).summary
     assert "202 condition(s) acquired, 404 reused of 606" in second
     before = (tmp_path / "acquisition.log").read_bytes()
-    again = acquire.acquire(grown, "single_force", tmp_path, progress=False)
+    again = acquire_step(grown, "single_force", tmp_path, progress=False).summary
     assert "0 condition(s) acquired, 606 reused" in again
     assert (tmp_path / "acquisition.log").read_bytes() == before, "nothing new, nothing written"
 
 
 def test_a_changed_simulator_parameter_reacquires_everything(clean_run, tmp_path):
     params, _, clean = clean_run
-    acquire.acquire(params, "single_force", tmp_path, progress=False)
+    acquire_step(params, "single_force", tmp_path, progress=False)
     changed = copy.deepcopy(params)
     changed["sim"]["noise_pf"] = params["sim"]["noise_pf"] * 2
-    summary = acquire.acquire(changed, "single_force", tmp_path, progress=False)
+    summary = acquire_step(changed, "single_force", tmp_path, progress=False).summary
     assert "404 condition(s) acquired, 0 reused" in summary
-    build.ingest(changed, "single_force", tmp_path, tmp_path / "processed")
+    ingest_step(changed, "single_force", tmp_path, tmp_path / "processed")
     frame = pd.read_parquet(tmp_path / "processed" / "single_force.parquet")
     assert not frame[CHANNELS].equals(clean[CHANNELS])
     assert len(read_log(tmp_path / "acquisition.log").sessions) == 2, "nothing lost: both kept"
@@ -146,20 +145,22 @@ def test_two_force_scene_follows_its_documented_plan(small_params, tmp_path):
 
 
 def test_ingest_of_an_incomplete_log_says_how_to_resume(small_params, tmp_path):
-    acquire.acquire(small_params, "single_force", tmp_path, progress=False)
+    acquire_step(small_params, "single_force", tmp_path, progress=False)
     grown = copy.deepcopy(small_params)
     grown["scenes"]["single_force"]["forces"].append(5.2136)
     expected = "202 of 606 planned conditions .*eskin acquire single_force"
     with pytest.raises(ValueError, match=expected):
-        build.ingest(grown, "single_force", tmp_path, tmp_path / "processed")
+        ingest_step(grown, "single_force", tmp_path, tmp_path / "processed")
 
 
 def test_serial_source_prompts_the_operator_only_when_the_weights_change(small_params,
                                                                           tmp_path):
     prompts = []
-    sim = skin_params(small_params)
+    sim = skin_params(typed(small_params).sim)
     with simulated_board(sim, rest_length_mm=101.0) as board:  # stands in for a real board
-        report = acquire_scene(scene_plan(small_params, "single_force"), tmp_path,
+        report = acquire_scene(plan_from_params("single_force",
+                                                typed(small_params).scenes["single_force"]),
+                               tmp_path,
                                source="serial",
                                sim=sim, rest_length_mm=101.0, port=board.port,
                                ask=prompts.append, progress=False)
@@ -180,7 +181,8 @@ def test_soak_every_fault_kind_and_two_sigkills_lose_and_duplicate_nothing(clean
     settings = {**repo_params["soak"], "corrupt_fraction": 0.01, "timeout_s": 0.25}
     settings["faults"] = {**settings["faults"], "stall_s": 0.3, **dict.fromkeys(
         ["drop", "garbage", "reset", "stall", "vanish"], 0.01)}
-    result = run_soak(params, settings, tmp_path, clean, scene="single_force",
+    result = run_soak(typed(params), Soak.model_validate(settings), tmp_path, clean,
+                      scene="single_force",
                       say=lambda message: None)
     assert result.kills == 2 and all(n > 0 for n in result.faults.values()), result.markdown()
     assert (result.lost, result.duplicated, result.extra, result.differing) == (0, 0, 0, 0)

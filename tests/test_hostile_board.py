@@ -19,10 +19,11 @@ import pytest
 from conftest import eskin, small_scenes, write_params
 from hostile_board import HostileBoard, Served, frame_line
 
-from eskin.acquisition.plan import scene_plan
+from eskin.acquisition.plan import plan_from_params
 from eskin.acquisition.rawlog import MAGIC, read_log
 from eskin.acquisition.runner import AcquisitionError, SimulatedPlacer
 from eskin.acquisition.session import run_session
+from eskin.config import validate_params
 from eskin.data.ingest import ingest_log
 from eskin.data.schema import CHANNELS, LABELS
 from eskin.device.host import (
@@ -47,7 +48,7 @@ def hostile_params(repo_params):
 
 
 def acquire_from(board, tmp_path, params, transport="pty"):
-    plan = scene_plan(params, "single_force")
+    plan = plan_from_params("single_force", validate_params(params).scenes["single_force"])
     with Served(board, transport) as served:
         report = run_session(plan, tmp_path, port=served.port, placer=SimulatedPlacer(),
                              rest_length_mm=101.0, simulator=None, timeout_s=TIMEOUT_S,
@@ -269,7 +270,7 @@ def test_a_kill_at_the_first_prompt_leaves_a_log_the_next_run_continues(tmp_path
 
 def test_an_empty_or_headerless_log_from_an_earlier_version_is_continued(honest, tmp_path):
     params, clean = honest
-    plan = scene_plan(params, "single_force")
+    plan = plan_from_params("single_force", validate_params(params).scenes["single_force"])
     log = tmp_path / "acquisition.log"
     log.write_bytes(b"")
     acquire_from(HostileBoard(), tmp_path, params)

@@ -7,9 +7,8 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
+from conftest import acquire_step, ingest_step
 
-from eskin.acquisition import acquire
-from eskin.data import build
 from eskin.data.importer import import_paper_layout
 from eskin.data.schema import CHANNELS, DatasetError, arrow_schema, read_metadata
 
@@ -117,9 +116,9 @@ def test_import_source_runs_through_the_pipeline_steps(tmp_path, small_params):
     source = write_csv(tmp_path / "lab.csv", paper_rows())
     params = copy.deepcopy(small_params)
     params["scenes"]["single_force"].update(source="import", import_path=str(source))
-    acquire.acquire(params, "single_force", tmp_path / "raw")
+    acquire_step(params, "single_force", tmp_path / "raw")
     assert (tmp_path / "raw" / "import.csv").read_bytes() == source.read_bytes()
-    message = build.ingest(params, "single_force", tmp_path / "raw", tmp_path / "out")
+    message = ingest_step(params, "single_force", tmp_path / "raw", tmp_path / "out").summary
     assert "24 rows" in message
     frame = pq.read_table(tmp_path / "out" / "single_force.parquet").to_pandas()
     assert len(frame) == 24

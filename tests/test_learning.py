@@ -5,21 +5,21 @@ import json
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import prepared_scene, small_scenes
+from conftest import featurize_step, prepared_scene, small_scenes, train_step
 from sklearn.utils.estimator_checks import check_estimator
 
 from eskin.catalog import TASK_NAMES
+from eskin.config import TaskModels
 from eskin.data.schema import CHANNELS, md5_file, node_id
 from eskin.evaluation.crossval import cross_validate, parallel_backend
 from eskin.evaluation.folds import assign_folds, strata
-from eskin.learning import train as train_step
 from eskin.learning.estimators import (
     REGISTRY,
     SubsampledGaussianProcess,
     build_model,
     model_settings,
 )
-from eskin.learning.features import BaselineDelta, featurize_scene, fit_featurizer
+from eskin.learning.features import BaselineDelta, fit_featurizer
 from eskin.learning.tasks import TASKS, get_task
 
 
@@ -33,7 +33,7 @@ def project(tmp_path_factory, repo_params):
     root = tmp_path_factory.mktemp("project")
     for scene in ("single_force", "two_force"):
         prepared_scene(params, scene, root)
-        featurize_scene(params, scene, root / "processed", root / "features", root / "models")
+        featurize_step(params, scene, root / "processed", root / "features", root / "models")
     return params, root
 
 
@@ -42,11 +42,11 @@ def features(project, scene="single_force"):
 
 
 def train(project, scene, task, out, params=None, **kwargs):
-    return train_step.train(params or project[0], scene, task, project[1] / "features",
-                       metrics_path=out / "metrics.json", scores_path=out / "scores.json",
-                       predictions_path=out / "oof.parquet",
-                       model_path=out / "model.joblib", track=False,
-                       **kwargs)
+    return train_step(params or project[0], scene, task, project[1] / "features",
+                      metrics_path=out / "metrics.json", scores_path=out / "scores.json",
+                      predictions_path=out / "oof.parquet",
+                      model_path=out / "model.joblib", track=False,
+                      **kwargs).summary
 
 
 # ------------------------------------------------------------------ folds
@@ -117,12 +117,13 @@ def test_a_single_stretch_level_skips_stretch_with_its_reason(project, tmp_path)
     meta = read_metadata(root / "features" / "single_force.parquet")
     write_dataset(frame[frame["stretch"] == 1.0], "single_force",
                   one_level / "single_force.parquet", meta)
-    summary = train_step.train(params, "single_force", "stretch", one_level,
-                          metrics_path=tmp_path / "m.json", scores_path=tmp_path / "s.json",
-                          predictions_path=tmp_path / "p.parquet",
-                          model_path=tmp_path / "model.joblib",
-                          track=False)
-    assert "skipped" in summary
+    result = train_step(params, "single_force", "stretch", one_level,
+                        metrics_path=tmp_path / "m.json", scores_path=tmp_path / "s.json",
+                        predictions_path=tmp_path / "p.parquet",
+                        model_path=tmp_path / "model.joblib",
+                        track=False)
+    assert "skipped" in result.summary
+    assert result.status == "skipped" and "two or more stretch levels" in result.reason
     scores = json.loads((tmp_path / "s.json").read_text())
     assert scores["status"] == "skipped"
     assert "two or more stretch levels" in scores["reason"]
@@ -148,8 +149,9 @@ def test_an_unknown_model_names_the_known_ones():
 
 
 def test_model_hyperparameters_are_the_ones_beside_the_chosen_model():
-    name, hyper = model_settings({"model": "random_forest", "paper": {"subsample": 5},
-                                  "random_forest": {"n_estimators": 7}})
+    name, hyper = model_settings(TaskModels.model_validate(
+        {"model": "random_forest", "paper": {"subsample": 5},
+         "random_forest": {"n_estimators": 7}}))
     assert (name, hyper) == ("random_forest", {"n_estimators": 7})
     model = build_model("force", name, hyper)
     assert model.steps[-1][1].n_estimators == 7  # behind the standardising steps
@@ -254,11 +256,13 @@ def test_two_force_tasks_train(project, tmp_path):
 
 
 def test_a_task_model_may_be_named_per_kind():
-    section = {"model": {"single_force": "logistic", "two_force": "paper"}, "logistic": {"C": 2.0}}
+    section = TaskModels.model_validate(
+        {"model": {"single_force": "logistic", "two_force": "paper"}, "logistic": {"C": 2.0}})
     assert model_settings(section, "tuned", "single_force") == ("logistic", {"C": 2.0})
     assert model_settings(section, "tuned", "two_force") == ("paper", {})
     with pytest.raises(KeyError, match="no model for"):
-        model_settings({"model": {"single_force": "logistic"}}, "tuned", "two_force")
+        model_settings(TaskModels.model_validate({"model": {"single_force": "logistic"}}),
+                       "tuned", "two_force")
 
 
 def test_node_ids_are_row_major():
@@ -266,8 +270,9 @@ def test_node_ids_are_row_major():
 
 
 def test_the_paper_configuration_switch_picks_every_tasks_paper_entry():
-    section = {"model": "hist_gradient_boosting", "paper": {"subsample": 10},
-               "hist_gradient_boosting": {"max_iter": 5}}
+    section = TaskModels.model_validate({"model": "hist_gradient_boosting",
+                                         "paper": {"subsample": 10},
+                                         "hist_gradient_boosting": {"max_iter": 5}})
     assert model_settings(section) == ("hist_gradient_boosting", {"max_iter": 5})
     assert model_settings(section, "paper") == ("paper", {"subsample": 10})
     with pytest.raises(ValueError, match="train.configuration"):

@@ -16,7 +16,6 @@ import pandas as pd
 import pytest
 
 from eskin.acquisition.session import simulated_board
-from eskin.config import section
 from eskin.data.schema import read_dataset, read_metadata
 from eskin.deploy.export import write_stack
 from eskin.deploy.live import (
@@ -35,9 +34,17 @@ from eskin.device.physics import skin_params
 from eskin.device.protocol import encode_frame
 from eskin.evaluation.crossval import fit_final
 from eskin.learning.estimators import build_model, model_settings
-from eskin.learning.features import featurize_scene
 from eskin.learning.tasks import get_task
-from tests.conftest import headless_chromium, needs_chromium, prepared_scene, small_scenes
+from tests.conftest import (
+    acquire_step,
+    featurize_step,
+    headless_chromium,
+    ingest_step,
+    needs_chromium,
+    prepared_scene,
+    small_scenes,
+    typed,
+)
 from tests.hostile_board import HostileBoard, Served
 
 TARE = 50
@@ -49,13 +56,14 @@ def stack(tmp_path_factory, repo_params):
     params = small_scenes(repo_params)
     root = tmp_path_factory.mktemp("live")
     processed = prepared_scene(params, "single_force", root)
-    featurize_scene(params, "single_force", root / "processed", root / "features",
-                    root / "models")
+    featurize_step(params, "single_force", root / "processed", root / "features",
+                   root / "models")
     features = read_dataset(root / "features" / "single_force.parquet")
     models = {}
     for name in ("stretch", "force", "detect", "localise"):
         task = get_task("single_force", name)
-        model, hyper = model_settings(section(params, f"train.{name}"), "tuned", "single_force")
+        model, hyper = model_settings(getattr(typed(params).train, name), "tuned",
+                                      "single_force")
         models[name] = fit_final(task, features, build_model(task.role, model, hyper))
     featurizer = joblib.load(root / "models" / "single_force" / "featurizer.joblib")
     return params, SkinStack("single_force", "single_force", featurizer, models,
@@ -79,11 +87,11 @@ def run_live(params, stack, *, corrupt_fraction=0.0, estimates_wanted=320, recor
              faults=None, script=SCRIPT):
     """Stream, run the script, and keep every stream event and every live record (and,
     ``record_to`` a raw directory, record the stream there as ``--record`` does)."""
-    settings = section(params, "acquire")
+    settings = typed(params).acquire
     events, records = [], []
     with contextlib.ExitStack() as resources:
         board = resources.enter_context(simulated_board(
-            skin_params(params), rest_length_mm=float(settings["rest_length_mm"]),
+            skin_params(typed(params).sim), rest_length_mm=float(settings.rest_length_mm),
             corrupt_fraction=corrupt_fraction, frame_period_ms=8, faults=faults))
         link = resources.enter_context(SerialLink(board.port, timeout_s=5.0))
         hello = link.connect()
@@ -169,9 +177,7 @@ def test_record_keeps_the_stream_in_the_raw_log_apart_from_the_training_data(sta
     """`--record`: every streamed frame, damaged lines and gaps included, goes into the
     scene's raw log as a live session; ingest gives the same training data as before and
     the recorded frames beside it, and acquisition still finds nothing left to do."""
-    from eskin.acquisition import acquire
     from eskin.acquisition.rawlog import read_log
-    from eskin.data import build
 
     params, skin = stack
     processed = prepared_scene(params, "single_force", tmp_path)
@@ -189,14 +195,14 @@ def test_record_keeps_the_stream_in_the_raw_log_apart_from_the_training_data(sta
     for attempt in attempts:  # each an unbroken run of the board's sequence
         assert np.all(np.diff([f.seq for f in attempt.frames]) == 1)
     assert any(len(a.frames) < 100 for a in attempts[:-1])  # a gap ended one early
-    message = build.ingest(params, "single_force", raw, tmp_path / "processed")
+    message = ingest_step(params, "single_force", raw, tmp_path / "processed").summary
     assert f"{len(streamed)} live-recorded frame(s) of 1 session(s)" in message
     after = pd.read_parquet(processed)
     pd.testing.assert_frame_equal(after, before)
     recorded = pd.read_parquet(tmp_path / "processed" / "single_force.live.parquet")
     assert list(recorded["seq"]) == streamed and set(recorded["session"]) == {"live001"}
     size = (raw / "acquisition.log").stat().st_size
-    acquire.acquire(params, "single_force", raw, progress=False)  # nothing left to acquire
+    acquire_step(params, "single_force", raw, progress=False)  # nothing left to acquire
     assert (raw / "acquisition.log").stat().st_size == size
 
 
@@ -353,14 +359,14 @@ def test_the_live_view_shows_a_press_where_and_as_hard_as_it_is(stack, tmp_path)
     """The page in headless Chromium, read as a person reads it, while the live loop runs
     on the simulated board's stream and a weight is pressed on node (5, 5)."""
     params, skin = stack
-    settings = section(params, "acquire")
+    settings = typed(params).acquire
     stop, failure = threading.Event(), []
 
     def loop(view):
         try:
             with contextlib.ExitStack() as resources:
                 board = resources.enter_context(simulated_board(
-                    skin_params(params), rest_length_mm=float(settings["rest_length_mm"]),
+                    skin_params(typed(params).sim), rest_length_mm=float(settings.rest_length_mm),
                     frame_period_ms=12))
                 link = resources.enter_context(SerialLink(board.port, timeout_s=5.0))
                 link.connect()
@@ -412,7 +418,7 @@ def test_stream_events_beyond_the_backlog_kept_during_a_command_are_reported(sta
     from eskin.device.link import StreamOverflow
 
     params, _ = stack
-    with simulated_board(skin_params(params), rest_length_mm=101.0,
+    with simulated_board(skin_params(typed(params).sim), rest_length_mm=101.0,
                          frame_period_ms=4) as board, SerialLink(board.port) as link:
         link.connect()
         link._backlog = collections.deque(maxlen=5)  # instead of STREAM_BACKLOG's 4,096

@@ -26,6 +26,7 @@ from conftest import (
 )
 from test_stage_deps import params_mismatches
 
+from eskin.config import TaskModels
 from eskin.data.schema import CHANNELS, md5_file
 from eskin.learning.estimators import model_settings
 
@@ -92,7 +93,8 @@ def test_a_second_force_model_is_a_second_mlflow_run_on_the_same_dataset(scratch
     runs = mlflow.search_runs(experiment_names=["eskin"],
                               filter_string="tags.`eskin.task` = 'force' and "
                                             "tags.`eskin.scene` = 'single_force'")
-    default, _ = model_settings(repo_params["train"]["force"], "tuned", "single_force")
+    default, _ = model_settings(TaskModels.model_validate(repo_params["train"]["force"]),
+                                "tuned", "single_force")
     assert sorted(runs["params.model"]) == sorted([default, "random_forest"])
     digest = md5_file(root / "data" / "processed" / "single_force.parquet")
     assert set(runs["tags.eskin.dataset_digest"]) == {digest}

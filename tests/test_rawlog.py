@@ -3,11 +3,9 @@
 import copy
 
 import pytest
-from conftest import eskin, write_params
+from conftest import acquire_step, eskin, ingest_step, write_params
 
-from eskin.acquisition import acquire
 from eskin.acquisition.rawlog import RawLogError, RawLogWriter, read_log
-from eskin.data import build
 from eskin.data.schema import DatasetError
 from eskin.device.protocol import encode_frame, parse_line
 
@@ -53,21 +51,21 @@ def test_frame_damaged_on_disk_is_named_and_its_condition_not_trusted(tmp_path):
 
 
 def test_damaged_log_stops_ingest_or_goes_to_quarantine(tmp_path, small_params):
-    acquire.acquire(small_params, "single_force", tmp_path, progress=False)
+    acquire_step(small_params, "single_force", tmp_path, progress=False)
     log = tmp_path / "acquisition.log"
     lines = log.read_text().splitlines(keepends=True)
     frame_line = next(i for i, line in enumerate(lines) if line.startswith("F\t"))
     lines[frame_line] = lines[frame_line].replace(",", ";", 3)
     log.write_text("".join(lines))
     with pytest.raises(DatasetError, match=f"acquisition.log:{frame_line + 1}: .*quarantine"):
-        build.ingest(small_params, "single_force", tmp_path, tmp_path / "out")
+        ingest_step(small_params, "single_force", tmp_path, tmp_path / "out")
     lenient = copy.deepcopy(small_params)
     lenient["ingest"]["bad_rows"] = "quarantine"
     with pytest.raises(DatasetError, match="1 of 404 planned conditions"):
-        build.ingest(lenient, "single_force", tmp_path, tmp_path / "out")
-    summary = acquire.acquire(lenient, "single_force", tmp_path, progress=False)
+        ingest_step(lenient, "single_force", tmp_path, tmp_path / "out")
+    summary = acquire_step(lenient, "single_force", tmp_path, progress=False).summary
     assert "1 condition(s) acquired, 403 reused" in summary
-    message = build.ingest(lenient, "single_force", tmp_path, tmp_path / "out")
+    message = ingest_step(lenient, "single_force", tmp_path, tmp_path / "out").summary
     assert "2020 rows" in message and "1 row(s) quarantined" in message
     assert "does not verify" in (tmp_path / "out" / "single_force.quarantine.csv").read_text()
 

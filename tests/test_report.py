@@ -1,12 +1,14 @@
 """The report: figures, plot data, the page (opened in headless Chromium), the results page."""
 
 import json
+from types import SimpleNamespace
 
 import numpy as np
 import pandas as pd
 import pytest
 from conftest import headless_chromium, needs_chromium
 
+from eskin.config import Report
 from eskin.kinds import get_kind
 from eskin.reporting import report
 from eskin.reporting.page import headline_rows
@@ -68,15 +70,17 @@ def fake_outputs(root):
 @pytest.fixture(scope="module")
 def built(tmp_path_factory):
     root = fake_outputs(tmp_path_factory.mktemp("report"))
-    params = {"report": {"schemes": ["stratified", "grouped"], "plots_scheme": "stratified",
-                         "dpi": 60, "page_dpi": 50},
-              "scenes": {"single_force": {"kind": "single_force"},
-                         "two_force": {"kind": "two_force"}}}
-    summary = report.report(params, scores_dir=root / "scores",
-                            predictions_dir=root / "predictions",
-                            figures_dir=root / "figures", plots_dir=root / "plots",
-                            page_path=root / "index.html", results_path=root / "results.md")
-    return root, summary
+    settings = Report(schemes=["stratified", "grouped"], plots_scheme="stratified", dpi=60,
+                      page_dpi=50)
+    # the report reads each scene's kind only
+    scenes = {"single_force": SimpleNamespace(kind="single_force"),
+              "two_force": SimpleNamespace(kind="two_force")}
+    result = report.report(report=settings, scenes=scenes, scores_dir=root / "scores",
+                           predictions_dir=root / "predictions",
+                           figures_dir=root / "figures", plots_dir=root / "plots",
+                           page_path=root / "index.html", results_path=root / "results.md")
+    assert result.figures > 0
+    return root, result.summary
 
 
 def test_every_figure_is_written_as_png_and_svg_per_scheme(built):

@@ -6,25 +6,22 @@ import copy
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import small_scenes
+from conftest import acquire_step, featurize_step, ingest_step, small_scenes, typed
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from eskin.acquisition import acquire
 from eskin.catalog import TASK_NAMES
-from eskin.data import build
 from eskin.data.schema import CHANNELS, read_dataset
 from eskin.learning.estimators import build_model, model_settings
-from eskin.learning.features import featurize_scene
 from eskin.learning.tasks import get_task
 from harness import stress
 
 
 def acquire_features(params, root):
-    acquire.acquire(params, "single_force", root / "raw", progress=False)
-    build.ingest(params, "single_force", root / "raw", root / "processed")
-    featurize_scene(params, "single_force", root / "processed", root / "features",
-                    root / "models")
+    acquire_step(params, "single_force", root / "raw", progress=False)
+    ingest_step(params, "single_force", root / "raw", root / "processed")
+    featurize_step(params, "single_force", root / "processed", root / "features",
+                   root / "models")
     return read_dataset(root / "features" / "single_force.parquet")
 
 
@@ -46,7 +43,7 @@ def small(tmp_path_factory, repo_params):
 @pytest.fixture(scope="module")
 def suite(small):
     params, frames = small
-    return stress.run_suite(frames, params, folds=3, log=lambda _: None)
+    return stress.run_suite(frames, typed(params), folds=3, log=lambda _: None)
 
 
 def test_every_case_passes_or_ends_in_a_clear_error(suite):
@@ -111,7 +108,7 @@ def default_fits(small):
     frame = frames["default"].iloc[::3].reset_index(drop=True)
     out = []
     for task_name in TASK_NAMES:
-        section = params["train"][task_name]
+        section = getattr(typed(params).train, task_name)
         task = get_task("single_force", task_name)
         name, hyper = model_settings(section, "tuned")
         data = frame[task.rows(frame)]

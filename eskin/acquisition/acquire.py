@@ -8,79 +8,92 @@ the ingest stage does not depend on the acquisition's code.)
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
-from eskin.acquisition.plan import scene_plan
+from eskin.acquisition.plan import plan_from_params
+from eskin.acquisition.runner import AcquisitionReport
 from eskin.acquisition.session import acquire_scene
-from eskin.config import section, validating
+from eskin.config import CV, Acquire, Scene, Sim, SimBoard
 from eskin.data.importer import check_layout, copy_import
 from eskin.data.schema import DatasetError
 from eskin.device.faults import LinkFaults
 from eskin.device.physics import skin_params
 
 
-def acquire(params: dict[str, Any], scene: str, raw_dir: Path, *, progress: bool = True) -> str:
-    """Acquire (or import) ``scene`` into ``raw_dir``; returns a one-paragraph summary."""
-    with validating():  # every scene is checked, but only this one's settings are used
-        check_scenes(params)
-    plan = scene_plan(params, scene)
-    settings = section(params, "acquire")
-    scene_settings = section(params, f"scenes.{scene}")
-    if scene_settings["source"] == "import":
-        source = Path(scene_settings["import_path"])  # checked by check_scenes above
+@dataclass(frozen=True)
+class Acquired:
+    """What :func:`acquire` did: the scene's raw data (``imported``: the copy of its
+    import file; ``report``: the acquisition's, for a board or the simulator)."""
+
+    scene: str
+    raw_dir: Path
+    imported: Path | None
+    report: AcquisitionReport | None
+    summary: str
+
+
+def acquire(name: str, scene: Scene, raw_dir: Path, *, acquire: Acquire, sim: Sim,
+            board: SimBoard, progress: bool = True) -> Acquired:
+    """Acquire (or import) scene ``name`` (its params section ``scene``) into ``raw_dir``,
+    with the ``acquire``, ``sim`` and ``sim_board`` sections. Run :func:`check_scenes`
+    on every scene first (the stage and the command line do)."""
+    plan = plan_from_params(name, scene)
+    if scene.source == "import":
+        source = Path(scene.import_path)  # checked by check_scenes
         target = copy_import(source, raw_dir, plan.kind)
-        return f"{scene}: imported {source} as {target}"
-    board = section(params, "sim_board")
+        return Acquired(name, Path(raw_dir), target, None,
+                        f"{name}: imported {source} as {target}")
     report = acquire_scene(
-        plan, raw_dir, source=scene_settings["source"], sim=skin_params(params),
-        rest_length_mm=float(settings["rest_length_mm"]), port=scene_settings.get("port"),
-        corrupt_fraction=float(board["corrupt_fraction"]),
-        faults=LinkFaults.from_mapping(board.get("faults")),
-        frame_period_ms=int(board["frame_period_ms"]), timeout_s=float(settings["timeout_s"]),
-        max_attempts=int(settings["max_attempts"]),
-        reconnect_s=float(settings["reconnect_s"]),
-        max_jump_counts=float(settings["max_jump_counts"]),
-        indenters=settings.get("indenters", "person"), progress=progress)
-    return report.summary()
+        plan, raw_dir, source=scene.source, sim=skin_params(sim),
+        rest_length_mm=float(acquire.rest_length_mm), port=scene.port,
+        corrupt_fraction=float(board.corrupt_fraction),
+        faults=LinkFaults.from_mapping(board.faults.model_dump(exclude_unset=True)),
+        frame_period_ms=int(board.frame_period_ms), timeout_s=float(acquire.timeout_s),
+        max_attempts=int(acquire.max_attempts),
+        reconnect_s=float(acquire.reconnect_s),
+        max_jump_counts=float(acquire.max_jump_counts),
+        indenters=acquire.indenters, progress=progress)
+    return Acquired(name, Path(raw_dir), None, report, report.summary())
 
 
-def check_scenes(params: dict[str, Any]) -> None:
+def check_scenes(scenes: Mapping[str, Scene], cv: CV) -> None:
     """What can be wrong with any scene, found before the first acquisition starts (so a
     typo in the last scene does not wait for the first to be recorded): an import file
     missing, unreadable or not in its kind's layout; a plan with fewer trials than the
-    grouped folds. One line naming the scene, the key and the file."""
-    cv = section(params, "cv")
-    for name, scene in section(params, "scenes").items():
-        if scene["source"] == "import":
-            path = check_import_path(params, name)
+    grouped folds. One line naming the scene, the key and the file. (The stage calls it
+    under :func:`eskin.config.validating`: checking other scenes is not reading knobs.)"""
+    for name, scene in scenes.items():
+        if scene.source == "import":
+            path = check_import_path(name, scene)
             try:
-                check_layout(Path(path), scene["kind"])
+                check_layout(Path(path), scene.kind)
             except DatasetError as err:
                 raise DatasetError(f"scenes.{name}.import_path: {err}") from None
             continue
-        trials = len(scene_plan(params, name).conditions)
-        if "grouped" in cv["schemes"] and trials < int(cv["folds"]):
+        trials = len(plan_from_params(name, scene).conditions)
+        if "grouped" in cv.schemes and trials < int(cv.folds):
             raise ValueError(f"scenes.{name}: {trials} trials (conditions), but grouped CV "
-                             f"with cv.folds = {cv['folds']} needs at least {cv['folds']}; "
+                             f"with cv.folds = {cv.folds} needs at least {cv.folds}; "
                              "add stretches, forces or nodes, or lower cv.folds")
 
 
-def check_import_path(params: dict[str, Any], scene: str) -> str:
-    """``scenes.<scene>.import_path``, checked to be a readable file (not a directory)."""
-    source = section(params, f"scenes.{scene}").get("import_path")
+def check_import_path(name: str, scene: Scene) -> str:
+    """``scenes.<name>.import_path``, checked to be a readable file (not a directory)."""
+    source = scene.import_path
     if not source:
-        raise ValueError(f"scenes.{scene}: source is 'import' but import_path is unset")
+        raise ValueError(f"scenes.{name}: source is 'import' but import_path is unset")
     path = Path(source)
     if path.is_dir():
-        raise ValueError(f"scenes.{scene}.import_path = {source!r} is a directory; name "
+        raise ValueError(f"scenes.{name}.import_path = {source!r} is a directory; name "
                          "the CSV or Parquet file in it")
     if not path.exists():
-        raise FileNotFoundError(f"scenes.{scene}.import_path = {source!r}: no such file")
+        raise FileNotFoundError(f"scenes.{name}.import_path = {source!r}: no such file")
     try:
         with path.open("rb") as handle:
             handle.read(1)
     except OSError as err:
-        raise ValueError(f"scenes.{scene}.import_path = {source!r}: cannot be read "
+        raise ValueError(f"scenes.{name}.import_path = {source!r}: cannot be read "
                          f"({err.strerror})") from None
     return source

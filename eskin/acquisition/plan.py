@@ -22,10 +22,13 @@ import itertools
 import json
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-from eskin.config import section
 from eskin.kinds import KINDS, ONE_CONTACT, TWO_CONTACTS
 from eskin.skin import PAPER_SKIN, Skin
+
+if TYPE_CHECKING:
+    from eskin.config import Scene
 
 
 @dataclass(frozen=True, order=True)
@@ -107,22 +110,22 @@ def two_force_plan(name: str, stretches: Sequence[float], forces: Sequence[float
     return ScenePlan(name, TWO_CONTACTS.name, conditions, samples)
 
 
-def plan_from_params(name: str, section: Mapping[str, object],
-                     skin: Skin = PAPER_SKIN) -> ScenePlan:
-    """The plan of scene ``name`` from its params.yaml section, checked."""
-    kind = section.get("kind")
+def plan_from_params(name: str, scene: Scene, skin: Skin = PAPER_SKIN) -> ScenePlan:
+    """The plan of scene ``name`` from its params.yaml section (``params.scenes[name]``),
+    checked."""
+    kind = scene.kind
     if kind not in KINDS:
         raise ValueError(f"scenes.{name}.kind must be one of {tuple(KINDS)}, got {kind!r}")
-    samples = int(section["samples"])
+    samples = int(scene.samples)
     if samples < 1:
         raise ValueError(f"scenes.{name}.samples must be ≥ 1")
-    stretches = [float(s) for s in section["stretches"]]
-    forces = [float(f) for f in section["forces"]]
+    stretches = [float(s) for s in scene.stretches]
+    forces = [float(f) for f in scene.forces]
     if any(s < 1 for s in stretches) or any(f < 0 for f in forces):
         raise ValueError(f"scenes.{name}: stretches must be ≥ 1 and forces ≥ 0")
     if KINDS[kind].contacts == 1:
         return single_force_plan(name, stretches, forces, samples, skin)
-    nodes_x, nodes_y = section["nodes_x"], section["nodes_y"]
+    nodes_x, nodes_y = scene.nodes_x, scene.nodes_y
     if not all(1 <= int(v) <= skin.rows for v in nodes_x) or \
             not all(1 <= int(v) <= skin.columns for v in nodes_y):
         raise ValueError(f"scenes.{name}: contact nodes must be in 1..{skin.rows} (x) and "
@@ -130,8 +133,3 @@ def plan_from_params(name: str, section: Mapping[str, object],
     if any(f <= 0 for f in forces):
         raise ValueError(f"scenes.{name}: two-force levels must be > 0 (both indenters touch)")
     return two_force_plan(name, stretches, forces, nodes_x, nodes_y, samples)
-
-
-def scene_plan(params: Mapping[str, object], scene: str) -> ScenePlan:
-    """The plan of ``scene`` from the whole params (``scenes.<scene>``)."""
-    return plan_from_params(scene, section(params, f"scenes.{scene}"))

@@ -38,6 +38,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -109,9 +110,10 @@ class SkinParams:
         return dataclasses.asdict(self)
 
 
-def skin_params(params: Mapping[str, object]) -> SkinParams:
-    """The simulated skin of a whole params file (its ``sim:`` section)."""
-    return SkinParams.from_mapping(params["sim"])
+def skin_params(sim: Any) -> SkinParams:
+    """The simulated skin of a params file's ``sim:`` section (``params.sim``, a
+    :class:`eskin.config.Sim`)."""
+    return SkinParams.from_mapping(sim.model_dump())
 
 
 @dataclass(frozen=True)

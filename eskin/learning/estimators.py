@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Callable, Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sklearn.base import BaseEstimator, RegressorMixin, TransformerMixin, clone
@@ -47,6 +47,9 @@ from eskin.learning.gp import (
     subsample_rows,
 )
 from eskin.skin import PAPER_SKIN
+
+if TYPE_CHECKING:
+    from eskin.config import TaskModels
 
 ROLES = ("stretch", "force", "detect", "localise")
 
@@ -306,28 +309,29 @@ REGISTRY: dict[str, dict[str, Factory]] = {
 CONFIGURATIONS = ("tuned", "paper")
 
 
-def model_settings(task_params: Mapping[str, Any], configuration: str = "tuned",
+def model_settings(task_params: TaskModels, configuration: str = "tuned",
                    kind: str = ONE_CONTACT.name) -> tuple[str, dict[str, Any]]:
-    """(model name, its hyperparameters) from a ``train.<task>`` section, for a scene of
-    ``kind``.
+    """(model name, its hyperparameters) from a ``train.<task>`` section
+    (:class:`eskin.config.TaskModels`: ``params.train.force``), for a scene of ``kind``.
 
     ``configuration`` is ``train.configuration``: ``tuned`` uses the task's
     ``model`` (chosen by ``make bench``), ``paper`` its ``paper`` entry. ``model`` is a
-    name, or a name per kind (``{single_force: logistic, two_force: paper}``).
+    name, or a name per kind (``{single_force: logistic, two_force: paper}``); the
+    hyperparameters are the entry of that name beside it (``model_extra``).
     """
     if configuration not in CONFIGURATIONS:
         raise ValueError(f"train.configuration must be one of {CONFIGURATIONS}, "
                          f"got {configuration!r}")
-    if "model" not in task_params:
+    chosen = getattr(task_params, "model", None)
+    if chosen is None:
         raise KeyError("the task's params need a 'model' entry naming a registry model")
-    chosen = task_params["model"]
     if isinstance(chosen, Mapping):
         if kind not in chosen:
             raise KeyError(f"the task's model names no model for {kind} scenes "
                            f"(it has {', '.join(map(str, chosen))})")
         chosen = chosen[kind]
     name = "paper" if configuration == "paper" else str(chosen)
-    hyper = task_params.get(name) or {}
+    hyper = (task_params.model_extra or {}).get(name) or {}
     if not isinstance(hyper, Mapping):
         raise ValueError(f"hyperparameters of {name!r} must be a mapping, got {hyper!r}")
     return name, dict(hyper)

@@ -16,8 +16,8 @@ features so that live inference applies exactly the same transform.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import joblib
 import numpy as np
@@ -26,7 +26,7 @@ from sklearn.base import BaseEstimator, TransformerMixin
 from sklearn.preprocessing import FunctionTransformer, StandardScaler
 from sklearn.utils.validation import check_is_fitted, validate_data
 
-from eskin.config import section
+from eskin.config import Featurize
 from eskin.data.schema import (
     CHANNELS,
     contact_mask,
@@ -100,21 +100,38 @@ def featurize(frame: pd.DataFrame, featurizer: TransformerMixin) -> pd.DataFrame
     return out
 
 
-def featurize_scene(params: dict[str, Any], scene: str, processed_dir: Path, features_dir: Path,
-              models_dir: Path) -> str:
-    """``<processed>/<scene>.parquet`` → ``<features>/<scene>.parquet`` + the fitted transform."""
+_featurize = featurize  # featurize_scene's keyword `featurize` is the params section
+
+
+@dataclass(frozen=True)
+class Featurized:
+    """What :func:`featurize_scene` wrote: the features and the fitted transform."""
+
+    scene: str
+    path: Path
+    transform_path: Path
+    rows: int
+    method: str
+    summary: str
+
+
+def featurize_scene(scene: str, processed_dir: Path, features_dir: Path, models_dir: Path, *,
+                    featurize: Featurize) -> Featurized:
+    """``<processed>/<scene>.parquet`` → ``<features>/<scene>.parquet`` + the fitted
+    transform, with the ``featurize`` section."""
     source = Path(processed_dir) / f"{scene}.parquet"
     if not source.exists():
         raise FileNotFoundError(f"{source}: no dataset; run `dvc repro ingest@{scene}` first")
     meta = read_metadata(source)
     frame = read_dataset(source)
-    method = section(params, "featurize.method")
+    method = featurize.method
     featurizer = fit_featurizer(method, frame, meta["kind"])
     out = Path(features_dir) / f"{scene}.parquet"
     meta.update(featurize={"method": method},
                 dataset={"path": source.as_posix(), "md5": md5_file(source), "rows": len(frame)})
-    write_dataset(featurize(frame, featurizer), meta["kind"], out, meta)
+    write_dataset(_featurize(frame, featurizer), meta["kind"], out, meta)
     transform = Path(models_dir) / scene / "featurizer.joblib"
     transform.parent.mkdir(parents=True, exist_ok=True)
     joblib.dump(featurizer, transform)
-    return f"{scene}: {len(frame)} rows featurized ({method}) → {out}"
+    return Featurized(scene, out, transform, len(frame), method,
+                      f"{scene}: {len(frame)} rows featurized ({method}) → {out}")

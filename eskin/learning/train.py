@@ -12,13 +12,14 @@ import json
 import sys
 import time
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import pandas as pd
 
 from eskin.catalog import HEADLINE_SCHEME, PAIRS_HEADLINE
-from eskin.config import section
+from eskin.config import CV, Params, TaskModels
 from eskin.data.schema import describe_source, md5_file, read_dataset, read_metadata
 from eskin.evaluation.crossval import cross_validate, fit_final, parallel_backend
 from eskin.evaluation.folds import assign_folds
@@ -28,13 +29,35 @@ from eskin.learning.saved import save_models
 from eskin.learning.tasks import Task, get_task
 
 
-def train(params: dict[str, Any], scene: str, task_name: str, features_dir: Path, *,
-          metrics_path: Path, scores_path: Path, predictions_path: Path, model_path: Path,
-          lineage_path: Path | None = None, params_text: str = "", track: bool = True,
+@dataclass(frozen=True)
+class Trained:
+    """What :func:`train` did: ``status`` is ``trained`` or ``skipped`` (``reason``);
+    ``results`` the cross-validation of each scheme; ``run_id`` and ``registered`` the
+    MLflow run and model versions (empty when not tracked)."""
+
+    scene: str
+    task: str
+    model: str
+    status: str
+    summary: str
+    reason: str = ""
+    results: list = field(default_factory=list)
+    run_id: str = ""
+    registered: list[str] = field(default_factory=list)
+
+
+def train(scene: str, task_name: str, *, task_params: TaskModels, configuration: str, cv: CV,
+          features_dir: Path, metrics_path: Path, scores_path: Path, predictions_path: Path,
+          model_path: Path, lineage_path: Path | None = None,
+          pipeline_params: Params | None = None, track: bool = True,
           log: Callable[[str], None] = lambda message: print(message, file=sys.stderr,
-                                                               flush=True)) -> str:
+                                                               flush=True)) -> Trained:
     """Cross-validate one task under each CV scheme (a progress bar per scheme), refit,
     save, and log to MLflow.
+
+    ``task_params`` is the task's ``train.<task>`` section, ``configuration``
+    ``train.configuration``, ``cv`` the ``cv`` section; ``pipeline_params`` (the whole
+    params, not read here) goes to the MLflow pipeline run when ``track``.
 
     ``lineage_path`` (uncached in dvc.yaml, which turns DVC's run cache off for the
     stage): what trained the model. With the run cache on, a queued experiment whose
@@ -48,10 +71,8 @@ def train(params: dict[str, Any], scene: str, task_name: str, features_dir: Path
     frame = read_dataset(source)
     kind = meta["kind"]
     task = get_task(kind, task_name)
-    model_name, hyper = model_settings(section(params, f"train.{task_name}"),
-                                       section(params, "train.configuration"), kind)
+    model_name, hyper = model_settings(task_params, configuration, kind)
     estimator = build_model(task.role, model_name, hyper)
-    cv = section(params, "cv")
     header = {"scene": scene, "kind": kind, "task": task_name, "model": model_name,
               "dataset_md5": meta["dataset"]["md5"], "dataset_rows": meta["dataset"]["rows"],
               "source": describe_source(meta)}
@@ -64,17 +85,18 @@ def train(params: dict[str, Any], scene: str, task_name: str, features_dir: Path
         write_json({}, metrics_path)
         save_predictions(pd.DataFrame(), predictions_path)
         save_models({"skipped": reason}, model_path)
-        return f"{scene}/{task_name}: skipped — {reason}"
+        return Trained(scene, task_name, model_name, "skipped",
+                       f"{scene}/{task_name}: skipped — {reason}", reason=reason)
 
     results = []
-    with parallel_backend(cv.get("backend", "loky")):
-        for scheme in cv["schemes"]:
+    with parallel_backend(cv.backend):
+        for scheme in cv.schemes:
             try:
-                folds = assign_folds(frame, kind, scheme, int(cv["folds"]), int(cv["seed"]))
+                folds = assign_folds(frame, kind, scheme, int(cv.folds), int(cv.seed))
             except ValueError as err:  # before any fold runs: name the scene
                 raise ValueError(f"scenes.{scene} ({source}): {err}") from None
             results.append(cross_validate(
-                task, frame, folds, estimator, scheme, n_jobs=int(cv.get("n_jobs", 1)),
+                task, frame, folds, estimator, scheme, n_jobs=int(cv.n_jobs),
                 progress=f"{scene}/{task_name} [{model_name}] {scheme} CV"))
     log(f"{scene}/{task_name} [{model_name}]: refitting on all {len(frame):,} rows …")
     models = fit_final(task, frame, estimator)
@@ -96,13 +118,14 @@ def train(params: dict[str, Any], scene: str, task_name: str, features_dir: Path
                    lineage_path)
     save_predictions(pd.concat([r.predictions.assign(scheme=r.scheme) for r in results],
                                ignore_index=True), predictions_path)
-    run_note = ""
+    run_note, tracked = "", None
     if track:
         from eskin.tracking import runs  # MLflow takes seconds to import; only training needs it
 
         tracked = runs.log_task_run(
-            scene=scene, task=task_name, params={"model": model_name, model_name: hyper, "cv": cv},
-            params_text=params_text, results=results, models=models,
+            scene=scene, task=task_name,
+            params={"model": model_name, model_name: hyper, "cv": cv.model_dump()},
+            pipeline_params=pipeline_params, results=results, models=models,
             dataset=frame.drop(columns=["session", "trial", "seq", "t_ms"]),
             dataset_digest=meta["dataset"]["md5"], dataset_source=meta["dataset"]["path"],
             started=started,
@@ -116,7 +139,10 @@ def train(params: dict[str, Any], scene: str, task_name: str, features_dir: Path
     headline = ", ".join(f"{r.scheme} {_headline(task, r.summary)}" for r in results)
     notes = "".join(f"\n  note ({r.scheme}, {n} of {len(r.per_fold[next(iter(r.per_fold))])} "
                     f"folds): {text}" for r in results for text, n in sorted(r.notes.items()))
-    return f"{scene}/{task_name} [{model_name}]: {headline}{run_note}{notes}"
+    return Trained(scene, task_name, model_name, "trained",
+                   f"{scene}/{task_name} [{model_name}]: {headline}{run_note}{notes}",
+                   results=results, run_id=tracked.run_id if tracked else "",
+                   registered=list(tracked.registered) if tracked else [])
 
 
 def headline_metrics(by_scheme: dict[str, dict]) -> dict[str, dict]:
@@ -145,10 +171,24 @@ def save_predictions(frame: pd.DataFrame, path: Path) -> None:
     frame.to_parquet(path, index=False)
 
 
+@dataclass(frozen=True)
+class PairsScored:
+    """What :func:`score_pairs` did: ``status`` is ``scored`` or ``skipped``
+    (``reason``); ``scores`` per scheme; ``run_id`` the MLflow run (empty if not tracked)."""
+
+    scene: str
+    status: str
+    summary: str
+    reason: str = ""
+    scores: dict = field(default_factory=dict)
+    run_id: str = ""
+
+
 def score_pairs(scene: str, predictions_dir: Path, metrics_path: Path, scores_path: Path, *,
-                params_text: str = "", track: bool = True) -> str:
+                pipeline_params: Params | None = None, track: bool = True) -> PairsScored:
     """Score a two-force scene's contacts as sets (order-free), from its tasks' predictions;
-    the scene's kind and dataset come from the localise task's scores (beside ``scores_path``)."""
+    the scene's kind and dataset come from the localise task's scores (beside ``scores_path``).
+    ``pipeline_params`` (the whole params, not read here) goes to the MLflow pipeline run."""
     from eskin.evaluation.pairs import score_pairs as score
 
     directory = Path(predictions_dir) / scene
@@ -163,7 +203,7 @@ def score_pairs(scene: str, predictions_dir: Path, metrics_path: Path, scores_pa
     if kind is None or kind.contacts < 2:
         reason = f"a {localise.get('kind')} scene has one contact; pairs need two"
         skip(reason)
-        return f"{scene}/pairs: skipped — {reason}"
+        return PairsScored(scene, "skipped", f"{scene}/pairs: skipped — {reason}", reason)
     frames = {}
     for task in ("localise", "force"):
         path = directory / f"{task}.parquet"
@@ -172,20 +212,23 @@ def score_pairs(scene: str, predictions_dir: Path, metrics_path: Path, scores_pa
         frames[task] = pd.read_parquet(path)
     if any(frame.empty for frame in frames.values()):
         skipped = [task for task, frame in frames.items() if frame.empty]
-        skip(f"no predictions from {', '.join(skipped)} (skipped)")
-        return f"{scene}/pairs: skipped — {', '.join(skipped)} skipped"
+        reason = f"no predictions from {', '.join(skipped)} (skipped)"
+        skip(reason)
+        return PairsScored(scene, "skipped", f"{scene}/pairs: skipped — "
+                           f"{', '.join(skipped)} skipped", reason)
     scores = score(frames["localise"], frames["force"])
     write_json({**scores_doc, "status": "scored", **scores}, scores_path)
     write_json(headline_metrics({scheme: {name: values[name] for name in PAIRS_HEADLINE}
                                  for scheme, values in scores.items()}), metrics_path)
-    run_note = ""
+    run_note, run_id = "", ""
     if track:
         from eskin.tracking import runs
 
         run_id = runs.log_scores_run(scene=scene, task="pairs", scores=scores,
-                                         params_text=params_text,
-                                         dataset_digest=localise.get("dataset_md5", ""))
+                                     pipeline_params=pipeline_params,
+                                     dataset_digest=localise.get("dataset_md5", ""))
         run_note = f"; MLflow run {run_id}"
     parts = [f"{scheme} pair {s['pair_accuracy']:.3f} (ordered {s['pair_accuracy_ordered']:.3f}), "
              f"force R² {s['force_r2']:.3f}" for scheme, s in scores.items()]
-    return f"{scene}/pairs: {'; '.join(parts)}{run_note}"
+    return PairsScored(scene, "scored", f"{scene}/pairs: {'; '.join(parts)}{run_note}",
+                       scores=scores, run_id=run_id)

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import io
 import json
+from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -17,7 +19,7 @@ import matplotlib.pyplot as plt
 import pandas as pd
 
 from eskin.catalog import SCORED_TASKS
-from eskin.config import section
+from eskin.config import Report, Scene
 from eskin.data.schema import force_columns, node_columns
 from eskin.kinds import Figure, get_kind
 from eskin.reporting import figures as fig
@@ -84,10 +86,27 @@ def plot_data(scene: str, kind: str, predictions: dict[str, pd.DataFrame]
             for template, stem, frame in out]
 
 
-def report(params: dict[str, Any], *, scores_dir: Path, predictions_dir: Path,
-           figures_dir: Path, plots_dir: Path, page_path: Path, results_path: Path) -> str:
-    settings = section(params, "report")
-    kinds = {name: scene["kind"] for name, scene in section(params, "scenes").items()}
+@dataclass(frozen=True)
+class Reported:
+    """What :func:`report` wrote: ``figures`` figures (PNG + SVG) of the ``kinds`` of
+    scenes, plot data, the page and the results tables."""
+
+    kinds: dict[str, str]
+    figures: int
+    figures_dir: Path
+    plots_dir: Path
+    page_path: Path
+    results_path: Path
+    summary: str
+
+
+def report(*, report: Report, scenes: Mapping[str, Scene], scores_dir: Path,
+           predictions_dir: Path, figures_dir: Path, plots_dir: Path, page_path: Path,
+           results_path: Path) -> Reported:
+    """Figures, plot data, the page and the results of every scene in ``scenes`` (the
+    ``scenes`` section: which, and their kinds), with the ``report`` section."""
+    settings = report
+    kinds = {name: scene.kind for name, scene in scenes.items()}
     scores = {scene: _task_files(scores_dir, scene, ".json", lambda p: json.loads(p.read_text()))
               for scene in kinds}
     if not any(scores.values()):
@@ -105,20 +124,20 @@ def report(params: dict[str, Any], *, scores_dir: Path, predictions_dir: Path,
             frame = predictions[scene].get(spec.task)
             if frame is None or frame.empty:
                 continue
-            for scheme in settings["schemes"]:
+            for scheme in settings.schemes:
                 figure = draw(spec, frame[frame["scheme"] == scheme])
                 name = f"{spec.id}_{scheme}"
                 (figures_dir / scene).mkdir(parents=True, exist_ok=True)
                 for fmt in ("png", "svg"):
-                    figure.savefig(figures_dir / scene / f"{name}.{fmt}", dpi=int(settings["dpi"]),
+                    figure.savefig(figures_dir / scene / f"{name}.{fmt}", dpi=int(settings.dpi),
                                    metadata={"Date": None} if fmt == "svg" else {"Software": None})
                 buffer = io.BytesIO()
-                figure.savefig(buffer, format="png", dpi=int(settings["page_dpi"]))
+                figure.savefig(buffer, format="png", dpi=int(settings.page_dpi))
                 plt.close(figure)
                 page_figures[scene].append((f"{scene}-{name}", f"{spec.caption} — {scheme} CV.",
                                             buffer.getvalue()))
                 written += 1
-        chosen = {task: frame[frame["scheme"] == settings["plots_scheme"]]
+        chosen = {task: frame[frame["scheme"] == settings.plots_scheme]
                   for task, frame in predictions[scene].items() if not frame.empty}
         for template, stem, frame in plot_data(scene, kind, chosen):
             (plots_dir / template).mkdir(parents=True, exist_ok=True)
@@ -127,6 +146,8 @@ def report(params: dict[str, Any], *, scores_dir: Path, predictions_dir: Path,
     scenes = [(scene, kinds[scene], scores[scene]) for scene in kinds]
     Path(page_path).write_text(render_page(scenes, page_figures))
     Path(results_path).write_text(results_markdown(scenes))
-    return (f"report: {len(kinds)} scene(s), {written} figures (PNG + SVG) in {figures_dir}, "
-            f"plot data in {plots_dir}, {page_path}, results in {results_path}")
+    return Reported(kinds, written, figures_dir, plots_dir, Path(page_path), Path(results_path),
+                    f"report: {len(kinds)} scene(s), {written} figures (PNG + SVG) in "
+                    f"{figures_dir}, plot data in {plots_dir}, {page_path}, results in "
+                    f"{results_path}")
 

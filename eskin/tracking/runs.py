@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import json
 import logging
 import os
 import socket
@@ -41,7 +42,6 @@ os.environ.setdefault("MLFLOW_HTTP_REQUEST_TIMEOUT", "60")
 
 import mlflow  # noqa: E402 - telemetry must be off before import
 import pandas as pd  # noqa: E402
-import yaml  # noqa: E402
 from mlflow.entities import Param  # noqa: E402
 from mlflow.models import infer_signature  # noqa: E402
 from mlflow.tracking import MlflowClient  # noqa: E402
@@ -98,12 +98,25 @@ def dvc_experiment() -> str:
     return os.environ.get("DVC_EXP_NAME", "")
 
 
-def pipeline_key(params_text: str, commit: str) -> str:
-    """The same for every stage of one ``dvc repro`` / ``dvc exp run``."""
+def pipeline_key(params: Mapping[str, Any], commit: str) -> str:
+    """The same for every stage of one ``dvc repro`` / ``dvc exp run``: the DVC
+    experiment's name, or the commit and the params (as :func:`logged_params` gives them)."""
     if dvc_experiment():
         return f"exp:{dvc_experiment()}"
-    digest = hashlib.sha256(f"{commit}\n{params_text}".encode()).hexdigest()[:16]
+    text = json.dumps(params, sort_keys=True, default=str)
+    digest = hashlib.sha256(f"{commit}\n{text}".encode()).hexdigest()[:16]
     return f"repro:{digest}"
+
+
+def logged_params(params: Any | None) -> dict[str, Any]:
+    """The whole params file (a :class:`eskin.config.Params`) as the pipeline run logs it:
+    as written, keys the file leaves out left out (flattened by :func:`flatten`). Not a
+    stage's knobs: read under the trace's proxy without noting them."""
+    if params is None:
+        return {}
+    from eskin.config import untraced
+
+    return untraced(params).model_dump(exclude_unset=True)
 
 
 # MLflow 3's UI opens an experiment in its GenAI view (traces, token usage) unless told
@@ -201,24 +214,24 @@ def settle_stale_runs(client: MlflowClient, experiment_ids: list[str]) -> list[s
     return settled
 
 
-def _pipeline(scene: str, params_text: str, start_time: int | None = None
+def _pipeline(scene: str, pipeline_params: Any | None, start_time: int | None = None
               ) -> tuple[str, str, str, dict[str, str]]:
     """(experiment id, parent run id, pipeline key, common tags) for a stage's run; a parent
     made now starts at ``start_time`` (ms since the epoch: the stage's start)."""
     client = connect()
     experiment_id = _experiment_id(client, EXPERIMENT)
     settle_stale_runs(client, [experiment_id])
-    key, tags = _pipeline_key_and_tags(params_text)
+    params = logged_params(pipeline_params)
+    key, tags = _pipeline_key_and_tags(params)
     tags["eskin.scene"] = scene
-    params = yaml.safe_load(params_text) if params_text else {}
-    return (experiment_id, parent_run(client, experiment_id, key, tags, params or {},
+    return (experiment_id, parent_run(client, experiment_id, key, tags, params,
                                       start_time), key, tags)
 
 
-def _pipeline_key_and_tags(params_text: str) -> tuple[str, dict[str, str]]:
+def _pipeline_key_and_tags(params: Mapping[str, Any]) -> tuple[str, dict[str, str]]:
     """The pipeline run's key (commit and params) and the tags every run of it carries."""
     commit = git_commit(project_root())
-    return pipeline_key(params_text, commit), {
+    return pipeline_key(params, commit), {
         "eskin.git_commit": commit, "mlflow.source.git.commit": commit,
         "eskin.dvc_experiment": dvc_experiment()}
 
@@ -238,7 +251,8 @@ def _extend_parent(client: MlflowClient, parent: str) -> None:
         client.set_terminated(parent, end_time=now)
 
 
-def log_task_run(*, scene: str, task: str, params: Mapping[str, Any], params_text: str,
+def log_task_run(*, scene: str, task: str, params: Mapping[str, Any],
+                 pipeline_params: Any | None,
                  results: list, models: Mapping[str, Any], dataset: pd.DataFrame,
                  dataset_digest: str, dataset_source: str, started: float | None = None,
                  extra_tags: Mapping[str, str] | None = None) -> TrackedRun:
@@ -248,16 +262,17 @@ def log_task_run(*, scene: str, task: str, params: Mapping[str, Any], params_tex
     ``models`` maps target name → fitted final model; ``dataset`` is the
     frame that trained them (features and labels), logged as an MLflow input
     whose digest is the DVC md5 of the dataset's Parquet file; ``started``, the
-    step's ``time.perf_counter()`` at its start, gives the metric ``wall_seconds``.
+    step's ``time.perf_counter()`` at its start, gives the metric ``wall_seconds``;
+    ``pipeline_params``, the whole :class:`eskin.config.Params`, goes to the pipeline run.
     """
     with _naming_the_store(f"logging {scene}/{task}"):
-        return _log_task_run(scene, task, params, params_text, results, models, dataset,
+        return _log_task_run(scene, task, params, pipeline_params, results, models, dataset,
                              dataset_digest, dataset_source, started, extra_tags)
 
 
-def _log_task_run(scene, task, params, params_text, results, models, dataset, dataset_digest,
+def _log_task_run(scene, task, params, pipeline_params, results, models, dataset, dataset_digest,
                   dataset_source, started, extra_tags) -> TrackedRun:
-    experiment_id, parent, key, tags = _pipeline(scene, params_text, _epoch_ms(started))
+    experiment_id, parent, key, tags = _pipeline(scene, pipeline_params, _epoch_ms(started))
     run_tags = {**tags, **(extra_tags or {}), **process_tags(), "eskin.task": task,
                 "eskin.kind": "task",
                 "eskin.cv_schemes": ",".join(r.scheme for r in results),
@@ -395,29 +410,29 @@ def ui_url(experiment_id: str, run_id: str | None = None, artifacts: bool = Fals
     return f"{base}/{page}?{TRAINING_VIEW}"
 
 
-def log_report(*, figures_dir: Path, page_path: Path, params_text: str) -> str:
+def log_report(*, figures_dir: Path, page_path: Path, pipeline_params: Any | None) -> str:
     """The report's figures (PNG and SVG, under ``figures/<scene>/``) and page as artifacts
     of the pipeline run the training stages logged under; the UI's page of them."""
     with _naming_the_store("logging the report's figures"):
         client = connect()
         experiment_id = _experiment_id(client, EXPERIMENT)
-        key, tags = _pipeline_key_and_tags(params_text)
-        parent = parent_run(client, experiment_id, key, tags,
-                            yaml.safe_load(params_text) if params_text else {})
+        params = logged_params(pipeline_params)
+        key, tags = _pipeline_key_and_tags(params)
+        parent = parent_run(client, experiment_id, key, tags, params)
         client.log_artifacts(parent, str(figures_dir), "figures")
         client.log_artifact(parent, str(page_path))
         return ui_url(experiment_id, parent, artifacts=True)
 
 
-def log_scores_run(*, scene: str, task: str, scores: Mapping[str, Any], params_text: str,
-                   dataset_digest: str) -> str:
+def log_scores_run(*, scene: str, task: str, scores: Mapping[str, Any],
+                   pipeline_params: Any | None, dataset_digest: str) -> str:
     """Log a run that only scores other runs' predictions (e.g. two-force pairs)."""
     with _naming_the_store(f"logging {scene}/{task}"):
-        return _log_scores_run(scene, task, scores, params_text, dataset_digest)
+        return _log_scores_run(scene, task, scores, pipeline_params, dataset_digest)
 
 
-def _log_scores_run(scene, task, scores, params_text, dataset_digest) -> str:
-    experiment_id, parent, key, tags = _pipeline(scene, params_text)
+def _log_scores_run(scene, task, scores, pipeline_params, dataset_digest) -> str:
+    experiment_id, parent, key, tags = _pipeline(scene, pipeline_params)
     with mlflow.start_run(experiment_id=experiment_id,
                           run_name=f"{scene}/{task} @{variant_name(key)}", parent_run_id=parent,
                           tags={**tags, "eskin.task": task, "eskin.kind": "scores",
