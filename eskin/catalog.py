@@ -1,7 +1,8 @@
 """The project's vocabulary and where each artifact lives, defined once.
 
-Scenes are declared in params.yaml (``scenes:``); their kinds, tasks and CV
-schemes are named here and in :mod:`eskin.learning.tasks`; every path a stage writes or
+Scenes are declared in params.yaml (``scenes:``); their kinds are :mod:`eskin.kinds`,
+the skin :mod:`eskin.skin`; tasks and CV schemes are named here (what a task means for
+each kind is :mod:`eskin.learning.tasks`); every path a stage writes or
 reads is a function of the scene (and task) below, so dvc.yaml, the stages,
 the report, compare, audit and reproduce agree by construction (a test checks
 dvc.yaml against these).

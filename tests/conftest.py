@@ -9,6 +9,8 @@ from pathlib import Path
 import pytest
 import yaml
 
+os.environ.setdefault("DVC_NO_ANALYTICS", "1")
+
 # `make test` runs two workers, a file each (pytest-xdist --dist loadfile), handing files
 # out in collection order: the longest go first, so neither worker is left alone with one
 # at the end (measured with --durations; the rest keep their order).
@@ -21,6 +23,7 @@ def pytest_collection_modifyitems(items):
         return LONGEST_FIRST.index(name) if name in LONGEST_FIRST else len(LONGEST_FIRST)
 
     items.sort(key=rank)  # stable: within a file, and among the rest, the order holds
+
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -43,7 +46,6 @@ def headless_chromium():
             yield browser
         finally:
             browser.close()
-os.environ.setdefault("DVC_NO_ANALYTICS", "1")
 
 
 @pytest.fixture(scope="session")

@@ -112,24 +112,9 @@ def two_force_plan(name: str, stretches: Sequence[float], forces: Sequence[float
 
 def plan_from_params(name: str, scene: Scene, skin: Skin = PAPER_SKIN) -> ScenePlan:
     """The plan of scene ``name`` from its params.yaml section (``params.scenes[name]``),
-    checked."""
-    kind = scene.kind
-    if kind not in KINDS:
-        raise ValueError(f"scenes.{name}.kind must be one of {tuple(KINDS)}, got {kind!r}")
-    samples = int(scene.samples)
-    if samples < 1:
-        raise ValueError(f"scenes.{name}.samples must be ≥ 1")
+    which :class:`eskin.config.Scene` has checked (kind, ranges, nodes, two-force levels)."""
     stretches = [float(s) for s in scene.stretches]
     forces = [float(f) for f in scene.forces]
-    if any(s < 1 for s in stretches) or any(f < 0 for f in forces):
-        raise ValueError(f"scenes.{name}: stretches must be ≥ 1 and forces ≥ 0")
-    if KINDS[kind].contacts == 1:
-        return single_force_plan(name, stretches, forces, samples, skin)
-    nodes_x, nodes_y = scene.nodes_x, scene.nodes_y
-    if not all(1 <= int(v) <= skin.rows for v in nodes_x) or \
-            not all(1 <= int(v) <= skin.columns for v in nodes_y):
-        raise ValueError(f"scenes.{name}: contact nodes must be in 1..{skin.rows} (x) and "
-                         f"1..{skin.columns} (y)")
-    if any(f <= 0 for f in forces):
-        raise ValueError(f"scenes.{name}: two-force levels must be > 0 (both indenters touch)")
-    return two_force_plan(name, stretches, forces, nodes_x, nodes_y, samples)
+    if KINDS[scene.kind].contacts == 1:
+        return single_force_plan(name, stretches, forces, scene.samples, skin)
+    return two_force_plan(name, stretches, forces, scene.nodes_x, scene.nodes_y, scene.samples)

@@ -30,7 +30,7 @@ import pandas as pd
 
 from eskin.catalog import HEADLINE_METRIC
 from eskin.data.schema import contact_mask
-from eskin.kinds import KINDS, Kind
+from eskin.kinds import KINDS, Kind, get_kind
 
 
 def _all_rows(frame: pd.DataFrame) -> np.ndarray:
@@ -109,8 +109,7 @@ TASKS: dict[str, dict[str, Task]] = {name: _tasks(kind) for name, kind in KINDS.
 
 
 def get_task(kind: str, name: str) -> Task:
-    if kind not in TASKS:
-        raise ValueError(f"unknown scene kind {kind!r}; known: {sorted(TASKS)}")
+    get_kind(kind)  # an unknown kind: the one error that lists the kinds
     if name not in TASKS[kind]:
         raise ValueError(f"a {kind} scene has no task {name!r}; known: {sorted(TASKS[kind])}")
     return TASKS[kind][name]
