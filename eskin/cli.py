@@ -62,7 +62,7 @@ def _live(args: argparse.Namespace) -> int:
 
     from eskin.acquisition.session import simulated_board
     from eskin.catalog import raw_dir, stack_path
-    from eskin.config import load_params
+    from eskin.config import load_params, scene
     from eskin.deploy.live import (
         LineBroadcast,
         LiveRecorder,
@@ -77,9 +77,10 @@ def _live(args: argparse.Namespace) -> int:
     def note(message: str) -> None:
         print(f"eskin live: {message}", file=sys.stderr, flush=True)
 
+    params = load_params(args.params)
+    scene_params = scene(params, args.scene, args.params)
     if args.tare_frames < 0 or args.frames < 0:
         raise ValueError("--tare-frames and --frames count frames: 0 or more")
-    params = load_params(args.params)
     settings = params.acquire
     if args.onnx is not None:
         stack = ExportedStack.from_file(Path(args.onnx) if args.onnx else stack_path(args.scene))
@@ -91,12 +92,11 @@ def _live(args: argparse.Namespace) -> int:
         stack = stack_from_registry(args.scene, args.alias)
     else:
         stack = SkinStack.from_workspace(args.scene)
-    scene_params = params.scenes.get(args.scene)
-    if args.record and scene_params is not None and scene_params.source == "import":
+    if args.record and scene_params.source == "import":
         raise ValueError(f"--record keeps a board's frames in the raw log of a scene acquired "
                          f"from a board; {args.scene} is imported from a file")
-    declared = scene_params.kind if scene_params is not None else None
-    if declared is not None and declared != stack.kind:
+    declared = scene_params.kind
+    if declared != stack.kind:
         raise ValueError(f"scenes.{args.scene} is a {declared} scene in {args.params}, but its "
                          f"trained stack is {stack.kind}: run `dvc repro` to train it again")
     with contextlib.ExitStack() as resources:
@@ -161,8 +161,10 @@ def _live(args: argparse.Namespace) -> int:
 
 
 def _export(args: argparse.Namespace) -> int:
+    from eskin.config import load_params, scene
     from eskin.deploy.export import export_scene
 
+    scene(load_params(args.params), args.scene, args.params)
     print(export_scene(args.scene))
     return 0
 
@@ -286,6 +288,7 @@ def build_parser() -> argparse.ArgumentParser:
         "export", help="write a scene's trained stack as one ONNX file "
         "(models/<scene>/stack.onnx) and check it against the scikit-learn stack")
     export.add_argument("scene", help="a scene whose models dvc repro has trained")
+    export.add_argument("--params", type=Path, default=Path("params.yaml"), help=PARAMS_HELP)
     export.set_defaults(run=_export)
 
     compare = commands.add_parser(
@@ -352,14 +355,7 @@ def _audit(args: argparse.Namespace) -> int:
     versions = compare.dataset_versions(runs, compare.workspace_digests(root, scenes))
     versions["committed"] = versions["dataset md5"].map(
         compare.commit_dates(root, list(versions["dataset md5"])))
-    if args.format != "table":
-        _emit(compare.render(versions, args.format), args.output)
-        return 0
-    parts = [compare.render(versions, "table")]
-    for digest in versions["dataset md5"]:
-        parts.append(f"\n{digest} trained:\n"
-                     + compare.render(compare.runs_of_dataset(runs, digest), "table"))
-    _emit("".join(parts), args.output)
+    _emit(compare.render_versions(runs, versions, args.format), args.output)
     return 0
 
 
@@ -373,11 +369,12 @@ def _reproduce(args: argparse.Namespace) -> int:
 
 
 def _learning_step(args: argparse.Namespace) -> int:
-    from eskin.config import load_params
+    from eskin.config import load_params, scene
     from eskin.learning import train
     from eskin.learning.features import featurize_scene
 
     params = load_params(args.params)
+    scene(params, args.scene, args.params)
     if args.command == "featurize":
         print(featurize_scene(args.scene, PROCESSED_DIR, FEATURES_DIR, MODELS_DIR,
                               featurize=params.featurize).summary)
@@ -392,12 +389,11 @@ def _learning_step(args: argparse.Namespace) -> int:
 def _pipeline_step(args: argparse.Namespace) -> int:
     from eskin.acquisition import acquire
     from eskin.config import load_params, validating
+    from eskin.config import scene as known_scene
     from eskin.data import build
 
     params = load_params(args.params)
-    if args.scene not in params.scenes:
-        raise KeyError(f"params.yaml has no scenes.{args.scene}")
-    scene = params.scenes[args.scene]
+    scene = known_scene(params, args.scene, args.params)
     if args.command == "acquire":
         override = {key: value for key, value in (("source", args.source), ("port", args.port))
                     if value}

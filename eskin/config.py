@@ -11,9 +11,12 @@ from __future__ import annotations
 
 import atexit
 import contextlib
+import difflib
 import json
 import os
 import sys
+import types
+import typing
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -291,25 +294,92 @@ def _describe(error: dict) -> str:
     if error["type"] == "missing":
         return f"{key} is missing (required)"
     if error["type"] == "extra_forbidden":
-        return f"{key}: unknown key (a typo?)"
+        return f"{key} is not a known key"
     value = error.get("input")
     if isinstance(value, Mapping):  # a rule on a whole section: its message says what
         return f"{key}: {message}"
     return f"{key} = {value!r}: {message}" if key else message
 
 
+def _section_model(loc: tuple) -> type[BaseModel] | None:
+    """The schema section (a pydantic model) at ``loc`` (``("cv",)``, ``("scenes", "a")``),
+    or None where the params there are free-form (hyperparameters)."""
+    model: Any = Params
+    for part in loc:
+        if isinstance(model, tuple):  # a mapping: any key, then its values' model
+            model = model[1]
+            continue
+        if not (isinstance(model, type) and issubclass(model, BaseModel)) or \
+                part not in model.model_fields:
+            return None
+        model = _unwrap(model.model_fields[part].annotation)
+    return model if isinstance(model, type) and issubclass(model, BaseModel) else None
+
+
+def _unwrap(annotation: Any) -> Any:
+    """A field's model, through Optional and Annotated; a dict as (None, its values')."""
+    while True:
+        origin = typing.get_origin(annotation)
+        if origin is Annotated:
+            annotation = typing.get_args(annotation)[0]
+        elif origin in (typing.Union, types.UnionType):
+            options = [a for a in typing.get_args(annotation) if a is not type(None)]
+            annotation = options[0] if len(options) == 1 else None
+        elif origin is dict:
+            return (None, _unwrap(typing.get_args(annotation)[1]))
+        else:
+            return annotation
+
+
+def _known_keys(loc: tuple) -> list[str]:
+    model = _section_model(loc)
+    return list(model.model_fields) if model is not None else []
+
+
+def _typo_errors(errors: list[dict]) -> list[str]:
+    """Unknown keys, each with the key of its section it most resembles (``cv.fols is
+    not a known key; did you mean cv.folds?``) and, where that key is missing, saying so
+    in the same message. Returns the messages; the unknown keys, and the missing keys
+    they stand for, are taken out of ``errors``."""
+    missing = {tuple(e["loc"]): e for e in errors if e["type"] == "missing"}
+    messages = []
+    for error in [e for e in errors if e["type"] == "extra_forbidden"]:
+        loc = tuple(error["loc"])
+        section, key = loc[:-1], str(loc[-1])
+        dotted = ".".join(str(p) for p in section)
+        prefix = f"{dotted}." if dotted else ""
+        absent = [str(m[-1]) for m in missing if m[:-1] == section]
+        close = (difflib.get_close_matches(key, absent, n=1, cutoff=0.6)
+                 or difflib.get_close_matches(key, _known_keys(section), n=1, cutoff=0.6))
+        if close:
+            text = f"{prefix}{key} is not a known key; did you mean {prefix}{close[0]}?"
+            if close[0] in absent:
+                errors.remove(missing.pop((*section, close[0])))
+                text += f" ({prefix}{close[0]} is missing)"
+        else:
+            known = _known_keys(section)
+            text = f"{prefix}{key} is not a known key" + (
+                f" of {dotted or 'the params file'} (known: {', '.join(known)})" if known else "")
+        errors.remove(error)
+        messages.append(text)
+    return messages
+
+
 def validate_params(params: Any, path: Path = DEFAULT_PARAMS) -> Params:
     """``params`` (a mapping, as YAML gives it) checked against the schema: the typed
-    model, or ParamsError naming the first mistake."""
+    model, or ParamsError naming the first mistake. An unknown key comes first, with the
+    known key it most resembles: a typo shows up as both an unknown key and a missing
+    one, and the unknown one is the mistake to name."""
     if not isinstance(params, dict):
         raise ParamsError(f"{path}: expected a mapping of sections, got "
                           f"{type(params).__name__}")
     try:
         return Params.model_validate(params)
     except ValidationError as err:
-        errors = err.errors()
-        more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
-        raise ParamsError(f"{path}: {_describe(errors[0])}{more}") from None
+        errors = list(err.errors())
+        messages = _typo_errors(errors) + [_describe(e) for e in errors]
+        more = f" (and {len(messages) - 1} more)" if len(messages) > 1 else ""
+        raise ParamsError(f"{path}: {messages[0]}{more}") from None
 
 
 def load_params(path: Path = DEFAULT_PARAMS) -> Params:
@@ -333,6 +403,20 @@ def load_params(path: Path = DEFAULT_PARAMS) -> Params:
     params = validate_params(params, path)
     trace_dir = os.environ.get(TRACE_ENV)
     return _traced(params, trace_dir) if trace_dir else params
+
+
+def scene(params: Params, name: str, path: Path | str = DEFAULT_PARAMS) -> Scene:
+    """The scene called ``name`` in the params file; else one line naming the scenes it
+    has (and the closest, for a typo). Every command and stage that takes a scene asks
+    here first, so that a wrong name is never advice to run a stage that does not exist."""
+    scenes = params.scenes
+    if name in scenes:
+        return scenes[name]
+    with validating():  # listing the names is not reading a stage's knob
+        names = list(scenes)
+    close = difflib.get_close_matches(name, names, n=1)
+    hint = f"; did you mean {close[0]}?" if close else ""
+    raise ParamsError(f"{path} has no scene {name!r}{hint} (its scenes: {', '.join(names)})")
 
 
 def required(params: Params, name: str) -> Any:

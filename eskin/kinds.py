@@ -33,18 +33,36 @@ class Headline:
     paper: str = "—"
 
 
+# A figure's id names its file, ``reports/figures/<scene>/<id>_<scheme>.png`` (and .svg),
+# and its place on the report page: the same id for the same figure of either kind (the
+# scene's directory says which scene).
+STRETCH_PARITY = "stretch_parity"
+FORCE_PARITY = "force_parity"
+LOCALISATION_CONFUSION = "localisation_confusion"
+DETECTION = "detection"
+FIGURE_IDS: tuple[str, ...] = (STRETCH_PARITY, FORCE_PARITY, LOCALISATION_CONFUSION, DETECTION)
+
+
 @dataclass(frozen=True)
 class Figure:
     """One figure of a scene's report: drawn by ``draw`` (a function of
-    eskin.reporting.figures) from one task's out-of-fold predictions."""
+    eskin.reporting.figures) from one task's out-of-fold predictions under one CV scheme.
+
+    ``scores`` are the (target, metric) pairs of the task's scores file the figure states
+    in its heading beside the scene, task, scheme and n; the first is its headline."""
 
     id: str
     task: str
     caption: str
     draw: str
+    scores: tuple[tuple[str, str], ...]
     targets: tuple[str, ...] = ()   # a confusion grid's targets, with their axis labels
     axis_labels: tuple[str, ...] = ()
-    title: str = ""
+    title: str = ""                 # what the figure shows, in a few words
+
+    def __post_init__(self) -> None:
+        if self.id not in FIGURE_IDS:
+            raise ValueError(f"figure id {self.id!r} is not one of {', '.join(FIGURE_IDS)}")
 
 
 @dataclass(frozen=True)
@@ -135,16 +153,23 @@ ONE_CONTACT = Kind(
         Headline("y within one node", "localise", "y", "within_one"),
     ),
     figures=(
-        Figure("stretch_parity", "stretch", "Stretch: predicted against true λ, mean ± std "
-               "per level (paper Fig. 5)", "stretch_parity"),
-        Figure("force_parity", "force", "Force: predicted against true force, mean ± std per "
-               "level and stretch (paper Fig. 6)", "force_parity"),
-        Figure("localisation_confusion", "localise", "Localisation of a single contact: rows "
-               "(x) and columns (y); counts, colour normalised per true row (paper Fig. 7)",
-               "confusion_grid", ("x", "y"), ("x terminal", "y terminal"),
-               "localisation, one contact"),
-        Figure("detection", "detect", "Contact detection: confusion matrix and ROC curve",
-               "detection"),
+        Figure(STRETCH_PARITY, "stretch", "Stretch: predicted against true λ, every prediction "
+               "and the mean ± std per level (paper Fig. 5)", "stretch_parity",
+               (("stretch", "r2"), ("stretch", "mse")), title="stretch parity"),
+        Figure(FORCE_PARITY, "force", "Force: predicted against true force, mean ± std per "
+               "level and stretch, the stretches set side by side about their level; "
+               "right, the std per level in newtons (paper Fig. 6)", "force_parity",
+               (("force", "r2"), ("force", "rmse")), title="force parity"),
+        Figure(LOCALISATION_CONFUSION, "localise", "Localisation of a single contact, on "
+               "the contact samples (the detector decides first): x and y terminal, counts "
+               "and the share of the samples with that true terminal (paper Fig. 7)",
+               "confusion_grid", (("x", "accuracy"), ("y", "accuracy")), ("x", "y"),
+               ("x terminal", "y terminal"), "localisation, one contact"),
+        Figure(DETECTION, "detect", "Contact detection: confusion counts and shares; the DET "
+               "curve (missed against false contacts, on log axes, every decade of the rare "
+               "errors) with the model's decisions and their counts", "detection",
+               (("contact", "accuracy"), ("contact", "balanced_accuracy")),
+               title="contact detection"),
     ),
 )
 
@@ -166,15 +191,20 @@ TWO_CONTACTS = Kind(
         Headline("two forces: force R², order-free", "pairs", None, "force_r2"),
     ),
     figures=(
-        Figure("stretch_parity", "stretch", "Stretch: predicted against true λ, mean ± std "
-               "per level", "stretch_parity"),
-        Figure("two_force_localisation", "localise", "Two contacts: x and y of contact 1 "
-               "(top) and contact 2 (bottom) (paper Fig. 8)", "confusion_grid",
-               ("x1", "y1", "x2", "y2"),
+        Figure(STRETCH_PARITY, "stretch", "Stretch: predicted against true λ, every prediction "
+               "and the mean ± std per level", "stretch_parity",
+               (("stretch", "r2"), ("stretch", "mse")), title="stretch parity"),
+        Figure(LOCALISATION_CONFUSION, "localise", "Localisation of two contacts: x and y "
+               "terminal of contact 1 (top) and contact 2 (bottom), counts and the share of "
+               "the samples with that true terminal (paper Fig. 8)", "confusion_grid",
+               (("x1", "accuracy"), ("y1", "accuracy"), ("x2", "accuracy"),
+                ("y2", "accuracy")), ("x1", "y1", "x2", "y2"),
                ("x1 terminal", "y1 terminal", "x2 terminal", "y2 terminal"),
                "localisation, two contacts"),
-        Figure("two_force_parity", "force", "Two contacts: force of contact 1 and contact 2, "
-               "mean ± std per level (paper Fig. 9)", "two_force_parity"),
+        Figure(FORCE_PARITY, "force", "Force of contact 1 and contact 2: predicted against "
+               "true force, mean ± std per level, the std in newtons written beside each "
+               "level (paper Fig. 9)", "two_force_parity",
+               (("force1", "r2"), ("force2", "r2")), title="force parity, two contacts"),
     ),
 )
 

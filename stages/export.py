@@ -2,8 +2,16 @@
 
 import sys
 
+from eskin.config import load_params
+from eskin.config import scene as known_scene
 from eskin.deploy.export import export_scene
 from eskin.errors import run_friendly
 
+
+def main(scene: str) -> str:
+    known_scene(load_params(), scene)
+    return export_scene(scene)
+
+
 if __name__ == "__main__":
-    sys.exit(run_friendly(lambda: print(export_scene(sys.argv[1]))))
+    sys.exit(run_friendly(lambda: print(main(sys.argv[1]))))

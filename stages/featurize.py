@@ -4,13 +4,16 @@ import sys
 
 from eskin.catalog import FEATURES_DIR, MODELS_DIR, PROCESSED_DIR
 from eskin.config import load_params
+from eskin.config import scene as known_scene
 from eskin.errors import run_friendly
 from eskin.learning.features import featurize_scene
 
 
 def main(scene: str) -> str:
+    params = load_params()
+    known_scene(params, scene)
     return featurize_scene(scene, PROCESSED_DIR, FEATURES_DIR, MODELS_DIR,
-                           featurize=load_params().featurize).summary
+                           featurize=params.featurize).summary
 
 
 if __name__ == "__main__":

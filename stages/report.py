@@ -14,7 +14,7 @@ def main() -> str:
     result = report.report(
         report=params.report, scenes=params.scenes, scores_dir=SCORES_DIR,
         predictions_dir=PREDICTIONS_DIR, figures_dir=FIGURES_DIR, plots_dir=PLOTS_DIR,
-        page_path=PAGE, results_path="reports/results.md")
+        page_path=PAGE, results_path="reports/results.md", run=report.provenance())
     from eskin.tracking import runs  # MLflow takes seconds to import
 
     page = runs.log_report(figures_dir=FIGURES_DIR, page_path=PAGE, pipeline_params=params)

@@ -177,7 +177,7 @@ def test_the_report_has_a_section_and_figures_per_scene(project):
     figures = {p.relative_to(root / "reports/figures").as_posix()
                for p in (root / "reports/figures").rglob("*.png")}
     assert {"lab_single/stretch_parity_grouped.png", "lab_single/force_parity_grouped.png",
-            "lab_pairs/two_force_parity_grouped.png", "board_day1/force_parity_grouped.png",
+            "lab_pairs/force_parity_grouped.png", "board_day1/force_parity_grouped.png",
             "board_day1/detection_grouped.png"} <= figures
     assert not any(f.startswith("board_day1/stretch") for f in figures)
     results = (root / "reports" / "results.md").read_text()

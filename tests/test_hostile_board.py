@@ -331,7 +331,7 @@ MISTAKES = {
     "reconnect_s: -5": (("acquire", "reconnect_s"), -5, "greater than or equal to 0"),
     "max_attempts: 0": (("acquire", "max_attempts"), 0, "greater than or equal to 1"),
     "sim.noise_pf missing": (("sim", "noise_pf"), None, "sim.noise_pf is missing (required)"),
-    "unknown key": (("acquire", "prot"), 1, "acquire.prot: unknown key"),
+    "unknown key": (("acquire", "prot"), 1, "acquire.prot is not a known key of acquire"),
     "hyperparameters not a mapping": (("train", "force", "paper"), 3,
                                       "train.force.paper = 3: Input should be "
                                       "a valid dictionary"),

@@ -1,17 +1,23 @@
 """The report: figures, plot data, the page (opened in headless Chromium), the results page."""
 
 import json
+import re
 from types import SimpleNamespace
 
 import numpy as np
 import pandas as pd
 import pytest
 from conftest import headless_chromium, needs_chromium
+from PIL import Image
 
+from eskin.catalog import SCHEMES
 from eskin.config import Report
-from eskin.kinds import get_kind
+from eskin.kinds import DETECTION, FORCE_PARITY, LOCALISATION_CONFUSION, STRETCH_PARITY, get_kind
 from eskin.reporting import report
-from eskin.reporting.page import headline_rows
+from eskin.reporting.page import SCHEME_NOTES, Provenance, headline_rows, render_page
+
+# The commit the fixture's report says it ran on top of (a plain `dvc repro`).
+COMMIT = "0123456789abcdef0123456789abcdef01234567"
 
 
 def fake_outputs(root):
@@ -36,8 +42,15 @@ def fake_outputs(root):
     scores = {"stratified": {}, "grouped": {}}
 
     def regression(target, values):
-        return {s: {target: {"r2": 0.9, "r2_std": 0.01, "mse": 1e-5, "mse_std": 1e-6,
-                             "rmse": 0.1, "rmse_std": 0.01}} for s in scores}
+        # each scheme its own numbers, so that a figure's score says which scheme it is
+        return {s: {target: {"r2": r2, "r2_std": 0.01, "mse": 1e-5, "mse_std": 1e-6,
+                             "rmse": 0.1, "rmse_std": 0.01}}
+                for s, r2 in (("stratified", 0.9), ("grouped", 0.8))}
+
+    def accuracy(*targets):
+        return {s: {t: {"accuracy": value, "accuracy_std": 0.01, "balanced_accuracy": value,
+                        "balanced_accuracy_std": 0.01} for t in targets}
+                for s, value in (("stratified", 0.96), ("grouped", 0.93))}
 
     base = pd.DataFrame({"scheme": schemes, "stretch": stretch, "trial": np.arange(n).astype(str),
                          "sample": 0, "fold": np.arange(n) % 5})
@@ -50,13 +63,13 @@ def fake_outputs(root):
     contact = force > 0
     write("single_force", "detect", base.assign(contact_true=contact, contact_pred=contact,
                                                 contact_score=contact + rng.normal(0, .3, n)),
-          {s: {"contact": {"accuracy": 0.96, "accuracy_std": 0.01}} for s in scores})
+          accuracy("contact"))
     write("single_force", "localise", base.assign(x_true=node[:, 0], x_pred=node[:, 0],
                                                   y_true=node[:, 1], y_pred=node[:, 1]),
-          {s: {"x": {"accuracy": 1.0, "accuracy_std": 0.0}} for s in scores})
+          accuracy("x", "y"))
     two = base.assign(**{f"{c}_true": node[:, i] for i, c in enumerate(["x1", "y1", "x2", "y2"])},
                       **{f"{c}_pred": node[:, i] for i, c in enumerate(["x1", "y1", "x2", "y2"])})
-    write("two_force", "localise", two, {})
+    write("two_force", "localise", two, accuracy("x1", "y1", "x2", "y2"))
     write("two_force", "force", base.assign(force1_true=force + 1, force1_pred=force + 1.2,
                                             force2_true=force, force2_pred=force + 0.1),
           {s: {**regression("force1", force)[s], **regression("force2", force)[s]}
@@ -67,18 +80,25 @@ def fake_outputs(root):
     return root
 
 
+SETTINGS = Report(schemes=["stratified", "grouped"], plots_scheme="stratified", dpi=60,
+                  page_dpi=50)
+# the report reads each scene's kind only
+SCENES = {"single_force": SimpleNamespace(kind="single_force"),
+          "two_force": SimpleNamespace(kind="two_force")}
+
+
+def build(root, out, run):
+    return report.report(report=SETTINGS, scenes=SCENES, scores_dir=root / "scores",
+                         predictions_dir=root / "predictions", figures_dir=out / "figures",
+                         plots_dir=out / "plots", page_path=out / "index.html",
+                         results_path=out / "results.md", run=run)
+
+
 @pytest.fixture(scope="module")
 def built(tmp_path_factory):
     root = fake_outputs(tmp_path_factory.mktemp("report"))
-    settings = Report(schemes=["stratified", "grouped"], plots_scheme="stratified", dpi=60,
-                      page_dpi=50)
-    # the report reads each scene's kind only
-    scenes = {"single_force": SimpleNamespace(kind="single_force"),
-              "two_force": SimpleNamespace(kind="two_force")}
-    result = report.report(report=settings, scenes=scenes, scores_dir=root / "scores",
-                           predictions_dir=root / "predictions",
-                           figures_dir=root / "figures", plots_dir=root / "plots",
-                           page_path=root / "index.html", results_path=root / "results.md")
+    # as under `dvc exp run`: the page names the experiment and its baseline commit
+    result = build(root, root, Provenance(commit=COMMIT, experiment="tidy-fern"))
     assert result.figures > 0
     return root, result.summary
 
@@ -87,11 +107,11 @@ def test_every_figure_is_written_as_png_and_svg_per_scheme(built):
     root, summary = built
     names = {p.relative_to(root / "figures").with_suffix("").as_posix()
              for p in (root / "figures").rglob("*.png")}
+    # one naming scheme, <figure>_<scheme>, whatever the scene's kind
     expected = {f"{scene}/{fid}_{scheme}" for scheme in ("stratified", "grouped")
                 for scene, fids in (("single_force", ("stretch_parity", "force_parity",
                                                       "localisation_confusion", "detection")),
-                                    ("two_force", ("two_force_localisation",
-                                                   "two_force_parity")))
+                                    ("two_force", ("localisation_confusion", "force_parity")))
                 for fid in fids}
     assert names == expected, summary
     assert {p.relative_to(root / "figures").with_suffix("").as_posix()
@@ -119,7 +139,7 @@ def test_results_page_has_each_scene_in_order(built):
     root, _ = built
     results = (root / "results.md").read_text()
     assert results.startswith("# Results\n")
-    assert "| force R² [paper] | 0.900 ± 0.010 | 0.900 ± 0.010 | 0.827 |" in results
+    assert "| force R² [paper] | 0.900 ± 0.010 | 0.800 ± 0.010 | 0.827 |" in results
     assert results.index("## single_force (single force)") < results.index(
         "## two_force (two force)")
     assert "two_force/stretch skipped: stretch regression needs two or more" in results
@@ -150,3 +170,115 @@ def test_the_page_loads_every_image_in_headless_chromium(built):
     assert "stretch: stretch regression needs two or more stretch levels" in skipped
     assert headline[0] == f"{rows[0].label} [paper]"
     assert "00000000000000000000000000force" in models
+
+
+# The headline score each figure states, by scheme (the fixture's scores files).
+HEADLINE = {("single_force", STRETCH_PARITY): ("stretch", "stretch R² {r2}"),
+            ("single_force", FORCE_PARITY): ("force", "force R² {r2}"),
+            ("single_force", LOCALISATION_CONFUSION): ("localise", "accuracy: x {acc}, y {acc}"),
+            ("single_force", DETECTION): ("detect", "contact accuracy {acc}"),
+            ("two_force", LOCALISATION_CONFUSION): ("localise", "accuracy: x1 {acc}, y1 {acc}"),
+            ("two_force", FORCE_PARITY): ("force", "R²: force1 {r2}, force2 {r2}")}
+SCORES = {"stratified": {"r2": "0.900 ± 0.010", "acc": "0.960 ± 0.010"},
+          "grouped": {"r2": "0.800 ± 0.010", "acc": "0.930 ± 0.010"}}
+NOTES = {"stratified": "the paper's: stratified on the node", "grouped": "whole trials held out"}
+
+
+def svg_metadata(path):
+    """(<title>, dc:description) of a matplotlib SVG."""
+    text = path.read_text()
+    title = re.search(r"<title>(.*?)</title>", text, re.S)
+    description = re.search(r"<dc:description>(.*?)</dc:description>", text, re.S)
+    unescape = {"&amp;": "&", "&lt;": "<", "&gt;": ">", "&quot;": '"', "&#x27;": "'",
+                "&apos;": "'"}
+
+    def clean(match):
+        value = match.group(1) if match else ""
+        for entity, char in unescape.items():
+            value = value.replace(entity, char)
+        return value
+
+    return clean(title), clean(description)
+
+
+def test_every_figure_file_says_its_scene_task_scheme_n_and_score(built):
+    """Opened from a folder, MLflow or a slide, a figure says what it shows: its PNG and
+    SVG metadata (what is also written at its top) name the scene, the task, the CV
+    scheme, n and the scheme's own headline score."""
+    root, _ = built
+    assert set(SCHEME_NOTES) == set(SCHEMES)  # every scheme says what it holds out
+    checked = 0
+    for (scene, fid), (task, score) in HEADLINE.items():
+        for scheme in ("stratified", "grouped"):
+            png = root / "figures" / scene / f"{fid}_{scheme}.png"
+            with Image.open(png) as image:
+                title, description = image.text.get("Title", ""), image.text.get("Description", "")
+            svg_title, svg_description = svg_metadata(png.with_suffix(".svg"))
+            expected_score = score.format(**SCORES[scheme])
+            for where, (head, body) in (("png", (title, description)),
+                                        ("svg", (svg_title, svg_description))):
+                assert scene in head and f"{scheme} CV" in head, (where, png, head)
+                assert f"{scene} · {task} · {scheme} CV" in body, (where, png, body)
+                assert NOTES[scheme] in body, (where, png, body)
+                assert "n = 60 out-of-fold predictions" in body, (where, png, body)
+                assert expected_score in body, (where, png, expected_score, body)
+            checked += 1
+    assert checked == 12
+
+
+def test_the_report_names_the_experiment_and_is_the_same_on_a_rerun(built, tmp_path):
+    """An experiment's page names it and its baseline commit; a rerun gives the same
+    bytes; a plain run's page names no commit, so it is the same at every commit."""
+    root, _ = built
+    build(root, tmp_path, Provenance(commit=COMMIT, experiment="tidy-fern"))
+    for name in ["index.html", *(p.relative_to(root).as_posix()
+                                 for p in (root / "figures").rglob("*.*"))]:
+        assert (tmp_path / name).read_bytes() == (root / name).read_bytes(), name
+    page = (root / "index.html").read_text()
+    assert (f"<title>eskin report: experiment tidy-fern, run on top of commit {COMMIT[:8]}"
+            "</title>") in page
+    assert "<code>tidy-fern</code>" in page
+    assert "force physics_profile" not in page and "force paper" in page  # the models used
+    plain = render_page([], {}, Provenance())
+    assert "<title>eskin report: the checked-out pipeline, no experiment</title>" in plain
+    assert "none: a plain <code>dvc repro</code>" in plain
+
+
+def test_provenance_is_what_dvc_exp_run_gives_and_nothing_under_a_plain_repro(tmp_path):
+    under_exp = report.provenance({"DVC_EXP_NAME": "tidy-fern",
+                                   "DVC_EXP_BASELINE_REV": COMMIT})
+    assert (under_exp.experiment, under_exp.commit) == ("tidy-fern", COMMIT)
+    assert report.provenance({}) == Provenance()
+
+
+@needs_chromium
+def test_the_page_has_contents_schemes_side_by_side_and_its_commit_in_the_title(built):
+    root, _ = built
+    with headless_chromium() as browser:
+        page = browser.new_page(viewport={"width": 1600, "height": 1000})
+        page.goto((root / "index.html").as_uri())
+        page.wait_for_load_state("load")
+        title, heading = page.title(), page.inner_text("h1")
+        links = page.eval_on_selector_all("nav#contents a", "as => as.map(a => a.hash)")
+        assert links, "no table of contents (nav#contents)"
+        targets = page.evaluate(
+            "hashes => hashes.map(h => document.getElementById(h.slice(1)) !== null)", links)
+        rows = page.eval_on_selector_all("section.figure", """sections => sections.map(s => [
+            s.id, [...s.querySelectorAll('figure')].map(f => {
+                const r = f.getBoundingClientRect();
+                return [f.dataset.scheme, Math.round(r.top), Math.round(r.left)]; })])""")
+        page.click("nav#contents a[href='#single_force-force_parity']")
+        page.wait_for_timeout(200)
+        jumped = page.evaluate(
+            "document.getElementById('single_force-force_parity').getBoundingClientRect().top")
+    assert COMMIT[:8] in title and COMMIT[:8] in heading, (title, heading)
+    assert all(targets) and len(links) == len(targets)
+    expected = {f"#{scene}-{fid}" for (scene, fid) in HEADLINE} | {
+        "#scene-single_force", "#scene-two_force", "#models"}
+    assert expected <= set(links), links
+    assert len(rows) == 6, rows
+    for row_id, shown in rows:
+        assert [s for s, _, _ in shown] == ["stratified", "grouped"], (row_id, shown)
+        (_, top1, left1), (_, top2, left2) = shown
+        assert top1 == top2 and left2 > left1, (row_id, shown)  # one row, side by side
+    assert abs(jumped) < 5, jumped  # the contents' link lands on its figure

@@ -9,6 +9,7 @@ from __future__ import annotations
 import base64
 import math
 from collections.abc import Mapping
+from dataclasses import dataclass, field
 
 from eskin.catalog import SCHEMES
 from eskin.kinds import Headline, get_kind
@@ -17,7 +18,13 @@ from eskin.kinds import Headline, get_kind
 Scenes = list[tuple[str, str, Mapping[str, Mapping]]]
 
 
-def _value(scores: Mapping[str, Mapping], row: Headline, scheme: str) -> str:
+# What each CV scheme holds out, as the page and the figures say it.
+SCHEME_NOTES = {"stratified": "the paper's: stratified on the node",
+                "grouped": "whole trials held out"}
+
+
+def score_text(scores: Mapping[str, Mapping], row: Headline, scheme: str) -> str:
+    """A headline's value under ``scheme`` as ``mean ± std`` (or missing, skipped, —)."""
     document = scores.get(row.task)
     if document is None:
         return "missing"
@@ -39,7 +46,7 @@ def _value(scores: Mapping[str, Mapping], row: Headline, scheme: str) -> str:
 def headline_rows(kind: str, scores: Mapping[str, Mapping]) -> list[list[str]]:
     """[metric, stratified, grouped, paper] per headline of a ``kind`` scene whose scores
     documents are ``scores`` (by task), as display strings."""
-    return [[_label(scores, row), *(_value(scores, row, s) for s in SCHEMES), row.paper]
+    return [[_label(scores, row), *(score_text(scores, row, s) for s in SCHEMES), row.paper]
             for row in get_kind(kind).headlines]
 
 
@@ -93,16 +100,64 @@ def results_markdown(scenes: Scenes) -> str:
 
 
 CSS = """
-body { font-family: system-ui, sans-serif; max-width: 1100px; margin: 2em auto; padding: 0 1em;
+body { font-family: system-ui, sans-serif; max-width: 2300px; margin: 2em auto; padding: 0 2em;
        color: #222; line-height: 1.4; }
+h1 { font-size: 1.6em; margin-bottom: 0.3em; }
+.intro { max-width: 70em; }
+.top { display: flex; flex-wrap: wrap; gap: 1.5em; align-items: flex-start; }
+table.run { margin: 0; }
+table.run caption { text-align: left; font-weight: bold; padding-bottom: 0.3em; }
 table { border-collapse: collapse; margin: 1em 0; font-size: 0.92em; }
 th, td { border: 1px solid #ccc; padding: 0.3em 0.6em; text-align: left; }
 th { background: #f3f3f3; }
-td:nth-child(2), td:nth-child(3) { font-variant-numeric: tabular-nums; white-space: nowrap; }
-figure { margin: 1.5em 0; }
-figure img { max-width: 100%; border: 1px solid #eee; }
+table:not(.run) td:nth-child(2), td:nth-child(3) { font-variant-numeric: tabular-nums; white-space: nowrap; }
+nav#contents { background: #f7f7f7; border: 1px solid #e3e3e3; padding: 0.4em 1.2em; }
+nav#contents h2 { font-size: 1.1em; margin: 0.4em 0; }
+nav#contents ol { margin: 0.2em 0; padding-left: 1.4em; }
+section.figure { margin: 1.5em 0 2.5em; }
+section.figure h3 { margin-bottom: 0.2em; }
+section.figure > p { margin-top: 0; color: #444; }
+/* a figure's CV schemes side by side; one under the other where the window is narrow */
+.schemes { display: grid; gap: 1.2em; align-items: start;
+           grid-template-columns: repeat(auto-fit, minmax(min(100%, 560px), 1fr)); }
+figure { margin: 0; }
+figure img { width: 100%; height: auto; border: 1px solid #eee; }
 figcaption { font-size: 0.9em; color: #555; }
 """
+
+
+@dataclass
+class FigureRow:
+    """One figure of a scene on the page: its CV schemes' renderings side by side, each
+    (scheme, heading: what it shows, PNG bytes)."""
+
+    id: str
+    file: str      # the figure's file name without scheme and suffix (its id in kinds.py)
+    title: str
+    caption: str
+    schemes: list[tuple[str, str, bytes]] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class Provenance:
+    """Which run the page shows: under ``dvc exp run``, the experiment and the commit it
+    ran on top of (its baseline); under a plain ``dvc repro``, neither (see
+    :func:`eskin.reporting.report.provenance`)."""
+
+    commit: str = ""
+    experiment: str = ""
+
+    @property
+    def short(self) -> str:
+        return self.commit[:8]
+
+    def headline(self) -> str:
+        """The page's title: which commit and experiment."""
+        if self.experiment and self.commit:
+            return f"experiment {self.experiment}, run on top of commit {self.short}"
+        if self.experiment:
+            return f"experiment {self.experiment}"
+        return "the checked-out pipeline, no experiment"
 
 
 def models(scenes: Scenes) -> list[list[str]]:
@@ -112,11 +167,20 @@ def models(scenes: Scenes) -> list[list[str]]:
             if "model_md5" in document]
 
 
-def render_page(scenes: Scenes, figures: Mapping[str, list[tuple[str, str, bytes]]],
-                commit: str = "") -> str:
-    """The report (templates/page.html.j2): per scene its headline table, dataset and
-    figures (embedded as PNG), then the models. ``figures`` are (id, caption, PNG bytes) by
-    scene; the page needs no other file."""
+def model_variants(scenes: Scenes) -> list[tuple[str, str]]:
+    """(scene, "task model, …") of each scene: which model each of its tasks trained, as
+    its scores files say (what an experiment changes)."""
+    return [(scene, ", ".join(f"{task} {document['model']}" for task, document in
+                              scores.items() if "model_md5" in document and "model" in document))
+            for scene, _, scores in scenes]
+
+
+def render_page(scenes: Scenes, figures: Mapping[str, list[FigureRow]],
+                run: Provenance | None = None, figures_href: str = "figures") -> str:
+    """The report (templates/page.html.j2): which run it is, a table of contents, then
+    per scene its headline table, dataset and figures (each figure's CV schemes side by
+    side, embedded as PNG), then the models. The page needs no other file; it links each
+    figure's full-size files (``figures_href``: their directory, from the page's)."""
     import jinja2
 
     environment = jinja2.Environment(
@@ -127,8 +191,14 @@ def render_page(scenes: Scenes, figures: Mapping[str, list[tuple[str, str, bytes
         "dataset": dict(zip(("md5", "rows", "source"), data, strict=True)) if (
             data := dataset(scores)) else None,
         "headline": headline_rows(kind, scores), "skipped": skipped(scores),
-        "figures": [{"id": fid, "caption": caption, "png": base64.b64encode(png).decode()}
-                    for fid, caption, png in figures.get(scene, [])],
+        "figures": [{"id": row.id, "title": row.title, "caption": row.caption,
+                     "schemes": [{"scheme": scheme, "id": f"{row.id}_{scheme}",
+                                  "file": f"{figures_href}/{scene}/{row.file}_{scheme}",
+                                  "heading": heading, "note": SCHEME_NOTES[scheme],
+                                  "png": base64.b64encode(png).decode()}
+                                 for scheme, heading, png in row.schemes]}
+                    for row in figures.get(scene, [])],
     } for scene, kind, scores in scenes]
     return environment.get_template("page.html.j2").render(
-        css=CSS, scenes=context, models=models(scenes), commit=commit)
+        css=CSS, scenes=context, models=models(scenes), run=run or Provenance(),
+        variants=model_variants(scenes))

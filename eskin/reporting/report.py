@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import io
 import json
+import os
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,9 +22,16 @@ import pandas as pd
 from eskin.catalog import SCORED_TASKS
 from eskin.config import Report, Scene
 from eskin.data.schema import force_columns, node_columns
-from eskin.kinds import Figure, get_kind
+from eskin.kinds import Figure, Headline, get_kind
 from eskin.reporting import figures as fig
-from eskin.reporting.page import render_page, results_markdown
+from eskin.reporting.page import (
+    SCHEME_NOTES,
+    FigureRow,
+    Provenance,
+    render_page,
+    results_markdown,
+    score_text,
+)
 
 
 def draw(figure: Figure, oof: pd.DataFrame):
@@ -32,6 +40,81 @@ def draw(figure: Figure, oof: pd.DataFrame):
     if figure.targets:
         return build(oof, list(figure.targets), list(figure.axis_labels), title=figure.title)
     return build(oof)
+
+
+METRIC_LABELS = {"r2": "R²", "mse": "MSE", "rmse": "RMSE", "accuracy": "accuracy",
+                 "balanced_accuracy": "balanced accuracy"}
+# Errors of a force are in newtons (force, force1, force2); the other scores have no unit.
+IN_NEWTONS = ("rmse", "mae")
+
+
+def scores_line(spec: Figure, document: Mapping | None, scheme: str) -> str:
+    """The scores a figure states, from its task's scores file under ``scheme``: ``force
+    R² 0.941 ± 0.010 · RMSE 0.477 ± 0.049 N``, or one metric of several targets
+    ``accuracy: x1 0.99 ± 0.01, y1 …``."""
+    scores = {spec.task: document} if document else {}
+
+    def value(target: str, metric: str) -> str:
+        row = Headline(METRIC_LABELS.get(metric, metric), spec.task, target, metric)
+        unit = " N" if target.startswith("force") and metric in IN_NEWTONS else ""
+        return score_text(scores, row, scheme) + unit
+
+    targets = list(dict.fromkeys(t for t, _ in spec.scores))
+    metrics = list(dict.fromkeys(m for _, m in spec.scores))
+    if len(targets) > 1 and len(metrics) == 1:
+        return f"{METRIC_LABELS.get(metrics[0], metrics[0])}: " + ", ".join(
+            f"{t} {value(t, metrics[0])}" for t in targets)
+    return " · ".join(f"{target + ' ' if i == 0 or len(targets) > 1 else ''}"
+                      f"{METRIC_LABELS.get(metric, metric)} {value(target, metric)}"
+                      for i, (target, metric) in enumerate(spec.scores))
+
+
+@dataclass(frozen=True)
+class Identity:
+    """What one figure file shows: the lines written at its top, and its metadata."""
+
+    heading: str
+    title: str
+    description: str
+
+
+def identity(scene: str, spec: Figure, scheme: str, oof: pd.DataFrame,
+             document: Mapping | None) -> Identity:
+    """The scene, task, CV scheme (with its folds), n and the headline scores of one figure,
+    as the figure states them (three lines) and as its file's metadata."""
+    folds = oof["fold"].nunique() if "fold" in oof else 0
+    model = (document or {}).get("model")
+    line1 = (f"{scene} · {spec.task} · {scheme} CV"
+             + (f", {folds} folds" if folds else "") + f" ({SCHEME_NOTES[scheme]})")
+    line2 = f"n = {len(oof):,} out-of-fold predictions" + (f" · model {model}" if model else "")
+    line3 = scores_line(spec, document, scheme)
+    title = f"{scene}: {spec.title} — {scheme} CV"
+    return Identity(f"{line1}\n{line2}\n{line3}", title,
+                    f"{line1}; {line2}; {line3}. {spec.caption}")
+
+
+def save(figure, path: Path, about: Identity, dpi: int) -> None:
+    """A figure as PNG and SVG at ``path`` (no suffix), its identity in each file's
+    metadata (PNG tEXt/iTXt Title and Description; SVG <title> and dc:description) and
+    nothing that changes from one run to the next (no date, no software version)."""
+    meta = {"Title": about.title, "Description": about.description}
+    figure.savefig(path.with_suffix(".png"), dpi=dpi, metadata={**meta, "Software": None})
+    figure.savefig(path.with_suffix(".svg"), metadata={**meta, "Date": None})
+
+
+def provenance(environ: Mapping[str, str] | None = None) -> Provenance:
+    """Which run the report is: under ``dvc exp run``, the experiment's name and its
+    baseline commit, as DVC gives them to each stage (``DVC_EXP_NAME``,
+    ``DVC_EXP_BASELINE_REV``); under a plain ``dvc repro``, neither.
+
+    A plain run names no commit, on purpose: the commit that records its dvc.lock does
+    not exist yet, and naming the one checked out would make the page's bytes change
+    with every commit while nothing it shows does (a fresh clone's ``make repro`` would
+    then rewrite dvc.lock). The models' md5s on the page lead to their MLflow runs, which
+    carry the commit."""
+    environ = os.environ if environ is None else environ
+    return Provenance(commit=environ.get("DVC_EXP_BASELINE_REV", ""),
+                      experiment=environ.get("DVC_EXP_NAME", ""))
 
 
 def _task_files(directory: Path, scene: str, suffix: str, reader) -> dict[str, Any]:
@@ -102,9 +185,10 @@ class Reported:
 
 def report(*, report: Report, scenes: Mapping[str, Scene], scores_dir: Path,
            predictions_dir: Path, figures_dir: Path, plots_dir: Path, page_path: Path,
-           results_path: Path) -> Reported:
+           results_path: Path, run: Provenance | None = None) -> Reported:
     """Figures, plot data, the page and the results of every scene in ``scenes`` (the
-    ``scenes`` section: which, and their kinds), with the ``report`` section."""
+    ``scenes`` section: which, and their kinds), with the ``report`` section; ``run``:
+    which commit and experiment the page says it shows (:func:`provenance`)."""
     settings = report
     kinds = {name: scene.kind for name, scene in scenes.items()}
     scores = {scene: _task_files(scores_dir, scene, ".json", lambda p: json.loads(p.read_text()))
@@ -116,27 +200,36 @@ def report(*, report: Report, scenes: Mapping[str, Scene], scores_dir: Path,
                    for scene in kinds}
 
     figures_dir, plots_dir = Path(figures_dir), Path(plots_dir)
-    page_figures: dict[str, list[tuple[str, str, bytes]]] = {scene: [] for scene in kinds}
+    # The directory holds this run's figures only: none left from a scene, figure or
+    # scheme since removed or renamed (DVC clears it before the stage; a direct run too).
+    for stale in [*figures_dir.glob("*/*.png"), *figures_dir.glob("*/*.svg")]:
+        stale.unlink()
+    page_figures: dict[str, list[FigureRow]] = {scene: [] for scene in kinds}
     written = 0
     for scene, kind in kinds.items():
-        # each figure under every scheme, one after the other on the page
+        # each figure under every scheme, side by side on the page
         for spec in get_kind(kind).figures:
             frame = predictions[scene].get(spec.task)
             if frame is None or frame.empty:
                 continue
+            row = FigureRow(id=f"{scene}-{spec.id}", file=spec.id, title=spec.title,
+                            caption=spec.caption)
             for scheme in settings.schemes:
-                figure = draw(spec, frame[frame["scheme"] == scheme])
+                oof = frame[frame["scheme"] == scheme]
+                about = identity(scene, spec, scheme, oof, scores[scene].get(spec.task))
+                figure = draw(spec, oof)
+                fig.identify(figure, about.heading)
                 name = f"{spec.id}_{scheme}"
                 (figures_dir / scene).mkdir(parents=True, exist_ok=True)
-                for fmt in ("png", "svg"):
-                    figure.savefig(figures_dir / scene / f"{name}.{fmt}", dpi=int(settings.dpi),
-                                   metadata={"Date": None} if fmt == "svg" else {"Software": None})
+                save(figure, figures_dir / scene / name, about, int(settings.dpi))
                 buffer = io.BytesIO()
-                figure.savefig(buffer, format="png", dpi=int(settings.page_dpi))
+                figure.savefig(buffer, format="png", dpi=int(settings.page_dpi),
+                               metadata={"Title": about.title, "Software": None})
                 plt.close(figure)
-                page_figures[scene].append((f"{scene}-{name}", f"{spec.caption} — {scheme} CV.",
-                                            buffer.getvalue()))
+                row.schemes.append((scheme, about.heading.replace("\n", "; "),
+                                    buffer.getvalue()))
                 written += 1
+            page_figures[scene].append(row)
         chosen = {task: frame[frame["scheme"] == settings.plots_scheme]
                   for task, frame in predictions[scene].items() if not frame.empty}
         for template, stem, frame in plot_data(scene, kind, chosen):
@@ -144,7 +237,8 @@ def report(*, report: Report, scenes: Mapping[str, Scene], scores_dir: Path,
             frame.to_csv(plots_dir / template / f"{scene}_{stem}.csv", index=False)
 
     scenes = [(scene, kinds[scene], scores[scene]) for scene in kinds]
-    Path(page_path).write_text(render_page(scenes, page_figures))
+    href = Path(os.path.relpath(figures_dir, Path(page_path).parent)).as_posix()
+    Path(page_path).write_text(render_page(scenes, page_figures, run or Provenance(), href))
     Path(results_path).write_text(results_markdown(scenes))
     return Reported(kinds, written, figures_dir, plots_dir, Path(page_path), Path(results_path),
                     f"report: {len(kinds)} scene(s), {written} figures (PNG + SVG) in "

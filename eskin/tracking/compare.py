@@ -214,6 +214,11 @@ def _first(values: pd.Series) -> str:
     return str(values.iloc[0]) if len(values) else ""
 
 
+# Columns that hold identifiers a reader copies (``eskin audit --run <id>``, a DVC md5):
+# never wrapped, folded or cut, in any format, at any terminal width.
+WHOLE_COLUMNS = ("run", "dataset md5")
+
+
 def render(table: pd.DataFrame, fmt: str) -> str:
     """A table as ``table`` (aligned text), ``markdown`` or ``csv``."""
     table = table.copy()
@@ -234,12 +239,12 @@ def render(table: pd.DataFrame, fmt: str) -> str:
 def _rich_table(table: pd.DataFrame) -> str:
     """Aligned text as wide as the terminal (``COLUMNS``): a row per variant where that
     fits, else turned on its side (a column per variant, a row per field), which is how a
-    few variants of many scores read best; numbers to 4 significant digits, missing as —."""
-    import shutil
+    few variants of many scores read best; numbers to 4 significant digits, missing as —.
 
-    from rich import box
-    from rich.console import Console
-    from rich.table import Table
+    Identifiers (:data:`WHOLE_COLUMNS`) are never wrapped or folded: in a row they keep
+    their width; on its side, where they head the columns, the table is cut into as many
+    tables as it takes for each to fit, every id whole above its column."""
+    import shutil
 
     def cell(value: Any) -> str:
         if isinstance(value, float | np.floating):
@@ -249,21 +254,77 @@ def _rich_table(table: pd.DataFrame) -> str:
     header = [str(c) for c in table.columns]
     rows = [[cell(v) for v in row] for row in table.itertuples(index=False)]
     numeric = [pd.api.types.is_numeric_dtype(table[c]) for c in table.columns]
+    whole = [h in WHOLE_COLUMNS for h in header]
     width = shutil.get_terminal_size((160, 24)).columns
-    natural = sum(max([len(h), *(len(r[i]) for r in rows)]) + 2
-                  for i, h in enumerate(header))
-    if natural > width and rows:  # on its side: the first column names the variants
-        header, rows = ([header[0], *(r[0] for r in rows)],
-                        [[h, *(r[i] for r in rows)] for i, h in enumerate(header) if i])
-        numeric = [False, *[True] * (len(header) - 1)]
+    natural = sum(_widest(i, header, rows) + 2 for i in range(len(header)))
+    if natural <= width or not rows:
+        return _print_table(header, rows, numeric, whole, width)
+    # on its side: the first column's values head the columns
+    ids_lead = whole[0]
+    fields = [[h, *(r[i] for r in rows)] for i, h in enumerate(header) if i]
+    side_header = [header[0], *(r[0] for r in rows)]
+    if not ids_lead:
+        return _print_table(side_header, fields, [False, *[True] * len(rows)],
+                            [False] * len(side_header), width)
+    label = max(len(h) for h in header[1:]) + 2
+    id_width = max(len(r[0]) for r in rows) + 3
+    per_table = max(1, (width - label) // id_width)
+    parts = []
+    for start in range(0, len(rows), per_table):
+        chunk = slice(1 + start, 1 + start + per_table)
+        parts.append(_print_table(
+            [side_header[0], *side_header[chunk]], [[f[0], *f[chunk]] for f in fields],
+            [False] * (1 + len(side_header[chunk])),
+            [False, *[True] * len(side_header[chunk])], width))
+    return "\n".join(parts)
+
+
+def _widest(i: int, header: list[str], rows: list[list[str]]) -> int:
+    return max([len(header[i]), *(len(r[i]) for r in rows)])
+
+
+def _print_table(header: list[str], rows: list[list[str]], numeric: list[bool],
+                 whole: list[bool], width: int) -> str:
+    """One rich table, ``whole`` columns as wide as their widest cell and never broken
+    (the console is widened for them if it must: a line then wraps on screen, but no id
+    is broken in the text), the others folded into what is left."""
+    from rich import box
+    from rich.console import Console
+    from rich.table import Table
+
     shown = Table(box=box.SIMPLE_HEAD, show_edge=False, pad_edge=False)
-    for name, is_number in zip(header, numeric, strict=True):
-        shown.add_column(name, justify="right" if is_number else "left", overflow="fold")
+    for i, (name, is_number, keep) in enumerate(zip(header, numeric, whole, strict=True)):
+        if keep:
+            shown.add_column(name, justify="left", no_wrap=True,
+                             min_width=_widest(i, header, rows))
+        else:
+            shown.add_column(name, justify="right" if is_number else "left", overflow="fold")
     for row in rows:
         shown.add_row(*row)
-    console = Console(file=io.StringIO(), width=width, color_system=None, highlight=False)
+    least = sum(_widest(i, header, rows) + 3 for i, keep in enumerate(whole) if keep) + \
+        6 * (len(header) - sum(whole))
+    console = Console(file=io.StringIO(), width=max(width, least), color_system=None,
+                      highlight=False)
     console.print(shown)
     return console.file.getvalue()
+
+
+def render_versions(runs: pd.DataFrame, versions: pd.DataFrame, fmt: str) -> str:
+    """``eskin audit``: the dataset versions and the runs each trained, every run id whole
+    (:data:`WHOLE_COLUMNS`) in every format. ``csv``: a row per version, its runs' ids in
+    ``run ids`` (space-separated); ``table`` and ``markdown``: the versions, then each
+    version's runs under its md5."""
+    if fmt == "csv":
+        ids = {digest: " ".join(runs_of_dataset(runs, digest)["run"])
+               for digest in versions["dataset md5"]}
+        return render(versions.assign(**{"run ids": versions["dataset md5"].map(ids)}),
+                      "csv")
+    parts = [render(versions, fmt)]
+    for digest in versions["dataset md5"]:
+        trained = render(runs_of_dataset(runs, digest), fmt)
+        parts.append(f"\n{digest} trained:\n\n{trained}" if fmt == "markdown"
+                     else f"\n{digest} trained:\n{trained}")
+    return "".join(parts)
 
 
 # --- reading the store, git and the workspace --------------------------------------------

@@ -1,0 +1,175 @@
+"""Advice in messages (issue 42): a wrong scene name, a mistyped params key and the run ids
+`eskin audit` prints are each one line a user can act on, and what it names exists."""
+
+from __future__ import annotations
+
+import copy
+import importlib
+import io
+
+import pandas as pd
+import pytest
+import yaml
+from conftest import ROOT, write_params
+
+from eskin import cli
+from eskin.config import ParamsError, validate_params
+from eskin.tracking import compare
+
+TYPO = "singel_force"
+
+# Every eskin command that takes a scene, as a user types it with a typo.
+COMMANDS = {
+    "acquire": ["acquire", TYPO, "--no-progress"],
+    "ingest": ["ingest", TYPO],
+    "featurize": ["featurize", TYPO],
+    "train": ["train", TYPO, "force", "--no-track"],
+    "live": ["live", TYPO, "--simulated", "--frames", "1"],
+    "export": ["export", TYPO],
+}
+
+# Every stage that takes a scene (python -m stages.<module> <scene> ...), by its main().
+STAGES = {
+    "acquire": (TYPO,), "ingest": (TYPO,), "featurize": (TYPO,), "train": (TYPO, "force"),
+    "pairs": (TYPO,), "export": (TYPO,), "bench": ("summary", TYPO), "soak": (TYPO,),
+    "stress": (TYPO,), "live_latency": (TYPO,), "dask_scaling": (TYPO,),
+}
+
+
+@pytest.fixture
+def project(tmp_path, monkeypatch):
+    """A directory holding the repository's params.yaml (and nothing it could run on)."""
+    write_params(tmp_path, yaml.safe_load((ROOT / "params.yaml").read_text()))
+    monkeypatch.chdir(tmp_path)
+    return tmp_path
+
+
+def assert_names_the_scenes(message: str) -> None:
+    scenes = list(yaml.safe_load((ROOT / "params.yaml").read_text())["scenes"])
+    assert TYPO in message and "did you mean single_force?" in message, message
+    assert f"its scenes: {', '.join(scenes)}" in message, message
+    assert "dvc repro" not in message, message  # no advice to run a stage that is not there
+
+
+@pytest.mark.parametrize("command", sorted(COMMANDS))
+def test_a_wrong_scene_on_any_command_names_the_scenes_that_exist(project, command, capsys):
+    assert cli.main(COMMANDS[command]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("eskin: error: "), err
+    assert_names_the_scenes(err)
+
+
+@pytest.mark.parametrize("stage", sorted(STAGES))
+def test_a_wrong_scene_on_any_stage_names_the_scenes_that_exist(project, stage):
+    module = importlib.import_module(f"stages.{stage}")
+    with pytest.raises(ParamsError) as raised:
+        module.main(*STAGES[stage])
+    assert_names_the_scenes(str(raised.value))
+
+
+def test_every_command_that_takes_a_scene_is_tested():
+    takes_scene = {path[1] for path, parser in _commands(cli.build_parser())
+                   if any(action.dest == "scene" for action in parser._actions)}
+    assert takes_scene == set(COMMANDS)
+
+
+def _commands(parser, path=("eskin",)):
+    import argparse
+
+    yield path, parser
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield from _commands(sub, (*path, name))
+
+
+def repo_params() -> dict:
+    return yaml.safe_load((ROOT / "params.yaml").read_text())
+
+
+def test_a_mistyped_key_is_named_with_the_key_it_resembles(project, capsys):
+    params = repo_params()
+    params["cv"]["fols"] = params["cv"].pop("folds")
+    with pytest.raises(ParamsError) as raised:
+        validate_params(params)
+    message = str(raised.value)
+    assert "cv.fols is not a known key; did you mean cv.folds?" in message, message
+    assert "more" not in message  # the missing cv.folds is the same mistake
+    write_params(project, params)
+    assert cli.main(["ingest", "single_force"]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "cv.fols" in err and "did you mean cv.folds?" in err, err
+
+
+@pytest.mark.parametrize("path, typo, known", [
+    (("scenes", "single_force"), "sampels", "samples"),
+    (("soak", "faults"), "dorp", "drop"),
+    ((), "reprot", "report"),
+])
+def test_a_mistyped_key_anywhere_suggests_the_known_one(path, typo, known):
+    params = copy.deepcopy(repo_params())
+    section = params
+    for part in path:
+        section = section[part]
+    section[typo] = section.pop(known)
+    with pytest.raises(ParamsError) as raised:
+        validate_params(params)
+    prefix = ".".join(path) + "." if path else ""
+    assert f"{prefix}{typo} is not a known key; did you mean {prefix}{known}?" in \
+        str(raised.value)
+
+
+def test_an_unknown_key_like_no_known_one_lists_the_known_keys():
+    params = repo_params()
+    params["acquire"]["prot"] = 1
+    with pytest.raises(ParamsError, match=r"acquire\.prot is not a known key of acquire "
+                                          r"\(known: indenters, rest_length_mm"):
+        validate_params(params)
+
+
+# ------------------------------------------------------------------ audit ids
+
+RUN_IDS = [f"{n:032x}" for n in range(0xA1B2C3D4E5F60718293A4B5C6D7E8F90,
+                                        0xA1B2C3D4E5F60718293A4B5C6D7E8F90 + 5)]
+DIGESTS = ["0008f278626e0c03fa960621ed4135bc", "773eb58af2fbcee6fe2c1b8eef8f52b1"]
+
+
+def audited_runs() -> pd.DataFrame:
+    """An MLflow store's runs: one pipeline run, five task runs on two dataset versions,
+    with ids as long as MLflow's (32 hex digits)."""
+    t0 = pd.Timestamp("2026-11-23 10:00", tz="UTC")
+    parent = "f" * 32
+    rows = [{"run_id": parent, "start_time": t0, "end_time": t0, "tags.eskin.kind": "pipeline",
+             "tags.mlflow.runName": "repro-1a2b3c4d"}]
+    for k, (run_id, task) in enumerate(zip(RUN_IDS, ["stretch", "force", "detect",
+                                                     "localise", "localise"], strict=True)):
+        start = t0 + pd.Timedelta(minutes=k + 1)
+        rows.append({
+            "run_id": run_id, "start_time": start, "end_time": start,
+            "tags.eskin.kind": "task", "tags.mlflow.parentRunId": parent,
+            "tags.eskin.scene": "single_force" if k < 4 else "two_force",
+            "tags.eskin.task": task, "tags.eskin.dataset_digest": DIGESTS[k // 4],
+            "tags.eskin.git_commit": "c0ffee00aa", "tags.eskin.model": "hist_gradient_boosting",
+            "tags.eskin.dataset_rows": "24240", "tags.eskin.dataset_source": "simulated (seed 1)"})
+    return pd.DataFrame(rows)
+
+
+@pytest.mark.parametrize("fmt", ["table", "markdown", "csv"])
+def test_audit_prints_every_run_id_whole_at_80_columns(fmt, monkeypatch, capsys):
+    """The ids are what `eskin audit --run` takes: each on one line, unbroken, in every
+    format, and in the table no line wider than the terminal."""
+    monkeypatch.setenv("COLUMNS", "80")
+    monkeypatch.setattr(compare, "load_runs", audited_runs)
+    monkeypatch.setattr(compare, "workspace_digests", lambda root, scenes: {})
+    monkeypatch.setattr(compare, "commit_dates", lambda root, digests: {})
+    assert cli.main(["audit", "--format", fmt]) == 0
+    out = capsys.readouterr().out
+    lines = out.splitlines()
+    for whole in [*RUN_IDS, *DIGESTS]:
+        assert any(whole in line for line in lines), (whole, out)
+    if fmt == "table":
+        assert max(len(line.rstrip()) for line in lines) <= 80, out
+    if fmt == "csv":
+        table = pd.read_csv(io.StringIO(out), dtype=str).set_index("dataset md5")
+        assert table.loc[DIGESTS[0], "run ids"].split() == RUN_IDS[:4]
+        assert table.loc[DIGESTS[1], "run ids"].split() == RUN_IDS[4:]
