@@ -21,14 +21,30 @@ Misbehaviours, each at the ``at``-th ``SAMPLE`` request (1-based):
 * ``restart_after_ok``: a whole answer, then at once a restart (stretch and
   presses forgotten, its ``#HELLO``);
 * ``trickle``: from then on, one junk byte every 100 ms and no answer;
-* ``flood``: from then on, frames as fast as the line takes them, no answer.
+* ``flood``: from then on, frames as fast as the line takes them, no answer;
+* ``silent``: no answer at all to that request (the host gives up on it and
+  reconnects), then answers as before;
+* ``last_lost``: the answer's last frame damaged on the line (its CRC wrong);
+* ``time_back``: the answer's first frame says ``t_ms`` 0, its CRC right (digits
+  lost in a frame whose CRC-8 matched by chance); its seq goes in ``time_back``;
+* ``long_line``: a 1 MiB junk line, ended by a newline, before the answer;
+* ``cr_only``: from then on, every line it sends ends in CR only (``\r``).
+
+``damage_first``: the first frame of the first answer after each greeting (``HELLO``
+asked, or its own restart) goes out damaged (its CRC wrong), when the host has no
+sequence number to place the answer by; combine it with any misbehaviour.
 
 ``STREAM ON`` starts a frame every 12 ms until ``STREAM OFF``, answers interleaved;
 ``sent`` keeps every streamed frame as (seq, counts). Misbehaviour while streaming, at
 the ``at``-th streamed frame:
 
 * ``stream_other_board``: another board's ``#HELLO``, and its frames from then on (its
-  own id, its sequence from 0).
+  own id, its sequence from 0);
+* ``stream_junk``: from then on a junk line where each frame was due (it still answers
+  commands, so reconnecting finds it);
+* ``stream_cr_only``: from then on, every line it sends ends in CR only;
+* ``stream_time_back``: that frame says ``t_ms`` 0, its CRC right; its seq goes in
+  ``time_back``.
 """
 
 from __future__ import annotations
@@ -58,12 +74,33 @@ def frame_line(seq: int, t_ms: int, counts: list[int]) -> bytes:
     return body + b"*" + (f"{crc8(body):02X}").encode() + b"\n"
 
 
+def damaged(line: bytes) -> bytes:
+    """A frame line as the wire may leave it: the same bytes, its CRC wrong."""
+    body = line.rstrip(b"\n").rpartition(b"*")[0]
+    return body + b"*" + (f"{crc8(body) ^ 0xFF:02X}").encode() + b"\n"
+
+
+def time_fallen(line: bytes) -> bytes:
+    """A frame line with ``t_ms`` 0 and its CRC made right again."""
+    _, seq, _, rest = line.rstrip(b"\n").rpartition(b"*")[0].split(b",", 3)
+    body = b"D," + seq + b",0," + rest
+    return body + b"*" + (f"{crc8(body):02X}").encode() + b"\n"
+
+
+LONG_LINE = b"~" * (1 << 20) + b"\n"  # 1 MiB of junk in one line
+
+
 class HostileBoard:
     def __init__(self, *, device_id: str = "hostile-0001", misbehaviour: str | None = None,
-                 at: int = 50) -> None:
+                 at: int = 50, damage_first: bool = False) -> None:
         self.device_id = device_id
         self.misbehaviour = misbehaviour
         self.at = at
+        self.damage_first = damage_first
+        self.greeted = False         # greeted since its last answer: damage_first is due
+        self.cr_only = False         # its lines end in CR only
+        self.time_back: list[int] = []  # seqs sent with t_ms 0 and a right CRC
+        self.junk_due = False        # stream_junk: a junk line where each frame was due
         self.samples_asked = 0
         self.seq = 0
         self.t_ms = 0
@@ -110,6 +147,7 @@ class HostileBoard:
             return b""
         name = words[0].upper()
         if name == "HELLO":
+            self.greeted = True
             return self.hello()
         if name == "STREAM":
             self.streaming = words[1].upper() == "ON"
@@ -138,6 +176,23 @@ class HostileBoard:
         if cue in ("trickle", "flood"):
             self.gone_wild = True
             return b""
+        if cue == "silent":
+            return b""
+        if cue == "cr_only":
+            self.cr_only = True
+        greeted, self.greeted = self.greeted, False
+        if greeted and self.damage_first:
+            first = damaged(self.frame())
+            return first + b"".join(self.frame() for _ in range(n - 1)) + ok
+        if cue == "last_lost":
+            frames = [self.frame() for _ in range(n)]
+            return b"".join(frames[:-1]) + damaged(frames[-1]) + ok
+        if cue == "time_back":
+            self.time_back.append(self.seq)
+            first = time_fallen(self.frame())
+            return first + b"".join(self.frame() for _ in range(n - 1)) + ok
+        if cue == "long_line":
+            return LONG_LINE + b"".join(self.frame() for _ in range(n)) + ok
         if cue == "other_board":
             first = b"".join(self.frame() for _ in range(n // 2))
             self.hijacked, self.seq = True, 0
@@ -158,6 +213,7 @@ class HostileBoard:
             out = b"".join(frames) + self.frame() + ok
         elif cue == "restart_after_ok":  # in the same write as the answer: one read
             self.stretch_mm, self.presses, self.trial, self.seq = "0", [], 0, 0
+            self.greeted = True
             out = answer + self.hello()
         else:
             out = answer
@@ -170,17 +226,29 @@ class HostileBoard:
         while b"\n" in self._inbox:
             line, self._inbox = self._inbox.split(b"\n", 1)
             out += self.handle(line.strip())
-        return out
+        return self.ending(out)
+
+    def ending(self, out: bytes) -> bytes:
+        """``out`` with the board's line endings (CR only, on cue)."""
+        return out.replace(b"\n", b"\r") if self.cr_only else out
 
     def stream_next(self) -> bytes:
         """The next streamed frame (after another board's greeting, on cue)."""
         self.streamed += 1
+        cue = self.misbehaviour if self.streamed == self.at else None
         greeting = b""
-        if self.misbehaviour == "stream_other_board" and self.streamed == self.at:
+        if cue == "stream_other_board":
             self.hijacked, self.seq = True, 0
             greeting = self.hello()
+        self.junk_due = self.junk_due or cue == "stream_junk"
+        self.cr_only = self.cr_only or cue == "stream_cr_only"
+        if self.junk_due:
+            return self.ending(b"~~ not a frame ~~\n")
         self.sent.append((self.seq, self.counts(self.hijacked)))
-        return greeting + self.frame()
+        if cue == "stream_time_back":
+            self.time_back.append(self.seq)
+            return self.ending(greeting + time_fallen(self.frame()))
+        return self.ending(greeting + self.frame())
 
     def wild(self) -> tuple[bytes, float]:
         """What a board gone wild sends next, and the pause after it."""

@@ -17,7 +17,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 from conftest import eskin, small_scenes, write_params
-from hostile_board import HostileBoard, Served, frame_line
+from hostile_board import HostileBoard, Served, damaged, frame_line
 
 from eskin.acquisition.plan import plan_from_params
 from eskin.acquisition.rawlog import MAGIC, read_log
@@ -29,6 +29,7 @@ from eskin.data.schema import CHANNELS, LABELS
 from eskin.device.host import (
     Greeted,
     HostProtocol,
+    Junk,
     OtherBoard,
     Restarted,
     SampleComplete,
@@ -143,6 +144,64 @@ def test_protocol_tells_a_restart_from_another_board():
     assert [type(e) for e in events[2:]] == [Stray] * 3, "nothing of b2 is credited"
 
 
+def test_protocol_a_damaged_first_frame_with_no_seq_to_place_it_costs_one_retry():
+    """Issue 40, finding 1: after a connect (or a #HELLO) the host has no seq to compare
+    with. A damaged first frame made it owe the seq after the answer's last frame, so
+    every later clean answer lost its first frame as owed and came up one short."""
+    host = greeted()
+    host.send_sample(5)
+    events = host.receive(damaged(frame_line(0, 0, [500] * 20)) + frames(1, 4)
+                          + b"#OK SAMPLE 5\n")
+    assert isinstance(events[0], Junk) and isinstance(events[-1], Violation)
+    host.send_fence()
+    host.receive(b"#OK STREAM OFF\n")
+    host.send_sample(5)
+    events = host.receive(frames(5, 5) + b"#OK SAMPLE 5\n")
+    assert [type(e) for e in events] == [SampleFrame] * 5 + [SampleComplete], events
+    # The same after a restart, whose #HELLO starts the board's sequence again.
+    host.send_sample(5)
+    events = host.receive(b"#HELLO eskin fw terminals=20 adc_bits=10 id=b1\n")
+    assert isinstance(events[-1], Restarted)
+    host.send_fence()
+    host.receive(b"#OK STREAM OFF\n")
+    host.send_sample(2)
+    host.receive(damaged(frame_line(0, 0, [500] * 20)) + frames(1, 1) + b"#OK SAMPLE 2\n")
+    host.send_fence()
+    host.receive(b"#OK STREAM OFF\n")
+    host.send_sample(2)
+    events = host.receive(frames(2, 2) + b"#OK SAMPLE 2\n")
+    assert [type(e) for e in events] == [SampleFrame] * 2 + [SampleComplete], events
+
+
+def test_protocol_a_lost_frame_of_one_answer_is_never_the_next_answers_loss():
+    """Issue 40, finding 2: the next clean answer failed with "frames lost: expected seq
+    N, got N+1" for a frame the answer before had lost (its last, or one after the
+    violation that closed it): a wasted retry."""
+    host = greeted()
+    host.send_sample(3)
+    host.receive(frames(0, 3) + b"#OK SAMPLE 3\n")
+    host.send_sample(3)  # its last frame damaged
+    events = host.receive(frames(3, 2) + damaged(frame_line(5, 60, [500] * 20))
+                          + b"#OK SAMPLE 3\n")
+    assert isinstance(events[-1], Violation) and "after 2 of 3" in events[-1].reason
+    host.send_fence()
+    host.receive(b"#OK STREAM OFF\n")
+    host.send_sample(3)
+    events = host.receive(frames(6, 3) + b"#OK SAMPLE 3\n")
+    assert [type(e) for e in events] == [SampleFrame] * 3 + [SampleComplete], events
+    host.send_sample(5)  # a frame lost mid-answer, and one after the violation it caused
+    events = host.receive(frames(9, 1) + damaged(frame_line(10, 120, [500] * 20))
+                          + frames(11, 2) + damaged(frame_line(13, 156, [500] * 20))
+                          + b"#OK SAMPLE 5\n")
+    assert any(isinstance(e, Violation) and "expected seq 10, got 11" in e.reason
+               for e in events)
+    host.send_fence()
+    host.receive(b"#OK STREAM OFF\n")
+    host.send_sample(3)
+    events = host.receive(frames(14, 3) + b"#OK SAMPLE 3\n")
+    assert [type(e) for e in events] == [SampleFrame] * 3 + [SampleComplete], events
+
+
 # ---------------------------------------------------------------- findings 1-3, end to end
 
 @pytest.mark.parametrize("transport", ["pty", "socket"])
@@ -237,6 +296,77 @@ def test_a_board_that_lags_by_a_frame_is_given_up_on_never_stored_shifted(
     for key, attempt in contents.completed.items():
         expected = clean[clean["trial"] == key][CHANNELS].to_numpy().tolist()
         assert [list(map(float, f.counts)) for f in attempt.frames] == expected
+
+
+# ---------------------------------------------------------------- issue 40, end to end
+
+@pytest.mark.parametrize(("misbehaviour", "retries", "resets", "reconnects"), [
+    (None, 1, 0, 0),                 # the first answer after the connect
+    ("restart_after_ok", 3, 1, 0),   # ... and after the board's restart
+    ("silent", 3, 0, 1),             # ... and after the reconnect its silence caused
+])
+def test_a_damaged_first_frame_after_a_greeting_costs_one_retry(
+        honest, tmp_path, misbehaviour, retries, resets, reconnects):
+    """Finding 1: with no seq to place the answer by, its damaged first frame used to cost
+    every attempt after it (`failed 5 times ... #OK SAMPLE after 4 of 5`)."""
+    params, clean = honest
+    report, plan = acquire_from(HostileBoard(misbehaviour=misbehaviour, damage_first=True),
+                                tmp_path, params)
+    assert (report.retries, report.resets, report.reconnects) == (
+        retries, resets, reconnects), report.summary()
+    frame = ingest_log(tmp_path / "acquisition.log", plan).frame
+    pd.testing.assert_frame_equal(frame[CONTENT], clean[CONTENT])
+
+
+@pytest.mark.parametrize("transport", ["pty", "socket"])
+def test_an_answer_whose_last_frame_was_lost_costs_one_retry(honest, tmp_path, transport):
+    """Finding 2: the next clean answer used to fail too (`frames lost: expected seq N, got
+    N+1`), so three such faults exhausted max_attempts 5."""
+    params, clean = honest
+    report, plan = acquire_from(HostileBoard(misbehaviour="last_lost"), tmp_path, params,
+                                transport)
+    assert report.retries == 1, report.summary()
+    frame = ingest_log(tmp_path / "acquisition.log", plan).frame
+    pd.testing.assert_frame_equal(frame[CONTENT], clean[CONTENT])
+
+
+def test_a_frame_whose_board_time_fell_across_answers_is_never_stored(honest, tmp_path):
+    """Finding 3: t_ms was checked within an answer only, so a first frame whose time fell
+    from the last answer's (digits lost, CRC-8 matched by chance) was stored."""
+    params, clean = honest
+    board = HostileBoard(misbehaviour="time_back", at=50)
+    report, plan = acquire_from(board, tmp_path, params)
+    assert len(board.time_back) == 1 and report.retries == 1, report.summary()
+    contents = read_log(tmp_path / "acquisition.log")
+    stored = [f for a in contents.completed.values() for f in a.frames]
+    assert board.time_back[0] not in {f.seq for f in stored}
+    assert all(f.t_ms > 0 for f in stored), "the board's clock starts at 0, then STRETCH"
+    frame = ingest_log(tmp_path / "acquisition.log", plan).frame
+    pd.testing.assert_frame_equal(frame[CONTENT], clean[CONTENT])
+
+
+@pytest.mark.parametrize("transport", ["socket", "pty"])
+def test_a_1_mib_junk_line_costs_no_retry_and_no_reconnect(honest, tmp_path, transport):
+    """Finding 4: a socket:// port was read a byte a call (94 kB/s), so a 1 MiB line
+    outlasted the request's deadline and cost a reconnect; the answer after it is whole."""
+    params, clean = honest
+    report, plan = acquire_from(HostileBoard(misbehaviour="long_line", at=50), tmp_path,
+                                params, transport)
+    assert (report.retries, report.reconnects) == (0, 0), report.summary()
+    assert report.frames_rejected >= 1
+    frame = ingest_log(tmp_path / "acquisition.log", plan).frame
+    pd.testing.assert_frame_equal(frame[CONTENT], clean[CONTENT])
+
+
+def test_a_board_whose_lines_end_in_cr_only_is_given_up_on_with_the_hint(honest, tmp_path):
+    """Finding 6: it ended as "lost the board" with no hint of why."""
+    params, _ = honest
+    code, stderr, seconds, _ = run_cli_against(HostileBoard(misbehaviour="cr_only", at=30),
+                                               tmp_path, params)
+    lines = [line for line in stderr.splitlines() if line.startswith("eskin: error")]
+    assert code == 1 and len(lines) == 1 and "Traceback" not in stderr, stderr
+    assert "lost the board" in lines[0] and "lines end in CR only" in lines[0], lines[0]
+    assert seconds < 2 * TIMEOUT_S + RECONNECT_S + 8, seconds
 
 
 # ---------------------------------------------------------------- findings 4-6

@@ -94,7 +94,7 @@ def test_a_board_that_stays_silent_ends_reconnecting_with_an_error_naming_the_po
     finally:
         os.close(master)
         os.close(slave)
-    assert said and port in said[0] and "reconnecting" in said[0]
+    assert said and said[0].count(port) == 1 and "reconnecting" in said[0], said
 
 
 @pytest.mark.parametrize("socket_port", [None, 0], ids=["pty", "socket"])
@@ -117,7 +117,30 @@ def test_a_vanishing_link_is_reopened_and_a_reset_board_is_noticed(socket_port):
     assert resets and reopened and whole, (resets, reopened, whole)
     if socket_port is None:  # the pty's path is gone while the link is down: tries fail first
         assert any("reconnected" in message for message in said), said
-    assert all(board.port in message for message in said), said
+    assert all(message.count(board.port) == 1 for message in said), said
+
+
+@pytest.mark.parametrize("transport", ["pty", "socket"])
+def test_a_port_that_is_gone_is_named_once_in_each_notice_and_in_the_error(transport):
+    """Issue 40: reconnect notices named the port three times (ours, pyserial's, the OS's)."""
+    import socket
+
+    if transport == "pty":
+        master, slave = os.openpty()
+        port = os.ttyname(slave)
+        link = SerialLink(port, timeout_s=0.2)
+        os.close(master)
+        os.close(slave)  # the pty goes with the link's descriptor, closed by reopen
+    else:
+        listener = socket.create_server(("127.0.0.1", 0))
+        port = f"socket://127.0.0.1:{listener.getsockname()[1]}"
+        link = SerialLink(port, timeout_s=0.2)
+        listener.close()  # nothing listens there any more
+    said = []
+    with pytest.raises(LinkError, match="lost the board") as error:
+        link.reopen(budget_s=0.5, notify=said.append)
+    assert said and all(message.count(port) == 1 for message in said), said
+    assert "cannot open port" in said[0] and str(error.value).count(port) == 2  # +its last
 
 
 def test_a_damaged_frame_that_passes_its_crc_is_still_caught():
@@ -142,9 +165,39 @@ def test_a_damaged_frame_that_passes_its_crc_is_still_caught():
     assert jump_problem(batch(noisy), 40) is None
     steady[5][2] = 1100 - 1000                                 # a real 3-digit reading
     assert jump_problem(batch(steady), 40) is None, "far, but no digit lost"
-    times = [12 * i for i in range(20)]
-    times[9] = 10                     # "108" lost its "8"
-    assert "board time went backwards at seq 9" in batch(steady, times).problem
+
+
+def test_a_frame_whose_board_time_fell_is_never_credited_within_or_across_answers():
+    """Issue 40: t_ms was checked within one answer only, while the seq check runs across
+    answers; a frame whose time fell from the last answer's (seq 95 at t_ms 0, between
+    1628 and 1652) was stored. The host checks every frame against the last one."""
+    from eskin.device.host import HostProtocol, SampleComplete, SampleFrame, Violation
+    from eskin.device.protocol import encode_frame
+
+    def answer(seqs, times):
+        return b"".join(encode_frame(s, t, [500] * 20) for s, t in zip(seqs, times,
+                                                                      strict=True))
+
+    host = HostProtocol("b")
+    host.send_sample(3)
+    events = host.receive(answer([0, 1, 2], [0, 12, 24]) + b"#OK SAMPLE 3\n")
+    assert isinstance(events[-1], SampleComplete)
+    host.send_sample(3)  # within an answer: "36" lost its "3"
+    events = host.receive(answer([3, 4, 5], [36, 6, 60]) + b"#OK SAMPLE 3\n")
+    assert [type(e) for e in events[:2]] == [SampleFrame, Violation]
+    assert "board time went backwards at seq 4 (36 then 6)" in events[1].reason
+    host.send_fence()
+    host.receive(b"#OK STREAM OFF\n")
+    host.send_sample(3)  # across answers: its first frame's "72" lost its "7"
+    events = host.receive(answer([6, 7, 8], [2, 84, 96]) + b"#OK SAMPLE 3\n")
+    assert isinstance(events[0], Violation), events
+    assert "board time went backwards at seq 6 (60 then 2)" in events[0].reason
+    assert not any(isinstance(e, SampleFrame) for e in events), "nothing credited"
+    host.send_fence()
+    host.receive(b"#OK STREAM OFF\n")
+    host.send_sample(3)  # and the next answer, whole, is whole
+    events = host.receive(answer([9, 10, 11], [108, 120, 132]) + b"#OK SAMPLE 3\n")
+    assert [type(e) for e in events] == [SampleFrame] * 3 + [SampleComplete]
 
 
 def test_another_board_answering_after_a_reconnect_is_refused():

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import threading
+import time
 
 import joblib
 import numpy as np
@@ -233,13 +234,17 @@ def test_the_stream_goes_on_across_board_restarts_and_a_vanishing_port(stack, tm
     assert all(np.all(np.diff([f.seq for f in a.frames]) == 1) for a in attempts)
 
 
-def live_on_hostile(skin, board: HostileBoard, wanted: int, record_to=None):
+def live_on_hostile(skin, board: HostileBoard, wanted: int, record_to=None, *,
+                    timeout_s=5.0, reconnect_s=2.0, notes=None, wall_s=60.0):
     """``live_estimates`` on the independent board (tests/hostile_board.py) over a pty:
-    the records, and the error that ended them, if one did."""
+    the records, and the error that ended them, if one did. ``notes`` collects what live
+    says on the way; after ``wall_s`` of records it stops, with no error (a hang)."""
     records, error = [], None
-    with Served(board) as served, SerialLink(served.port, timeout_s=5.0) as link:
+    say = (lambda message: None) if notes is None else notes.append
+    started = time.monotonic()
+    with Served(board) as served, SerialLink(served.port, timeout_s=timeout_s) as link:
         hello = link.connect()
-        stream = contextlib.closing(stream_events(link, reconnect_s=2.0, notify=lambda m: None))
+        stream = contextlib.closing(stream_events(link, reconnect_s=reconnect_s, notify=say))
         with stream as events:
             recorder = None if record_to is None else LiveRecorder.open(
                 record_to, "single_force", hello, source="serial", port=served.port,
@@ -248,7 +253,8 @@ def live_on_hostile(skin, board: HostileBoard, wanted: int, record_to=None):
                 tapped = events if recorder is None else recorder.tap(events)
                 for record in live_estimates(skin, tapped, tare_frames=TARE):
                     records.append(record)
-                    if sum("seq" in r for r in records) >= wanted:
+                    if (sum("seq" in r for r in records) >= wanted
+                            or time.monotonic() - started > wall_s):
                         break
             except Exception as err:  # noqa: BLE001 - the test looks at it
                 error = err
@@ -284,14 +290,52 @@ def test_another_board_mid_stream_ends_live_and_none_of_its_frames_is_kept(stack
 
     _, skin = stack
     board = HostileBoard(misbehaviour="stream_other_board", at=150)
-    records, error = live_on_hostile(skin, board, wanted=400, record_to=tmp_path / "raw")
+    notes = []
+    records, error = live_on_hostile(skin, board, wanted=400, record_to=tmp_path / "raw",
+                                     notes=notes)
     assert isinstance(error, DeviceChanged) and "OTHER-9999" in str(error)
     assert "hostile-0001" in str(error) and "\n" not in str(error)
+    # At once, from the stream (issue 40: it said "stopping", reconnected, then failed).
+    assert "while streaming" in str(error) and notes == [], (str(error), notes)
     ours = [seq for seq, counts in board.sent if counts[0] != 777]
     assert [r["seq"] for r in records if "seq" in r] == ours[TARE:]
     log = read_log(tmp_path / "raw" / "acquisition.log")
     kept = [f for a in log.completed.values() for f in a.frames]
     assert [f.seq for f in kept] == ours and all(f.counts[0] != 777 for f in kept)
+
+
+@pytest.mark.parametrize(("misbehaviour", "says"), [
+    ("stream_junk", "no valid frame"),
+    ("stream_cr_only", "lines end in CR only"),
+])
+def test_live_gives_up_on_a_board_that_streams_only_junk(stack, misbehaviour, says):
+    """Issue 40, finding 5: junk counted as progress, so a board that streamed a junk line
+    every few seconds, or lines ending in CR only, had live print {"rejected": ...}
+    forever. Now, no valid frame for the timeout plus the reconnect budget: one line."""
+    from eskin.errors import EskinError
+
+    _, skin = stack
+    timeout_s, reconnect_s = 0.5, 1.0
+    started = time.monotonic()
+    records, error = live_on_hostile(skin, HostileBoard(misbehaviour=misbehaviour, at=80),
+                                     wanted=10_000, timeout_s=timeout_s,
+                                     reconnect_s=reconnect_s, wall_s=20.0)
+    seconds = time.monotonic() - started
+    assert isinstance(error, EskinError), (error, records[-3:])
+    assert says in str(error) and "\n" not in str(error), str(error)
+    assert seconds < 2 * timeout_s + 2 * reconnect_s + 3, seconds
+    assert sum("seq" in r for r in records) == 80 - 1 - TARE  # all it streamed, predicted
+
+
+def test_a_streamed_frame_whose_board_time_fell_is_reported_never_predicted(stack):
+    """Issue 40, finding 3, live: a frame whose t_ms fell (its CRC-8 matched by chance)."""
+    _, skin = stack
+    board = HostileBoard(misbehaviour="stream_time_back", at=120)
+    records, error = live_on_hostile(skin, board, wanted=150)
+    assert error is None and len(board.time_back) == 1
+    predicted = [r["seq"] for r in records if "seq" in r]
+    assert board.time_back[0] not in predicted and len(predicted) == 150
+    assert any("board time went backwards" in r.get("rejected", "") for r in records)
 
 
 def test_a_damaged_line_and_a_lost_frame_are_reported_and_never_predicted(stack):

@@ -96,6 +96,21 @@ def test_runaway_line_without_newline_is_dropped_not_buffered_forever():
     assert isinstance(parser.feed(encode_frame(0, 0, COUNTS))[-1], Frame)
 
 
+def test_lines_that_end_in_cr_only_are_named_as_the_cause():
+    """Issue 40: a board whose lines end in CR only sent nothing the parser could end, and
+    the host said only that it had lost the board."""
+    parser = FrameParser()
+    greeting = b"#HELLO eskin 1 terminals=20 adc_bits=10 id=a\r#OK STREAM OFF\r"
+    assert parser.feed(greeting) == [] and "lines end in CR only" in parser.line_ending_hint
+    frames = b"".join(encode_frame(i, 0, COUNTS).replace(b"\n", b"\r") for i in range(3))
+    events = parser.feed(frames)
+    assert isinstance(events[0], ParseError) and "lines end in CR only" in events[0].reason
+    assert parser.feed(b"\n") and parser.line_ending_hint is None  # an LF: lines end again
+    crlf = FrameParser()
+    crlf.feed(encode_frame(0, 0, COUNTS)[:-1] + b"\r\n")
+    assert crlf.line_ending_hint is None
+
+
 @settings(max_examples=400, deadline=None)
 @given(st.binary(max_size=600))
 def test_arbitrary_bytes_never_raise_and_never_yield_a_bad_frame(data):

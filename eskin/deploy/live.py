@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import math
+import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -141,20 +142,38 @@ def stream_events(link, *, reconnect_s: float = 30.0, timeout_s: float | None = 
                   notify: Callable[[str], object] = print) -> Iterator:
     """The board's stream as batches of events (:meth:`SerialLink.stream`), started, and
     started again after a restart or a lost link reopened (as acquisition reopens it,
-    within ``reconnect_s``). Stops the stream when closed."""
-    from eskin.device.link import BoardReset, LinkError
+    within ``reconnect_s``). Stops the stream when closed.
 
+    Gives up (LinkError, one line) once no valid frame has come for the stream's timeout
+    plus ``reconnect_s``, however much else came: a board that streams only junk, or
+    restarts before every frame, answers commands but is not streaming. Another board
+    (DeviceChanged) or a refusal ends it at once: reconnecting would not help."""
+    from eskin.device.host import StreamFrame
+    from eskin.device.link import BoardRefused, BoardReset, DeviceChanged, LinkError
+
+    give_up_s = (link.timeout_s if timeout_s is None else timeout_s) + reconnect_s
     link.start_stream()
+    last_frame = time.monotonic()
     try:
         while True:
             try:
-                yield from link.stream(timeout_s=timeout_s)
-            except BoardReset:
-                notify(f"{link.port}: the board restarted; streaming again")
-                link.start_stream()
-            except LinkError as err:
-                notify(f"{link.port}: {err}")
-                link.reopen(budget_s=reconnect_s, notify=notify)
+                for batch in link.stream(timeout_s=timeout_s):
+                    if any(isinstance(event, StreamFrame) for event in batch):
+                        last_frame = time.monotonic()
+                    yield batch
+            except (DeviceChanged, BoardRefused):
+                raise
+            except LinkError as err:  # BoardReset too
+                silent = time.monotonic() - last_frame
+                if silent > give_up_s:
+                    raise LinkError(f"{err}; giving up: no valid frame for {silent:.1f} s "
+                                    f"(acquire.timeout_s + reconnect_s); does the board speak "
+                                    f"protocol v1 at {link.baud} baud?") from err
+                if isinstance(err, BoardReset):
+                    notify(f"{link.port}: the board restarted; streaming again")
+                else:
+                    notify(str(err))  # it names the port
+                    link.reopen(budget_s=reconnect_s, notify=notify)
                 link.start_stream()
     finally:
         try:

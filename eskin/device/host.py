@@ -13,7 +13,9 @@ The accounting of frames to requests lives here and only here:
 * a frame that arrives while no ``SAMPLE`` is open is :class:`Stray` (a board
   left streaming, a late frame of an earlier request) and is never stored;
 * the sequence check runs across requests, never restarting but at a
-  ``#HELLO``: a replayed answer goes backwards and is a :class:`Violation`;
+  ``#HELLO``: a replayed answer goes backwards and is a :class:`Violation`
+  (and what was owed is forgotten: a count that went back may be a restart
+  whose ``#HELLO`` was lost);
 * a ``SAMPLE n`` is :class:`SampleComplete` only with exactly n frames, in
   one unbroken sequence, then ``#OK SAMPLE n``. An ``#OK`` before the n-th
   frame, an n+1-th frame, a lost frame, a reply to another command: a
@@ -22,10 +24,22 @@ The accounting of frames to requests lives here and only here:
 * a ``#HELLO`` from the board the session began with is :class:`Restarted`
   (it forgot its state); from any other board it is :class:`OtherBoard`, and
   nothing that board sends is ever credited to a request;
-* an ``#OK SAMPLE n`` after fewer than n frames leaves the missing sequence
-  numbers owed to that request: a frame carrying one of them later is stray,
-  never the first frame of the next answer (a board that lags by a frame
-  would otherwise shift every later sample by one);
+* the n sequence numbers of a ``SAMPLE n``'s answer are that request's, however
+  it ended (an ``#OK`` before the n-th frame, a violation): its answer begins
+  after the last frame seen before it, or, when none was (after a connect or a
+  ``#HELLO``), at its first frame. A frame carrying one of them later is stray,
+  never the first frame of the next answer (a board that lags by a frame would
+  otherwise shift every later sample by one); one of them lost is that
+  request's loss, not the next one's (an answer whose last frame was damaged
+  costs one retry, not two);
+* with no sequence number to place an answer by, and a line that could not be
+  trusted before its first frame, the frames it lacks may have been its first:
+  nothing after its last frame is owed (owing it would cost every later answer
+  its first frame, and the condition its attempts);
+* board time (``t_ms``) never falls from one frame to the next, within an answer
+  or across answers, as the sequence never does: a frame whose time fell is a
+  damaged frame whose CRC-8 matched by chance, a :class:`Violation` in a
+  ``SAMPLE`` and :class:`Junk` in the stream;
 * after a violation the next request should be preceded by a fence
   (``STREAM OFF``, answered in order): what the board sent before its
   ``#OK`` belongs to no request (:attr:`HostProtocol.needs_fence`);
@@ -151,6 +165,9 @@ class _Request:
     text: str
     n: int = 0         # SAMPLE: frames asked for
     got: int = 0       # SAMPLE: frames credited
+    start: int | None = None  # SAMPLE: the seq its answer begins at, if a seq came before
+    first: int | None = None  # SAMPLE: the seq of its first credited frame
+    junk_first: bool = False  # SAMPLE: a line that could not be trusted came before it
 
 
 class ProtocolStateError(RuntimeError):
@@ -179,7 +196,8 @@ class HostProtocol:
         self._requests = 0
         self._greet_hello: Hello | None = None
         self._last_seq: int | None = None   # of the last frame seen, any request
-        self._owed_up_to: int | None = None  # seqs an early #OK left owed to its request
+        self._last_t_ms: int | None = None  # its board time
+        self._owed_up_to: int | None = None  # seqs that belong to an earlier SAMPLE's answer
 
     # ------------------------------------------------------------ requests
 
@@ -216,12 +234,16 @@ class HostProtocol:
             raise ProtocolStateError(f"SAMPLE asks for at least one frame, not {n}")
         request = self._start("sample", "SAMPLE", f"SAMPLE {n}")
         request.n = n
+        if self._last_seq is not None:
+            owed = self._owed_up_to if self._owed_up_to is not None else -1
+            request.start = max(self._last_seq, owed) + 1
         return b"SAMPLE %d\n" % n
 
     def abandon(self) -> None:
         """Give up on the open request (its deadline passed, the port failed): what the
         board sends for it later is stray, and the next request is fenced."""
         if self._open is not None:
+            self._owe(self._open)
             self._open = None
             self.needs_fence = True
 
@@ -229,8 +251,13 @@ class HostProtocol:
         """A new connection: partial lines and the sequence are forgotten."""
         self._parser = FrameParser()
         self._open = None
-        self._last_seq = self._owed_up_to = None
+        self._forget_sequence()
         self.streaming = False
+
+    @property
+    def line_ending_hint(self) -> str | None:
+        """Why nothing the board sends ends a line, if its bytes say (CR-only endings)."""
+        return self._parser.line_ending_hint
 
     def _start(self, kind: str, name: str, text: str) -> _Request:
         if self._open is not None:
@@ -254,41 +281,60 @@ class HostProtocol:
         if isinstance(event, Hello):
             self._hello(event, events)
         elif isinstance(event, Frame):
+            time_fell = self._time_fell(event)
             self._last_seq = event.seq
             owed = self._owed_up_to is not None and event.seq <= self._owed_up_to
             if self.streaming and (request is None or request.kind != "sample"):
-                events.append(StreamFrame(event))
+                if time_fell:
+                    self.junk_lines += 1
+                    events.append(Junk(ParseError(time_fell, event.line)))
+                else:
+                    events.append(StreamFrame(event))
             elif request is None or request.kind != "sample" or owed:
-                # An owed frame answers the request whose #OK came too early: it is
-                # never credited to a later one, however continuous its seq.
+                # An owed frame answers an earlier request (one whose #OK came too early,
+                # say): it is never credited to a later one, however continuous its seq.
                 self.stray_frames += 1
                 events.append(Stray(event))
+            elif time_fell:
+                self._violate(events, time_fell, event.line)
             elif request.got == request.n:
                 self._violate(events, f"more than the {request.n} frames asked for "
                               f"(seq {event.seq})", event.line)
             else:
+                if request.got == 0:
+                    request.first = event.seq
                 events.append(SampleFrame(request.number, request.got, event))
                 request.got += 1
         elif isinstance(event, SequenceGap):
             if self.streaming and (request is None or request.kind != "sample"):
                 events.append(StreamGap(event.expected, event.got))
             elif request is not None and request.kind == "sample":
-                self._violate(events, f"frames lost: expected seq {event.expected}, "
-                              f"got {event.got}")
+                # Seqs of an earlier answer (its last frame, damaged) are its loss, not
+                # this request's: only a missing seq after them is.
+                owed = self._owed_up_to if self._owed_up_to is not None else -1
+                expected = max(event.expected, owed + 1)
+                if expected < event.got:
+                    self._violate(events, f"frames lost: expected seq {expected}, "
+                                  f"got {event.got}")
         elif isinstance(event, ParseError):
-            if (event.reason.startswith(_BACKWARDS) and request is not None
-                    and request.kind == "sample"):
-                self._violate(events, f"{event.reason} (a replayed or stale frame)",
-                              event.line)
-            else:
-                self.junk_lines += 1
-                events.append(Junk(event))
+            if event.reason.startswith(_BACKWARDS):
+                # The board's count started again (a restart whose #HELLO was lost) or an
+                # old answer is replayed: what was owed, and the time, mean nothing now.
+                self._forget_sequence()
+                if request is not None and request.kind == "sample":
+                    self._violate(events, f"{event.reason} (a replayed or stale frame)",
+                                  event.line, owe=False)
+                    return
+            if request is not None and request.kind == "sample" and request.got == 0:
+                request.junk_first = True
+            self.junk_lines += 1
+            events.append(Junk(event))
         elif isinstance(event, Reply):
             self._reply(event, events)
 
     def _hello(self, hello: Hello, events: list[HostEvent]) -> None:
         request = self._open
-        self._last_seq = self._owed_up_to = None  # the board's sequence starts again
+        self._forget_sequence()  # the board's sequence and time start again
         self.streaming = False  # and it has forgotten STREAM ON
         known = self.device_id
         if known is not None and hello.device_id != known:
@@ -346,16 +392,43 @@ class HostProtocol:
             self._violate(events, f"#OK SAMPLE {reply.details.strip()!r} answered "
                           f"SAMPLE {request.n}", reply.line, request)
         elif request.got != request.n:
-            if self._last_seq is not None:
-                self._owed_up_to = self._last_seq + request.n - request.got
             self._violate(events, f"#OK SAMPLE after {request.got} of {request.n} frames",
                           reply.line, request)
         else:
+            self._owe(request)
             events.append(SampleComplete(request.number, request.got))
 
     def _violate(self, events: list[HostEvent], reason: str, line: bytes = b"",
-                 request: _Request | None = None) -> None:
+                 request: _Request | None = None, *, owe: bool = True) -> None:
         request = request or self._open
         self._open = None
         self.needs_fence = True
+        if request is not None and owe:
+            self._owe(request)
         events.append(Violation(request.number if request else 0, reason, line))
+
+    def _owe(self, request: _Request) -> None:
+        """A closed ``SAMPLE``'s n seqs are its own, from where its answer began: the seq
+        after the last frame seen before it, or else its first frame's."""
+        if request.kind != "sample":
+            return
+        if request.start is not None:
+            self._owed_up_to = request.start + request.n - 1
+        elif request.first is not None and not request.junk_first:
+            self._owed_up_to = request.first + request.n - 1
+        # Else no seq placed the answer and a damaged line came before its first frame:
+        # that line may have been its first frame, so the seqs after its last frame are
+        # not taken as its own (each later answer would lose its first frame as owed).
+
+    def _forget_sequence(self) -> None:
+        self._last_seq = self._last_t_ms = self._owed_up_to = None
+
+    def _time_fell(self, frame: Frame) -> str | None:
+        """Why ``frame``'s board time cannot be right: it fell since the last frame (but for
+        the 32-bit wrap after 49 days). Followed either way, as the sequence is, so one
+        damaged frame costs one frame."""
+        last, self._last_t_ms = self._last_t_ms, frame.t_ms
+        if last is not None and frame.t_ms < last and last - frame.t_ms < 2**31:
+            return (f"board time went backwards at seq {frame.seq} ({last} then "
+                    f"{frame.t_ms}): a damaged frame whose CRC-8 matched by chance")
+        return None

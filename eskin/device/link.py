@@ -12,6 +12,8 @@ beyond one request's frames and a bounded sample of its junk.
 
 from __future__ import annotations
 
+import io
+import select
 import time
 from collections import deque
 from collections.abc import Callable, Iterator
@@ -41,6 +43,7 @@ from eskin.errors import EskinError
 
 BAUD = 115200
 READ_CHUNK = 4096          # bytes per read: what a flood can put in memory at once
+POLL_S = 0.05              # longest a read waits for a first byte: how often deadlines are seen
 MAX_EVIDENCE_LINES = 64    # rejected lines kept per attempt (the rest only counted)
 STREAM_BACKLOG = 4096      # stream events kept while a command is answered (~50 s of frames)
 
@@ -94,9 +97,10 @@ class SampleBatch:
         """Why this batch cannot be stored whole, or None if it can.
 
         Whole means the protocol object credited exactly the requested frames, in
-        one unbroken sequence, to this request. Rejected lines between such frames
-        (line noise) are kept as evidence but cost nothing: a damaged frame always
-        shows as a lost sequence number or a short count.
+        one unbroken sequence and with board time that never fell (within the answer
+        or from the last frame before it), to this request. Rejected lines between
+        such frames (line noise) are kept as evidence but cost nothing: a damaged
+        frame always shows as a lost sequence number or a short count.
         """
         rejected = (f" ({self.rejected_count} line(s) rejected, first: "
                     f"{self.rejected[0].reason})" if self.rejected else "")
@@ -104,11 +108,6 @@ class SampleBatch:
             return f"{self.violation}{rejected}"
         if len(self.frames) != self.requested:
             return f"{len(self.frames)} of {self.requested} frames arrived{rejected}"
-        for a, b in zip(self.frames, self.frames[1:], strict=False):
-            # Board time only grows (but for the 32-bit wrap after 49 days): a t_ms that
-            # falls is a damaged frame whose CRC-8 matched by chance.
-            if b.t_ms < a.t_ms and a.t_ms - b.t_ms < 2**31:
-                return f"board time went backwards at seq {b.seq} ({a.t_ms} then {b.t_ms})"
         return None
 
 
@@ -142,10 +141,11 @@ class SerialLink:
 
     def _open(self) -> serial.SerialBase:
         try:
-            return serial.serial_for_url(self.port, baudrate=self.baud, timeout=0.05,
+            # Reads return at once with what has arrived (timeout 0); _read waits for it.
+            return serial.serial_for_url(self.port, baudrate=self.baud, timeout=0,
                                          write_timeout=self.timeout_s)
         except (serial.SerialException, OSError, ValueError) as err:
-            raise LinkError(f"cannot open port {self.port}: {err}") from err
+            raise LinkError(f"cannot open port {self.port}: {_os_reason(err)}") from err
 
     def close(self) -> None:
         try:
@@ -179,9 +179,9 @@ class SerialLink:
                 if waited + delay > budget_s:
                     raise LinkError(f"lost the board on {self.port}: no answer after {tries} "
                                     f"reconnect tries in {waited:.1f} s (last: {err})") from err
-                if tries == 1:
-                    notify(f"{self.port}: {err}; reconnecting (backing off up to "
-                           f"{max_delay_s:g} s, for at most {budget_s:g} s)")
+                if tries == 1:  # the error names the port, once
+                    notify(f"{err}; reconnecting (backing off up to {max_delay_s:g} s, for "
+                           f"at most {budget_s:g} s)")
                 time.sleep(delay)
                 delay = min(2 * delay, max_delay_s)
                 continue
@@ -204,14 +204,36 @@ class SerialLink:
         except (serial.SerialException, OSError) as err:
             raise LinkError(f"writing {what!r} to {self.port} failed: {err}") from err
 
-    def _read(self) -> None:
-        """Read what the board sent (at most a chunk) into the queue of pending events."""
+    def _read(self, wait_s: float = POLL_S) -> None:
+        """Read what the board sent (at most a chunk) into the queue of pending events,
+        waiting up to ``wait_s`` for a first byte if nothing has come.
+
+        The port reads without waiting (timeout 0) and the wait is a select on it, so a
+        frame is taken the moment it arrives and a burst a chunk at a time, on any port:
+        ``in_waiting`` cannot size the read, as a socket's is only ever 0 or 1."""
         try:
-            data = self._serial.read(min(READ_CHUNK, max(1, self._serial.in_waiting)))
-        except (serial.SerialException, OSError) as err:
+            data = self._serial.read(READ_CHUNK)
+            if not data and wait_s > 0 and self._wait_readable(wait_s):
+                data = self._serial.read(READ_CHUNK)
+        except (serial.SerialException, OSError, ValueError) as err:
             raise LinkError(f"reading from {self.port} failed: {err}") from err
         if data:
             self._pending.extend(self.protocol.receive(data))
+
+    def _wait_readable(self, wait_s: float) -> bool:
+        """Wait up to ``wait_s`` for the port to have bytes; False if none came."""
+        try:
+            fileno = self._serial.fileno()
+        except (AttributeError, io.UnsupportedOperation):
+            fileno = None  # a port with no descriptor (loop://, rfc2217://): poll it
+        if fileno is None:
+            deadline = time.monotonic() + wait_s
+            while not self._serial.in_waiting:
+                if time.monotonic() > deadline:
+                    return False
+                time.sleep(0.002)
+            return True
+        return bool(select.select([fileno], [], [], wait_s)[0])
 
     def _drain(self) -> None:
         """Take in what the board already sent, before a request: none of it is the
@@ -221,7 +243,7 @@ class SerialLink:
         except (serial.SerialException, OSError) as err:
             raise LinkError(f"{self.port} is gone: {err}") from err
         while waiting > 0:
-            self._read()
+            self._read(wait_s=0)
             waiting = max(0, waiting - READ_CHUNK)
         while self._pending:  # events left over from the last request's read count too
             event = self._pending.popleft()
@@ -248,6 +270,7 @@ class SerialLink:
         timeout = self.timeout_s if timeout_s is None else timeout_s
         self._write(request, what)
         deadline = time.monotonic() + timeout
+        junk = _JunkSeen()
         while True:
             if not self._pending:
                 self._read()
@@ -260,6 +283,7 @@ class SerialLink:
                                        f"{event.reply.details}")
                 if self._kept_for_stream(event):
                     continue
+                junk.note(event)
                 result = on_event(event)
                 if result is True:
                     return
@@ -268,7 +292,7 @@ class SerialLink:
             if time.monotonic() > deadline:
                 self.protocol.abandon()
                 raise LinkError(f"board on {self.port} did not answer {what!r} within "
-                                f"{timeout:.2g} s")
+                                f"{timeout:.2g} s{junk.says(self.protocol)}")
 
     def _raise_for_board(self, event: HostEvent, during: str) -> None:
         if isinstance(event, OtherBoard):
@@ -355,11 +379,12 @@ class SerialLink:
         """The live stream, as the events each read brought (so a consumer can handle
         what has arrived at once): :class:`StreamFrame`, :class:`StreamGap` (frames lost)
         and :class:`Junk` (a line that failed its check), and :class:`StreamOverflow` for
-        stream events dropped while a long command was answered. LinkError when nothing
-        arrives for ``timeout_s`` (default: the link's), BoardReset or DeviceChanged as for
-        a request."""
+        stream events dropped while a long command was answered. LinkError when no valid
+        frame arrives for ``timeout_s`` (default: the link's; junk is reported, but it is
+        not a stream), BoardReset or DeviceChanged as for a request."""
         timeout = self.timeout_s if timeout_s is None else timeout_s
         deadline = time.monotonic() + timeout
+        junk = _JunkSeen()
         while True:
             arrived: list = [StreamOverflow(self._overflowed)] if self._overflowed else []
             arrived += self._backlog
@@ -378,12 +403,17 @@ class SerialLink:
                 self._raise_for_board(event, "while streaming")
                 if isinstance(event, StreamFrame | StreamGap | Junk):
                     arrived.append(event)
+            progress = any(isinstance(event, StreamFrame) for event in arrived)
+            for event in arrived:
+                junk.note(event)
             if arrived:
-                deadline = time.monotonic() + timeout
                 yield arrived
+            if progress:  # after the yield: the consumer's time is not the board's silence
+                deadline = time.monotonic() + timeout
+                junk = _JunkSeen()
             elif time.monotonic() > deadline:
-                raise LinkError(f"board on {self.port} sent nothing for {timeout:.2g} s "
-                                "while streaming")
+                raise LinkError(f"board on {self.port} sent no valid frame for "
+                                f"{timeout:.2g} s while streaming{junk.says(self.protocol)}")
 
     def sample(self, batch: SampleBatch) -> SampleBatch:
         """Request ``batch.requested`` frames and collect into ``batch`` those the
@@ -411,6 +441,37 @@ class SerialLink:
 
         self._exchange(self.protocol.send_sample(n), f"SAMPLE {n}", on_event)
         return batch
+
+
+class _JunkSeen:
+    """The lines a wait rejected, for the error when it times out: how many, the last."""
+
+    def __init__(self) -> None:
+        self.count = 0
+        self.last: ParseError | None = None
+
+    def note(self, event: object) -> None:
+        if isinstance(event, Junk):
+            self.count += 1
+            self.last = event.error
+
+    def says(self, protocol: HostProtocol) -> str:
+        """`` (n line(s) rejected, last: why)``, and the line-ending hint if the board's
+        bytes give one; empty if there is neither."""
+        out = (f" ({self.count} line(s) rejected, last: {self.last.reason})"
+               if self.last is not None else "")
+        hint = protocol.line_ending_hint
+        if hint and (self.last is None or hint not in self.last.reason):
+            out += f"; {hint}"
+        return out
+
+
+def _os_reason(err: BaseException) -> str:
+    """What the OS said under a pyserial error, whose own text names the port again."""
+    for cause in (err.__cause__, err.__context__):
+        if isinstance(cause, OSError) and cause.strerror:
+            return cause.strerror
+    return str(err)
 
 
 def jump_problem(batch: SampleBatch, max_jump_counts: float) -> str | None:

@@ -29,6 +29,9 @@ SEQ_MAX = 2**32 - 1
 # Longest valid frame: "D," + 2 × 10-digit counters + 20 × 4 digits + commas + "*CC".
 # Anything much longer without a newline is garbage; drop it rather than buffer forever.
 MAX_LINE_BYTES = 256
+# What a board whose lines end in CR alone (``\r``, no ``\n``) is told: the parser never
+# sees a line end, so all it would say otherwise is that nothing came, or junk.
+CR_ONLY_HINT = "its lines end in CR only: protocol v1 ends each line with LF (\\n)"
 
 
 def _crc8_table() -> tuple[int, ...]:
@@ -193,6 +196,13 @@ class FrameParser:
     def __init__(self) -> None:
         self._buffer = bytearray()
         self._last_seq: int | None = None
+        self._cr_since_lf = False  # a CR came since the last LF: CR-only line endings?
+
+    @property
+    def line_ending_hint(self) -> str | None:
+        """:data:`CR_ONLY_HINT` when CRs have come since the last LF (a board that ends
+        its lines in CR only), else None."""
+        return CR_ONLY_HINT if self._cr_since_lf else None
 
     def reset_sequence(self) -> None:
         """Forget the last sequence number (after a reconnect, say)."""
@@ -207,12 +217,15 @@ class FrameParser:
                 break
             line = bytes(self._buffer[:end])
             del self._buffer[: end + 1]
+            self._cr_since_lf = False
             if len(line) > MAX_LINE_BYTES:
                 events.append(ParseError(f"line longer than {MAX_LINE_BYTES} bytes", line))
                 continue
             self._handle(parse_line(line), events)
+        self._cr_since_lf = self._cr_since_lf or b"\r" in self._buffer
         if len(self._buffer) > MAX_LINE_BYTES:
-            events.append(ParseError(f"no newline within {MAX_LINE_BYTES} bytes",
+            hint = f" ({CR_ONLY_HINT})" if self._cr_since_lf else ""
+            events.append(ParseError(f"no newline within {MAX_LINE_BYTES} bytes{hint}",
                                      bytes(self._buffer)))
             self._buffer.clear()
         return events

@@ -110,7 +110,8 @@ table.run caption { text-align: left; font-weight: bold; padding-bottom: 0.3em; 
 table { border-collapse: collapse; margin: 1em 0; font-size: 0.92em; }
 th, td { border: 1px solid #ccc; padding: 0.3em 0.6em; text-align: left; }
 th { background: #f3f3f3; }
-table:not(.run) td:nth-child(2), td:nth-child(3) { font-variant-numeric: tabular-nums; white-space: nowrap; }
+table:not(.run) td:nth-child(2), td:nth-child(3) {
+  font-variant-numeric: tabular-nums; white-space: nowrap; }
 nav#contents { background: #f7f7f7; border: 1px solid #e3e3e3; padding: 0.4em 1.2em; }
 nav#contents h2 { font-size: 1.1em; margin: 0.4em 0; }
 nav#contents ol { margin: 0.2em 0; padding-left: 1.4em; }
