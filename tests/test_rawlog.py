@@ -78,7 +78,8 @@ def test_cli_turns_errors_into_one_line_and_exit_one(tmp_path, small_params):
     assert "eskin acquire single_force" in result.stderr
     assert len(result.stderr.strip().splitlines()) == 1
     unknown = eskin(["acquire", "no_such_scene"], tmp_path)
-    assert unknown.returncode == 1 and "scenes.no_such_scene" in unknown.stderr
+    assert unknown.returncode == 1 and "no scene 'no_such_scene'" in unknown.stderr
+    assert "single_force, two_force" in unknown.stderr  # the scenes that exist
 
 
 def test_a_reason_that_is_not_ascii_is_written_escaped_not_lost(tmp_path):
