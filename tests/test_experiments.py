@@ -70,6 +70,33 @@ def test_compare_keeps_the_latest_run_per_task_and_shows_only_differing_params(r
     assert columns.index("force R²") < columns.index("contact acc") < columns.index("pairs acc")
 
 
+def test_compare_shows_a_param_one_variant_has_and_the_other_lacks(monkeypatch):
+    """`-S train.force.model=hist_gradient_boosting` against the per-kind default: each
+    form's keys are in one pipeline run's params only; every one of them differs."""
+    per_kind = pipeline("P1", 0, "default", None)
+    del per_kind["params.train.force.model"]
+    per_kind.update({"params.train.force.model.single_force": "physics_profile",
+                     "params.train.force.model.two_force": "active_terminals"})
+    every_kind = pipeline("P2", 5, "hgb", "hist_gradient_boosting")
+    runs = pd.DataFrame([
+        per_kind, task("a", 1, 2.0, "P1", "single_force", "force", "d1", grouped__force__r2=0.6),
+        every_kind, task("b", 6, 2.0, "P2", "single_force", "force", "d1",
+                         grouped__force__r2=0.5)])
+    table = compare.variant_table(runs).set_index("variant")
+    model = ["train.force.model", "train.force.model.single_force",
+             "train.force.model.two_force"]
+    assert [c for c in table.columns if c.startswith("train.")] == model
+    assert table.loc["hgb", model].tolist()[0] == "hist_gradient_boosting"
+    assert table.loc["hgb", model[1:]].isna().all()
+    assert table.loc["default", model].tolist()[1:] == ["physics_profile", "active_terminals"]
+    assert pd.isna(table.loc["default", "train.force.model"])
+    assert "sim.seed" not in table  # the same in both
+    monkeypatch.setenv("COLUMNS", "250")
+    shown = compare.render(table.reset_index(), "table")
+    hgb = next(line for line in shown.splitlines() if line.startswith("hgb"))
+    assert "hist_gradient_boosting" in hgb and hgb.count("—") == 2, shown
+
+
 def test_compare_picks_variants_by_name_or_recency(runs):
     picked = compare.variant_table(runs, variants=["force-rf", "seed7"])
     assert list(picked["variant"]) == ["force-rf", "seed7"]

@@ -1,38 +1,47 @@
-"""params.yaml as DVC rewrites it: `dvc exp run -S key=value` round-trips the file
-through ruamel.yaml (DVC's `modify_yaml`), which re-wraps any flow mapping longer than
-80 columns; the file is laid out so that one setting changes one line."""
+"""params.yaml as DVC rewrites it: `dvc exp run -S key=value` loads the file through
+ruamel.yaml's round trip, applies the override to a plain copy and merges it back
+(``dvc.utils.hydra.apply_overrides``), which turns every list into a block list and drops
+what hung on the old one. The file is laid out in the form that survives, so that one
+setting changes one line (and a real `dvc exp run -S`: tests/test_daily_loop.py)."""
 
 import difflib
 import shutil
 from pathlib import Path
 
 import pytest
-from dvc.utils.serialize import modify_yaml
+from dvc.utils.hydra import apply_overrides
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-@pytest.mark.parametrize("key, value", [
-    ("train.force.model.single_force", "random_forest"),
-    ("sim.seed", 7),
-    ("soak.faults.drop", 0.02),
-    ("bench.tasks.force.sparse_gp.n_inducing", 250),
-    ("scenes.two_force.samples", 5),
-])
-def test_one_setting_changes_one_line_of_params_yaml(tmp_path, key, value):
+def set_param(tmp_path: Path, override: str) -> list[str]:
+    """The lines of params.yaml that `-S override` changes: out with -, in with +."""
     path = tmp_path / "params.yaml"
     shutil.copy(ROOT / "params.yaml", path)
-    with modify_yaml(path) as params:  # what `dvc exp run -S key=value` does
-        *parents, last = key.split(".")
-        node = params
-        for part in parents:
-            node = node[part]
-        node[last] = value
+    apply_overrides(path, [override])  # what `dvc exp run -S` calls on the file
     before = (ROOT / "params.yaml").read_text().splitlines()
     after = path.read_text().splitlines()
-    changed = [line for line in difflib.unified_diff(before, after, lineterm="", n=0)
-               if line[:1] in "+-" and not line.startswith(("+++", "---"))]
-    assert len(changed) == 2, "\n".join(changed)  # one line out, one line in
+    return [line for line in difflib.unified_diff(before, after, lineterm="", n=0)
+            if line[:1] in "+-" and not line.startswith(("+++", "---"))]
+
+
+def test_dvc_writes_params_yaml_back_unchanged(tmp_path):
+    # a setting set to its own value: every list, comment and blank line as written
+    assert set_param(tmp_path, "sim.seed=20230529") == []
+
+
+@pytest.mark.parametrize("override, changed", [
+    ("sim_board.faults.log=faults.txt", 2),
+    ("cv.schemes.0=grouped", 2),
+    ("soak.kill_at=[0.33,0.5]", 2),
+    ("bench.tasks.force.sparse_gp.n_inducing=250", 2),
+    ("stress.noise_scene.samples=3", 2),
+    ("train.localise.model.two_force=extra_trees", 2),
+    ("scenes.two_force.nodes_x=[1,6]", 1),  # one item fewer
+])
+def test_one_setting_changes_its_own_lines_of_params_yaml(tmp_path, override, changed):
+    lines = set_param(tmp_path, override)
+    assert len(lines) == changed, "\n".join(lines)
 
 
 def test_the_sim_section_names_every_simulator_parameter():

@@ -104,11 +104,15 @@ def run_seconds(runs: pd.DataFrame) -> pd.Series:
 def differing_params(pipelines: pd.DataFrame) -> list[str]:
     """``params.*`` columns holding more than one value across the pipeline runs.
 
-    A run that does not record a param (older runs, a param added since) is
-    not counted as differing: its value is unknown, shown as —.
+    A param one run records and another does not is a difference too, shown as — where
+    absent: a model switched for every kind of scene (``train.force.model``) against one
+    given per kind (``train.force.model.single_force``) is a key in one run's params only.
     """
-    columns = [c for c in pipelines.columns if c.startswith("params.")]
-    return sorted(c for c in columns if pipelines[c].dropna().nunique() > 1)
+    def differs(values: pd.Series) -> bool:
+        recorded = values.dropna()  # search_runs leaves a param a run lacks as None or NaN
+        return recorded.nunique() > 1 or 0 < len(recorded) < len(values)
+
+    return sorted(c for c in pipelines.columns if c.startswith("params.") and differs(pipelines[c]))
 
 
 def variant_table(runs: pd.DataFrame, scheme: str = "grouped", *,
