@@ -62,7 +62,7 @@ def _live(args: argparse.Namespace) -> int:
 
     from eskin.acquisition.session import simulated_board
     from eskin.catalog import raw_dir, stack_path
-    from eskin.config import load_params, scene
+    from eskin.config import get_scene, load_params
     from eskin.deploy.live import (
         LineBroadcast,
         LiveRecorder,
@@ -78,7 +78,7 @@ def _live(args: argparse.Namespace) -> int:
         print(f"eskin live: {message}", file=sys.stderr, flush=True)
 
     params = load_params(args.params)
-    scene_params = scene(params, args.scene, args.params)
+    scene_params = get_scene(params, args.scene, args.params)
     if args.tare_frames < 0 or args.frames < 0:
         raise ValueError("--tare-frames and --frames count frames: 0 or more")
     settings = params.acquire
@@ -161,10 +161,10 @@ def _live(args: argparse.Namespace) -> int:
 
 
 def _export(args: argparse.Namespace) -> int:
-    from eskin.config import load_params, scene
+    from eskin.config import get_scene, load_params
     from eskin.deploy.export import export_scene
 
-    scene(load_params(args.params), args.scene, args.params)
+    get_scene(load_params(args.params), args.scene, args.params)
     print(export_scene(args.scene))
     return 0
 
@@ -369,12 +369,12 @@ def _reproduce(args: argparse.Namespace) -> int:
 
 
 def _learning_step(args: argparse.Namespace) -> int:
-    from eskin.config import load_params, scene
+    from eskin.config import get_scene, load_params
     from eskin.learning import train
     from eskin.learning.features import featurize_scene
 
     params = load_params(args.params)
-    scene(params, args.scene, args.params)
+    get_scene(params, args.scene, args.params)
     if args.command == "featurize":
         print(featurize_scene(args.scene, PROCESSED_DIR, FEATURES_DIR, MODELS_DIR,
                               featurize=params.featurize).summary)
@@ -388,12 +388,11 @@ def _learning_step(args: argparse.Namespace) -> int:
 
 def _pipeline_step(args: argparse.Namespace) -> int:
     from eskin.acquisition import acquire
-    from eskin.config import load_params, validating
-    from eskin.config import scene as known_scene
+    from eskin.config import get_scene, load_params, validating
     from eskin.data import build
 
     params = load_params(args.params)
-    scene = known_scene(params, args.scene, args.params)
+    scene = get_scene(params, args.scene, args.params)
     if args.command == "acquire":
         override = {key: value for key, value in (("source", args.source), ("port", args.port))
                     if value}

@@ -405,7 +405,7 @@ def load_params(path: Path = DEFAULT_PARAMS) -> Params:
     return _traced(params, trace_dir) if trace_dir else params
 
 
-def scene(params: Params, name: str, path: Path | str = DEFAULT_PARAMS) -> Scene:
+def get_scene(params: Params, name: str, path: Path | str = DEFAULT_PARAMS) -> Scene:
     """The scene called ``name`` in the params file; else one line naming the scenes it
     has (and the closest, for a typo). Every command and stage that takes a scene asks
     here first, so that a wrong name is never advice to run a stage that does not exist."""

@@ -4,14 +4,13 @@ import sys
 
 from eskin.acquisition import acquire
 from eskin.catalog import RAW_DIR
-from eskin.config import load_params, validating
-from eskin.config import scene as known_scene
+from eskin.config import get_scene, load_params, validating
 from eskin.errors import run_friendly
 
 
 def main(scene: str) -> str:
     params = load_params()
-    known_scene(params, scene)
+    get_scene(params, scene)
     with validating():  # every scene is checked, but only this one's settings are used
         acquire.check_scenes(params.scenes, params.cv)
     return acquire.acquire(scene, params.scenes[scene], RAW_DIR / scene,

@@ -4,15 +4,14 @@ against error, and the summary."""
 import sys
 
 from eskin.catalog import bayes_bound_path, bench_dir, features_path, processed_path
-from eskin.config import load_params, required
-from eskin.config import scene as known_scene
+from eskin.config import get_scene, load_params, required
 from eskin.errors import run_friendly
 from harness import benchmark
 
 
 def main(what: str, scene: str, task: str | None = None) -> str:
     params = load_params()
-    known_scene(params, scene)
+    get_scene(params, scene)
     out = bench_dir(scene)
     if what == "bound":
         return benchmark.bayes_bound(scene, params.scenes[scene], processed_path(scene),

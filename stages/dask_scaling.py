@@ -5,8 +5,7 @@ import json
 import sys
 from pathlib import Path
 
-from eskin.config import load_params
-from eskin.config import scene as known_scene
+from eskin.config import get_scene, load_params
 from eskin.errors import run_friendly
 from harness.dask_scaling import measure, render
 
@@ -14,7 +13,7 @@ REPORT = Path("reports/dask_scaling")
 
 
 def main(scene: str) -> int:
-    known_scene(load_params(), scene)
+    get_scene(load_params(), scene)
     result = measure(scene)
     REPORT.mkdir(parents=True, exist_ok=True)
     (REPORT / f"{scene}.json").write_text(json.dumps(result, indent=2) + "\n")

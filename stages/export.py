@@ -2,14 +2,13 @@
 
 import sys
 
-from eskin.config import load_params
-from eskin.config import scene as known_scene
+from eskin.config import get_scene, load_params
 from eskin.deploy.export import export_scene
 from eskin.errors import run_friendly
 
 
 def main(scene: str) -> str:
-    known_scene(load_params(), scene)
+    get_scene(load_params(), scene)
     return export_scene(scene)
 
 

@@ -3,15 +3,14 @@
 import sys
 
 from eskin.catalog import FEATURES_DIR, MODELS_DIR, PROCESSED_DIR
-from eskin.config import load_params
-from eskin.config import scene as known_scene
+from eskin.config import get_scene, load_params
 from eskin.errors import run_friendly
 from eskin.learning.features import featurize_scene
 
 
 def main(scene: str) -> str:
     params = load_params()
-    known_scene(params, scene)
+    get_scene(params, scene)
     return featurize_scene(scene, PROCESSED_DIR, FEATURES_DIR, MODELS_DIR,
                            featurize=params.featurize).summary
 

@@ -3,15 +3,14 @@
 import sys
 
 from eskin.catalog import PROCESSED_DIR, RAW_DIR
-from eskin.config import load_params
-from eskin.config import scene as known_scene
+from eskin.config import get_scene, load_params
 from eskin.data import build
 from eskin.errors import run_friendly
 
 
 def main(scene: str) -> str:
     params = load_params()
-    return build.ingest(scene, known_scene(params, scene), RAW_DIR / scene, PROCESSED_DIR,
+    return build.ingest(scene, get_scene(params, scene), RAW_DIR / scene, PROCESSED_DIR,
                         ingest=params.ingest).summary
 
 

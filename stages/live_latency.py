@@ -5,8 +5,7 @@ import json
 import sys
 from pathlib import Path
 
-from eskin.config import load_params
-from eskin.config import scene as known_scene
+from eskin.config import get_scene, load_params
 from eskin.errors import run_friendly
 from harness.live_latency import FRAMES, measure, render
 
@@ -14,7 +13,7 @@ REPORT = Path("reports/live_latency")
 
 
 def main(scene: str) -> int:
-    known_scene(load_params(), scene)
+    get_scene(load_params(), scene)
     result = measure(scene, FRAMES)
     REPORT.mkdir(parents=True, exist_ok=True)
     (REPORT / f"{scene}.json").write_text(json.dumps(result, indent=2) + "\n")

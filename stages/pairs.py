@@ -3,8 +3,7 @@
 import sys
 
 from eskin.catalog import PAIRS, PREDICTIONS_DIR, metrics_path, scores_path
-from eskin.config import load_params
-from eskin.config import scene as known_scene
+from eskin.config import get_scene, load_params
 from eskin.errors import run_friendly
 from eskin.learning import train
 
@@ -12,7 +11,7 @@ from eskin.learning import train
 def main(scene: str) -> str:
     # The params only go to the MLflow pipeline run: the stage reads none of them.
     params = load_params()
-    known_scene(params, scene)
+    get_scene(params, scene)
     return train.score_pairs(scene, PREDICTIONS_DIR, metrics_path(scene, PAIRS),
                              scores_path(scene, PAIRS), pipeline_params=params).summary
 

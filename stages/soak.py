@@ -8,15 +8,14 @@ from pathlib import Path
 import pandas as pd
 
 from eskin.catalog import SOAK_DIR, processed_path
-from eskin.config import load_params, required
-from eskin.config import scene as known_scene
+from eskin.config import get_scene, load_params, required
 from eskin.errors import run_friendly
 from harness.soak import run_soak
 
 
 def main(scene: str) -> int:
     params = load_params()
-    known_scene(params, scene)
+    get_scene(params, scene)
     settings = required(params, "soak")
     SOAK_DIR.mkdir(parents=True, exist_ok=True)
     json_path, md_path = SOAK_DIR / f"{scene}.json", SOAK_DIR / f"{scene}.md"

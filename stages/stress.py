@@ -5,15 +5,14 @@ import sys
 import tempfile
 
 from eskin.catalog import STRESS_DIR, features_path
-from eskin.config import load_params
-from eskin.config import scene as known_scene
+from eskin.config import get_scene, load_params
 from eskin.errors import run_friendly
 from harness import stress
 
 
 def main(scene: str) -> str:
     params = load_params()
-    known_scene(params, scene)
+    get_scene(params, scene)
     with tempfile.TemporaryDirectory(prefix="eskin-stress-") as scratch:
         return stress.stress(params, scene, features_path(scene), STRESS_DIR, scratch=scratch)
 

@@ -3,15 +3,14 @@
 import sys
 
 from eskin.catalog import FEATURES_DIR, task_outputs
-from eskin.config import load_params
-from eskin.config import scene as known_scene
+from eskin.config import get_scene, load_params
 from eskin.errors import run_friendly
 from eskin.learning import train
 
 
 def main(scene: str, task: str) -> str:
     params = load_params()
-    known_scene(params, scene)
+    get_scene(params, scene)
     return train.train(scene, task, task_params=getattr(params.train, task),
                        configuration=params.train.configuration, cv=params.cv,
                        features_dir=FEATURES_DIR, pipeline_params=params,
