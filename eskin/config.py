@@ -25,7 +25,9 @@ import yaml
 from pydantic import (
     BaseModel,
     ConfigDict,
+    Discriminator,
     Field,
+    Tag,
     ValidationError,
     WrapValidator,
     create_model,
@@ -35,7 +37,7 @@ from pydantic import (
 from eskin.catalog import SCHEMES, SOURCES, TASK_NAMES
 from eskin.errors import EskinError
 from eskin.kinds import KIND_NAMES, KINDS
-from eskin.skin import PAPER_SKIN
+from eskin.skin import PAPER_SKIN, AnySkin, skin_from_dict
 
 DEFAULT_PARAMS = Path("params.yaml")
 # Set to a directory, each process notes there the params keys it read after validation
@@ -152,6 +154,50 @@ class Fuzz(_Section):
     examples: Count
 
 
+class RowColumnSkin(_Section):
+    """A row/column capacitive skin (eskin.skin.Skin): R × C terminals, R + C channels."""
+
+    rows: Annotated[int, Field(ge=2, le=32)]
+    columns: Annotated[int, Field(ge=2, le=32)]
+
+
+class ChannelArraySkin(_Section):
+    """N named channels read at once (eskin.skin.ChannelArray), pressed on a grid of
+    positions: ``grid: [size_x, size_y]``, or the positions' coordinates in mm along each
+    axis (``x_mm``, ``y_mm``), or both."""
+
+    channels: Annotated[list[Annotated[str, Field(min_length=1)]], Field(min_length=1)]
+    grid: Annotated[list[Annotated[int, Field(ge=1, le=64)]],
+                    Field(min_length=2, max_length=2)] | None = None
+    x_mm: Annotated[list[Real], Field(min_length=1, max_length=64)] | None = None
+    y_mm: Annotated[list[Real], Field(min_length=1, max_length=64)] | None = None
+
+    @model_validator(mode="after")
+    def _positions(self) -> ChannelArraySkin:
+        if self.grid is None and (self.x_mm is None or self.y_mm is None):
+            raise ValueError("a channel array needs its press positions: grid: [nx, ny], "
+                             "or x_mm and y_mm (each grid line's coordinate)")
+        if len(set(self.channels)) != len(self.channels):
+            raise ValueError("channel names must differ")
+        try:
+            skin_from_dict(self.model_dump(exclude_none=True))
+        except ValueError as err:
+            raise ValueError(str(err)) from None
+        return self
+
+
+def _skin_layout(value: Any) -> str:
+    fields = value if isinstance(value, Mapping) else vars(value)
+    return "channel_array" if "channels" in fields else "row_column"
+
+
+SKIN_LAYOUTS = ("row_column", "channel_array")
+SkinSpec = Annotated[
+    Annotated[RowColumnSkin, Tag("row_column")] | Annotated[ChannelArraySkin,
+                                                            Tag("channel_array")],
+    Discriminator(_skin_layout)]
+
+
 Source = Literal[SOURCES]  # type: ignore[valid-type]
 # A scene name becomes a DVC stage name (acquire@<scene>, train@<scene>-<task>), a
 # directory and an MLflow tag: letters, digits and underscores, starting with a letter.
@@ -168,8 +214,11 @@ class Scene(_Section):
     stretches: Annotated[list[_real(ge=1)], Field(min_length=1)]
     forces: Annotated[list[NonNegative], Field(min_length=1)]
     samples: Count
-    nodes_x: list[Annotated[int, Field(ge=1, le=PAPER_SKIN.rows)]] | None = None
-    nodes_y: list[Annotated[int, Field(ge=1, le=PAPER_SKIN.columns)]] | None = None
+    nodes_x: list[Annotated[int, Field(ge=1)]] | None = None
+    nodes_y: list[Annotated[int, Field(ge=1)]] | None = None
+    # The skin the scene is on: {rows, columns} or {channels, grid | x_mm + y_mm}; none is
+    # the paper's 10 × 10 (eskin.skin).
+    skin: SkinSpec | None = None
 
     @model_validator(mode="after")
     def _source_fields(self) -> Scene:
@@ -183,14 +232,28 @@ class Scene(_Section):
     def _kind_fields(self) -> Scene:
         kind = KINDS[self.kind]
         two = kind.contacts > 1
-        for name, top in (("nodes_x", PAPER_SKIN.rows), ("nodes_y", PAPER_SKIN.columns)):
+        skin = scene_skin(self)
+        for name, top in (("nodes_x", skin.size_x), ("nodes_y", skin.size_y)):
             if two and not getattr(self, name):
                 raise ValueError(f"a {kind.name} scene needs {name} (a list of nodes 1..{top})")
             if not two and getattr(self, name) is not None:
                 raise ValueError(f"{name} belongs to scenes of two contacts only")
+            beyond = [n for n in getattr(self, name) or [] if n > top]
+            if beyond:
+                raise ValueError(f"{name} {beyond} lie off the skin, whose nodes are 1..{top} "
+                                 f"along {name[-1]} ({skin.describe()}; set skin: to declare "
+                                 "another)")
         if two and any(force <= 0 for force in self.forces):
             raise ValueError("two-force levels must be > 0 (both indenters touch)")
         return self
+
+
+def scene_skin(scene: Scene) -> AnySkin:
+    """The skin scene ``scene`` is on (eskin.skin): its ``skin`` section, or the paper's."""
+    spec = scene.skin
+    if spec is None:
+        return PAPER_SKIN
+    return skin_from_dict(untraced(spec).model_dump(exclude_none=True))
 
 
 class Ingest(_Section):
@@ -376,7 +439,9 @@ def validate_params(params: Any, path: Path = DEFAULT_PARAMS) -> Params:
     try:
         return Params.model_validate(params)
     except ValidationError as err:
-        errors = list(err.errors())
+        # A skin's layout tag (row_column | channel_array) is pydantic's, not a key.
+        errors = [{**e, "loc": tuple(p for p in e["loc"] if p not in SKIN_LAYOUTS)}
+                  for e in err.errors()]
         messages = _typo_errors(errors) + [_describe(e) for e in errors]
         more = f" (and {len(messages) - 1} more)" if len(messages) > 1 else ""
         raise ParamsError(f"{path}: {messages[0]}{more}") from None

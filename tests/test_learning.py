@@ -10,7 +10,8 @@ from sklearn.utils.estimator_checks import check_estimator
 
 from eskin.catalog import TASK_NAMES
 from eskin.config import TaskModels
-from eskin.data.schema import CHANNELS, md5_file, node_id
+from eskin.data.schema import CHANNELS, md5_file
+from eskin.skin import PAPER_SKIN
 from eskin.evaluation.crossval import cross_validate, parallel_backend
 from eskin.evaluation.folds import assign_folds, strata
 from eskin.learning.estimators import (
@@ -266,7 +267,7 @@ def test_a_task_model_may_be_named_per_kind():
 
 
 def test_node_ids_are_row_major():
-    assert node_id(np.array([0, 1, 1, 10]), np.array([0, 1, 10, 10])).tolist() == [0, 1, 10, 100]
+    assert PAPER_SKIN.node_id(np.array([0, 1, 1, 10]), np.array([0, 1, 10, 10])).tolist() == [0, 1, 10, 100]
 
 
 def test_the_paper_configuration_switch_picks_every_tasks_paper_entry():

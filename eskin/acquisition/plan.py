@@ -25,7 +25,8 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from eskin.kinds import KINDS, ONE_CONTACT, TWO_CONTACTS
-from eskin.skin import PAPER_SKIN, Skin
+from eskin.config import scene_skin
+from eskin.skin import PAPER_SKIN, AnySkin
 
 if TYPE_CHECKING:
     from eskin.config import Scene
@@ -78,6 +79,7 @@ class ScenePlan:
     kind: str
     conditions: tuple[Condition, ...]
     samples: int
+    skin: AnySkin = PAPER_SKIN
 
     @property
     def n_samples(self) -> int:
@@ -89,17 +91,18 @@ class ScenePlan:
 
 
 def single_force_plan(name: str, stretches: Sequence[float], forces: Sequence[float],
-                      samples: int, skin: Skin = PAPER_SKIN) -> ScenePlan:
+                      samples: int, skin: AnySkin = PAPER_SKIN) -> ScenePlan:
     """Every stretch × force × node (node 0 being no contact, then every node of the skin)."""
     nodes = [(0, 0), *skin.nodes()]
     conditions = tuple(
         Condition(float(s), (Contact(x, y, float(f)),))
         for s in stretches for f in forces for x, y in nodes)
-    return ScenePlan(name, ONE_CONTACT.name, conditions, samples)
+    return ScenePlan(name, ONE_CONTACT.name, conditions, samples, skin)
 
 
 def two_force_plan(name: str, stretches: Sequence[float], forces: Sequence[float],
-                   nodes_x: Sequence[int], nodes_y: Sequence[int], samples: int) -> ScenePlan:
+                   nodes_x: Sequence[int], nodes_y: Sequence[int], samples: int,
+                   skin: AnySkin = PAPER_SKIN) -> ScenePlan:
     """Every unordered pair of distinct nodes on the x × y grid, every force for each contact."""
     nodes = sorted((int(x), int(y)) for x in nodes_x for y in nodes_y)
     conditions = tuple(
@@ -107,14 +110,17 @@ def two_force_plan(name: str, stretches: Sequence[float], forces: Sequence[float
         for s in stretches
         for a, b in itertools.combinations(nodes, 2)  # a < b: a is contact 1
         for fa in forces for fb in forces)
-    return ScenePlan(name, TWO_CONTACTS.name, conditions, samples)
+    return ScenePlan(name, TWO_CONTACTS.name, conditions, samples, skin)
 
 
-def plan_from_params(name: str, scene: Scene, skin: Skin = PAPER_SKIN) -> ScenePlan:
+def plan_from_params(name: str, scene: Scene) -> ScenePlan:
     """The plan of scene ``name`` from its params.yaml section (``params.scenes[name]``),
-    which :class:`eskin.config.Scene` has checked (kind, ranges, nodes, two-force levels)."""
+    which :class:`eskin.config.Scene` has checked (kind, ranges, nodes, two-force levels),
+    on the scene's skin."""
+    skin = scene_skin(scene)
     stretches = [float(s) for s in scene.stretches]
     forces = [float(f) for f in scene.forces]
     if KINDS[scene.kind].contacts == 1:
         return single_force_plan(name, stretches, forces, scene.samples, skin)
-    return two_force_plan(name, stretches, forces, scene.nodes_x, scene.nodes_y, scene.samples)
+    return two_force_plan(name, stretches, forces, scene.nodes_x, scene.nodes_y, scene.samples,
+                          skin)

@@ -43,10 +43,10 @@ def ingest(name: str, scene: Scene, raw_dir: Path, processed_dir: Path, *,
                                                  bad_rows=bad_rows, scene=name,
                                                  imported_from=scene.import_path)
         rows = metadata["source"]["rows_in_file"] - metadata["source"]["rows_quarantined"]
-        live = live_frames(None)  # an imported scene has no board to record from
+        live = live_frames(None, plan.skin)  # an imported scene has no board to record from
     else:
         result = ingest_log(Path(raw_dir) / LOG_NAME, plan, bad_rows=bad_rows)
-        write_dataset(result.frame, plan.kind, out, result.metadata)
+        write_dataset(result.frame, plan.kind, out, result.metadata, skin=plan.skin)
         quarantine, rows, live = result.quarantine, len(result.frame), result.live
     quarantine_path = Path(processed_dir) / f"{name}.quarantine.csv"
     write_quarantine(quarantine, quarantine_path)

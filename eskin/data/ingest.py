@@ -17,7 +17,8 @@ import pandas as pd
 
 from eskin.acquisition.plan import ScenePlan
 from eskin.acquisition.rawlog import LogContents, acquisition_sessions, read_log_if_any
-from eskin.data.schema import CHANNELS, DatasetError, sha256_file
+from eskin.data.schema import DatasetError, sha256_file
+from eskin.skin import PAPER_SKIN, AnySkin
 from eskin.kinds import get_kind
 
 BAD_ROW_POLICIES = ("error", "quarantine")
@@ -60,7 +61,7 @@ def ingest_log(path: Path, plan: ScenePlan, *, bad_rows: str = "error") -> Inges
                    "sessions": sorted({s for s in frame["session"].unique()}),
                    "frames_rejected_on_link": contents.frames_rejected},
     }
-    return Ingested(frame, metadata, quarantine, live_frames(contents))
+    return Ingested(frame, metadata, quarantine, live_frames(contents, plan.skin))
 
 
 def _rows(contents: LogContents, plan: ScenePlan, path: Path) -> pd.DataFrame:
@@ -86,7 +87,8 @@ def _rows(contents: LogContents, plan: ScenePlan, path: Path) -> pd.DataFrame:
             f"complete recording on device {device['id']} (first: {missing[0].describe()}); "
             f"run `eskin acquire {plan.name}` to resume")
     n, k = plan.samples, len(attempts)
-    counts = np.empty((k * n, len(CHANNELS)))
+    channels = plan.skin.channels
+    counts = np.empty((k * n, len(channels)))
     seq = np.empty(k * n, dtype=np.int64)
     t_ms = np.empty(k * n, dtype=np.int64)
     for i, (_, attempt) in enumerate(attempts):
@@ -94,7 +96,7 @@ def _rows(contents: LogContents, plan: ScenePlan, path: Path) -> pd.DataFrame:
         counts[i * n:(i + 1) * n] = [f.counts for f in frames]
         seq[i * n:(i + 1) * n] = [f.seq for f in frames]
         t_ms[i * n:(i + 1) * n] = [f.t_ms for f in frames]
-    data: dict[str, object] = {c: counts[:, j] for j, c in enumerate(CHANNELS)}
+    data: dict[str, object] = {c: counts[:, j] for j, c in enumerate(channels)}
     labels = _labels([c for c, _ in attempts], plan.kind)
     data.update({name: np.repeat(values, n) for name, values in labels.items()})
     data["session"] = np.repeat([a.session["session"] for _, a in attempts], n)
@@ -105,10 +107,10 @@ def _rows(contents: LogContents, plan: ScenePlan, path: Path) -> pd.DataFrame:
     return pd.DataFrame(data)
 
 
-LIVE_COLUMNS = [*CHANNELS, "session", "device", "trial", "sample", "seq", "t_ms"]
+LIVE_PROVENANCE = ["session", "device", "trial", "sample", "seq", "t_ms"]
 
 
-def live_frames(contents: LogContents | None) -> pd.DataFrame:
+def live_frames(contents: LogContents | None, skin: AnySkin = PAPER_SKIN) -> pd.DataFrame:
     """The frames of the log's live recordings (``eskin live --record``), in the order
     recorded: no labels (nobody said where the skin was pressed), so no training data,
     but a demonstration kept, to replay through a stack or to see how a board drifts."""
@@ -117,14 +119,14 @@ def live_frames(contents: LogContents | None) -> pd.DataFrame:
         key=lambda a: a.number)
     frames = [(a, i, f) for a in attempts for i, f in enumerate(a.frames)]
     data: dict[str, object] = {c: np.array([f.counts[j] for _, _, f in frames], dtype=float)
-                               for j, c in enumerate(CHANNELS)}
+                               for j, c in enumerate(skin.channels)}
     data.update(session=[a.session["session"] for a, _, _ in frames],
                 device=[a.session["device"]["id"] for a, _, _ in frames],
                 trial=[a.condition["key"] for a, _, _ in frames],
                 sample=np.array([i for _, i, _ in frames], dtype=np.int64),
                 seq=np.array([f.seq for _, _, f in frames], dtype=np.int64),
                 t_ms=np.array([f.t_ms for _, _, f in frames], dtype=np.int64))
-    return pd.DataFrame(data, columns=LIVE_COLUMNS)
+    return pd.DataFrame(data, columns=[*skin.channels, *LIVE_PROVENANCE])
 
 
 def _labels(conditions: list, kind: str) -> dict[str, np.ndarray]:

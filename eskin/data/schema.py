@@ -2,15 +2,19 @@
 
 One row per sample (docs/data.md):
 
-* ``cx1..cx10, cy1..cy10`` — channel readings, float64 (ADC counts for
-  acquired data; whatever unit an import carries);
-* single force: ``force`` (N), ``x``, ``y`` (0 = no contact, else 1..10), ``stretch`` (λ);
+* the skin's channels (eskin.skin): ``cx1..cxR, cy1..cyC`` for a row/column skin
+  (``cx1..cx10, cy1..cy10`` on the paper's), or a channel array's names — float64 (ADC
+  counts for acquired data; whatever unit an import carries);
+* single force: ``force`` (N), ``x``, ``y`` (0 = no contact, else the node along each
+  axis), ``stretch`` (λ);
 * two forces: ``force1, x1, y1, force2, x2, y2, stretch``;
 * provenance: ``session``, ``trial`` (one condition), ``sample`` (index in
   the trial), ``seq``, ``t_ms`` (board counters; null for imports).
 
 Key-value metadata under ``eskin.*`` records the scene, the plan, the
-device, the simulator and its seed, and the source file's checksum.
+device, the simulator and its seed, the source file's checksum, and the skin
+(``eskin.skin``) when it is not the paper's: a dataset without it is read as the
+row/column skin its ``cx``/``cy`` columns spell, so the paper's datasets keep their bytes.
 """
 
 from __future__ import annotations
@@ -27,11 +31,9 @@ import pyarrow.parquet as pq
 
 from eskin.errors import EskinError
 from eskin.kinds import KINDS, get_kind
-from eskin.skin import PAPER_SKIN
+from eskin.skin import PAPER_SKIN, AnySkin, skin_from_dict, skin_of_columns
 
 SKIN = PAPER_SKIN
-X_CHANNELS = SKIN.x_channels
-Y_CHANNELS = SKIN.y_channels
 CHANNELS = SKIN.channels
 LABELS = {name: kind.labels for name, kind in KINDS.items()}
 PROVENANCE = ["session", "trial", "sample", "seq", "t_ms"]
@@ -42,12 +44,12 @@ class DatasetError(EskinError, ValueError):
     """A dataset that breaks the schema; the message says where."""
 
 
-def columns(kind: str) -> list[str]:
-    return CHANNELS + LABELS[kind] + PROVENANCE
+def columns(kind: str, skin: AnySkin = PAPER_SKIN) -> list[str]:
+    return skin.channels + LABELS[kind] + PROVENANCE
 
 
-def arrow_schema(kind: str) -> pa.Schema:
-    fields = [pa.field(c, pa.float64(), nullable=False) for c in CHANNELS]
+def arrow_schema(kind: str, skin: AnySkin = PAPER_SKIN) -> pa.Schema:
+    fields = [pa.field(c, pa.float64(), nullable=False) for c in skin.channels]
     for label in LABELS[kind]:
         kind_of = pa.int64() if label in node_columns(kind) else pa.float64()
         fields.append(pa.field(label, kind_of, nullable=False))
@@ -67,16 +69,16 @@ def force_columns(kind: str) -> list[str]:
     return get_kind(kind).force_columns
 
 
-def row_problems(frame: pd.DataFrame, kind: str) -> pd.Series:
+def row_problems(frame: pd.DataFrame, kind: str, skin: AnySkin = PAPER_SKIN) -> pd.Series:
     """Per row, the first reason it cannot be trusted ('' when it can)."""
     checks: list[tuple[np.ndarray, str]] = []
-    for column in CHANNELS + LABELS[kind]:
+    for column in skin.channels + LABELS[kind]:
         values = frame[column].to_numpy(dtype=float)
         checks += [(np.isnan(values), f"{column} is NaN or empty"),
                    (np.isinf(values), f"{column} is infinite")]
     for column in node_columns(kind):
         values = frame[column].to_numpy(dtype=float)
-        top = SKIN.rows if column.startswith("x") else SKIN.columns
+        top = skin.size_x if column.startswith("x") else skin.size_y
         checks.append(((values < 0) | (values > top) | (values != np.round(values)),
                        f"{column} is not a node number 0..{top}"))
     for column in force_columns(kind):
@@ -94,12 +96,13 @@ def first_reason(checks: list[tuple[np.ndarray, str]], index: pd.Index) -> pd.Se
                      index=index, dtype=object)
 
 
-def validate(frame: pd.DataFrame, kind: str, where: str = "dataset") -> None:
+def validate(frame: pd.DataFrame, kind: str, where: str = "dataset",
+             skin: AnySkin = PAPER_SKIN) -> None:
     """Raise DatasetError naming the first bad column or row."""
-    missing = [c for c in columns(kind) if c not in frame.columns]
+    missing = [c for c in columns(kind, skin) if c not in frame.columns]
     if missing:
         raise DatasetError(f"{where}: missing column(s) {missing}")
-    reasons = row_problems(frame, kind)
+    reasons = row_problems(frame, kind, skin)
     bad = reasons[reasons != ""]
     if len(bad):
         raise DatasetError(f"{where}: {len(bad)} bad row(s); first at row {bad.index[0]}: "
@@ -117,11 +120,6 @@ def contact_mask(frame: pd.DataFrame) -> np.ndarray:
         return ((frame["force"] > 0) & (frame["x"] > 0)).to_numpy()
     touching = [(frame[f"force{i}"] > 0) & (frame[f"x{i}"] > 0) for i in (1, 2)]
     return (touching[0] | touching[1]).to_numpy()
-
-
-def node_id(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """The skin's node number of (x, y); 0 where x is 0 (no node)."""
-    return SKIN.node_id(x, y)
 
 
 def md5_file(path: Path) -> str:
@@ -149,10 +147,19 @@ def with_metadata(schema: pa.Schema, metadata: dict) -> pa.Schema:
                                  **{k.encode(): v.encode() for k, v in extra.items()}})
 
 
-def write_dataset(frame: pd.DataFrame, kind: str, path: Path, metadata: dict) -> None:
-    """Validate, then write Parquet with ``eskin.*`` metadata, atomically."""
-    validate(frame, kind, where=str(path))
-    table = pa.Table.from_pandas(frame[columns(kind)], schema=arrow_schema(kind),
+def skin_metadata(skin: AnySkin) -> dict:
+    """The ``eskin.skin`` entry a dataset on ``skin`` carries: none for the paper's skin
+    (whose datasets predate it, byte for byte), the skin's declaration otherwise."""
+    return {} if skin == PAPER_SKIN else {"skin": skin.as_dict()}
+
+
+def write_dataset(frame: pd.DataFrame, kind: str, path: Path, metadata: dict,
+                  skin: AnySkin = PAPER_SKIN) -> None:
+    """Validate, then write Parquet with ``eskin.*`` metadata (the skin's among them),
+    atomically."""
+    validate(frame, kind, where=str(path), skin=skin)
+    metadata = {**{k: v for k, v in metadata.items() if k != "skin"}, **skin_metadata(skin)}
+    table = pa.Table.from_pandas(frame[columns(kind, skin)], schema=arrow_schema(kind, skin),
                                  preserve_index=False)
     table = table.replace_schema_metadata(with_metadata(table.schema, metadata).metadata)
     path = Path(path)
@@ -171,6 +178,15 @@ def read_metadata(path: Path) -> dict:
 
 def read_dataset(path: Path) -> pd.DataFrame:
     return pd.read_parquet(path)
+
+
+def dataset_skin(path: Path) -> AnySkin:
+    """The skin a dataset was taken on: its ``eskin.skin`` metadata, else the row/column
+    skin its ``cx``/``cy`` columns spell."""
+    meta = read_metadata(path)
+    if meta.get("skin"):
+        return skin_from_dict(meta["skin"])
+    return skin_of_columns(pq.read_schema(path).names)
 
 
 def write_quarantine(rows: list[dict], path: Path) -> None:
