@@ -83,13 +83,15 @@ postgres:
 lab-server: setup postgres
 	python -m eskin.tracking.lab serve --dir .lab
 
-# firmware/eskin/build/eskin.{hex,elf}, the flash and RAM used in size.txt, and the
-# emulation harness that runs it under simavr (firmware/emulator/build/eskin_emulator).
+# The paper's skin's firmware/eskin/build/10x10/eskin.{hex,elf}, the flash and RAM used in
+# size.txt, and the emulation harness that runs it under simavr
+# (firmware/emulator/build/10x10/eskin_emulator). Other sizes: make -C firmware/eskin
+# ROWS=R COLUMNS=C (and firmware/emulator); an emulated scene builds its own.
 firmware: avr
 	$(MAKE) -C firmware/eskin --no-print-directory
 	$(MAKE) -C firmware/emulator --no-print-directory
-	avr-size -C --mcu=atmega328p firmware/eskin/build/eskin.elf \
-	  | tee firmware/eskin/build/size.txt
+	avr-size -C --mcu=atmega328p firmware/eskin/build/10x10/eskin.elf \
+	  | tee firmware/eskin/build/10x10/size.txt
 
 # Rebuilt whenever the package list or the pinned versions change.
 $(VENV)/.installed: pyproject.toml constraints.txt

@@ -34,12 +34,15 @@ def _ports(args: argparse.Namespace) -> int:
 
 
 def _simulate(args: argparse.Namespace) -> int:
-    from eskin.config import load_params
+    from eskin.config import get_scene, load_params, scene_skin
     from eskin.device.simulate import serve_config
+    from eskin.skin import PAPER_SKIN
 
     params = load_params(args.params)
     board = params.sim_board
-    config = {"sim": params.sim.model_dump(),
+    skin = (PAPER_SKIN if args.scene is None
+            else scene_skin(get_scene(params, args.scene, args.params)))
+    config = {"sim": params.sim.model_dump(), "skin": skin.as_dict(),
               "rest_length_mm": params.acquire.rest_length_mm,
               "corrupt_fraction": board.corrupt_fraction
               if args.corrupt is None else args.corrupt,
@@ -62,7 +65,7 @@ def _live(args: argparse.Namespace) -> int:
 
     from eskin.acquisition.session import simulated_board
     from eskin.catalog import raw_dir, stack_path
-    from eskin.config import get_scene, load_params
+    from eskin.config import get_scene, load_params, scene_skin
     from eskin.deploy.live import (
         LineBroadcast,
         LiveRecorder,
@@ -71,7 +74,7 @@ def _live(args: argparse.Namespace) -> int:
         stream_events,
     )
     from eskin.deploy.stack import ExportedStack, SkinStack
-    from eskin.device.link import SerialLink
+    from eskin.device.link import SerialLink, SkinMismatch
     from eskin.device.physics import skin_params
 
     def note(message: str) -> None:
@@ -99,15 +102,29 @@ def _live(args: argparse.Namespace) -> int:
     if declared != stack.kind:
         raise ValueError(f"scenes.{args.scene} is a {declared} scene in {args.params}, but its "
                          f"trained stack is {stack.kind}: run `dvc repro` to train it again")
+    if scene_skin(scene_params) != stack.skin:
+        raise ValueError(f"scenes.{args.scene} is on the {scene_skin(scene_params).describe()} "
+                         f"in {args.params}, but its trained stack reads the "
+                         f"{stack.skin.describe()}: run `dvc repro` to train it again")
+    if not stack.skin.row_column:
+        raise ValueError(f"{args.scene} is an {stack.skin.describe()}, recorded by its own "
+                         "instrument: live reads a row/column skin's board (protocol v1)")
     with contextlib.ExitStack() as resources:
         port = args.port
         if args.simulated:
             board = resources.enter_context(simulated_board(
-                skin_params(params.sim), rest_length_mm=float(settings.rest_length_mm),
+                skin_params(params.sim), skin=stack.skin,
+                rest_length_mm=float(settings.rest_length_mm),
                 frame_period_ms=int(params.sim_board.frame_period_ms)))
             port = board.port
-        link = resources.enter_context(SerialLink(port, timeout_s=float(settings.timeout_s)))
-        hello = link.connect()
+        link = resources.enter_context(SerialLink(port, terminals=stack.skin.terminals,
+                                                  timeout_s=float(settings.timeout_s)))
+        try:
+            hello = link.connect()
+        except SkinMismatch as err:
+            raise ValueError(f"the board on {port} has {err.hello.terminals} terminals, but "
+                             f"the {args.scene} stack reads the {stack.skin.describe()}: "
+                             "connect the board built for this skin") from None
         if not args.any_device:
             stack.check_board(hello.device_id)
         note(f"{args.scene} stack on {hello.device_id} ({port}); tare: keep the skin "
@@ -137,7 +154,8 @@ def _live(args: argparse.Namespace) -> int:
                 from eskin.deploy.view import LiveView
 
                 view = resources.enter_context(LiveView(
-                    scene=args.scene, kind=stack.kind, device=hello.device_id, port=args.view))
+                    scene=args.scene, kind=stack.kind, device=hello.device_id, skin=stack.skin,
+                    port=args.view))
                 note(f"the live view is at {view.url}")
         except OSError as err:  # the port is taken, say
             raise ValueError(f"cannot serve on 127.0.0.1 ({err.strerror or err})") from None
@@ -206,6 +224,8 @@ def build_parser() -> argparse.ArgumentParser:
         "and print the port to open")
     simulate.add_argument("--params", type=Path, default=Path("params.yaml"),
                           help=PARAMS_HELP + "; its sim and sim_board sections")
+    simulate.add_argument("--scene", help="simulate the skin of scenes.SCENE "
+                          "(default: the paper's 10 × 10)")
     simulate.add_argument("--socket", type=int, metavar="PORT",
                           help="serve on socket://127.0.0.1:PORT instead (0: any free port)")
     simulate.add_argument("--corrupt", type=float, metavar="FRACTION",
@@ -377,7 +397,7 @@ def _learning_step(args: argparse.Namespace) -> int:
     get_scene(params, args.scene, args.params)
     if args.command == "featurize":
         print(featurize_scene(args.scene, PROCESSED_DIR, FEATURES_DIR, MODELS_DIR,
-                              featurize=params.featurize).summary)
+                              settings=params.featurize).summary)
     else:
         print(train.train(args.scene, args.task, task_params=getattr(params.train, args.task),
                           configuration=params.train.configuration, cv=params.cv,

@@ -14,6 +14,7 @@ import contextlib
 import difflib
 import json
 import os
+import re
 import sys
 import types
 import typing
@@ -202,34 +203,124 @@ Source = Literal[SOURCES]  # type: ignore[valid-type]
 # A scene name becomes a DVC stage name (acquire@<scene>, train@<scene>-<task>), a
 # directory and an MLflow tag: letters, digits and underscores, starting with a letter.
 SCENE_NAME = r"^[A-Za-z][A-Za-z0-9_]*$"
+# The plan: what an acquired scene records; an import's labels come from its files.
+PLAN_KEYS = ("stretches", "forces", "samples", "nodes_x", "nodes_y")
+
+# What an import's columns may give, in the kinds' own words: every kind's forces and
+# nodes, each node also as a position in mm (``x_mm``: placed on the skin's grid).
+FORCE_KEYS = tuple(dict.fromkeys(c for kind in KINDS.values() for c in kind.force_columns))
+NODE_KEYS = tuple(dict.fromkeys(c for kind in KINDS.values() for c in kind.node_columns))
+POSITION_KEYS = NODE_KEYS + tuple(f"{node}_mm" for node in NODE_KEYS)
+FORCE_UNITS = {"N": 1.0, "mN": 1e-3}
+TRIALS = ("labels", "file", "time")
+
+Name = Annotated[str, Field(min_length=1)]
+ImportColumns = create_model(
+    "ImportColumns", __base__=_Section,
+    __doc__="Which column of the files gives what (by the header's names): ``channels`` "
+            "(a list, matched in order to the skin's channels, or a glob over the header; "
+            "default the skin's channel names), the labels, ``time`` (s) and ``trial``.",
+    channels=(Name | Annotated[list[Name], Field(min_length=1)] | None, None),
+    **{key: (Name | None, None) for key in (*FORCE_KEYS, *POSITION_KEYS, "stretch", "time",
+                                             "trial")})
+
+
+class Import(_Section):
+    """Where an import scene's files are and how to read them (docs/data.md#importing).
+
+    ``path`` alone: one file in the paper's layout. With ``columns``: a file, a folder (its
+    CSV and Parquet files) or a glob, read in sorted order, each column where the map says."""
+
+    path: Name
+    columns: ImportColumns | None = None  # type: ignore[valid-type]
+    # A regex on each file's name; its named groups (x, y, or x_mm, y_mm; x1, …) label
+    # every row of the file.
+    position_from_name: Name | None = None
+    force_unit: Literal[tuple(FORCE_UNITS)] = "N"  # type: ignore[valid-type]
+    force_sign: Literal[1, -1] = 1  # -1: the sensor reads compression as negative
+    # A contact is a force above this (N) after each file's rest offset is removed.
+    contact_n: Positive | None = None
+    # labels: a run of rows with the same labels; file: one per file; time: blocks of
+    # trial_s seconds (columns.time). A trial column is columns.trial.
+    trials: Literal[TRIALS] = "labels"  # type: ignore[valid-type]
+    trial_s: Positive | None = None
+    position_tolerance_mm: Positive | None = None  # default: a quarter of the finest pitch
+
+    @model_validator(mode="after")
+    def _consistent(self) -> Import:
+        if self.columns is None:
+            mapped = sorted(self.model_fields_set - {"path"})
+            if mapped:
+                raise ValueError(f"{mapped[0]} reads another instrument's files: set "
+                                 "import.columns too (without it, import.path is one file "
+                                 "in the paper's layout)")
+            return self
+        columns = self.columns
+        if self.position_from_name is not None:
+            try:
+                groups = set(re.compile(self.position_from_name).groupindex)
+            except re.error as err:
+                raise ValueError(f"position_from_name is not a regular expression ({err})"
+                                 ) from None
+            unknown = sorted(groups - set(POSITION_KEYS))
+            if unknown or not groups:
+                raise ValueError(f"position_from_name names groups {unknown or 'none'}; its "
+                                 f"named groups give positions: {', '.join(POSITION_KEYS)}")
+            if self.contact_n is None:
+                raise ValueError("position_from_name labels every row of a file with its "
+                                 "position: set import.contact_n (N) to say which rows are "
+                                 "presses")
+        if columns.trial is not None and "trials" in self.model_fields_set:
+            raise ValueError(f"columns.trial and trials: {self.trials} both say where trials "
+                             "are; keep one")
+        if self.trials == "time" and (self.trial_s is None or columns.time is None):
+            raise ValueError("trials: time cuts the rows into blocks of trial_s seconds of "
+                             "columns.time: set both")
+        if self.trial_s is not None and self.trials != "time":
+            raise ValueError("trial_s is the length of a trial under trials: time")
+        return self
+
+    def position_sources(self) -> dict[str, str]:
+        """{position key (x, x_mm, …): where it comes from ("column" or "name")}."""
+        named = set(re.compile(self.position_from_name).groupindex) \
+            if self.position_from_name else set()
+        out = {key: "name" for key in POSITION_KEYS if key in named}
+        columns = self.columns
+        out.update({key: "column" for key in POSITION_KEYS
+                    if columns is not None and getattr(columns, key) is not None})
+        return out
 
 
 class Scene(_Section):
+    """A scene: its kind, where its data come from, and the skin it is on."""
+
     kind: Literal[KIND_NAMES]  # type: ignore[valid-type]
     # simulated (the Python board) | emulated (the firmware under simavr: make firmware)
     # | serial (a board) | import
     source: Source
+    # The skin the scene is on: {rows, columns} or {channels, grid | x_mm + y_mm}; none is
+    # the paper's 10 × 10 (eskin.skin).
+    skin: SkinSpec | None = None
+
+
+class AcquiredScene(Scene):
+    """A simulated, emulated or serial scene: a plan of conditions, recorded."""
+
     port: str | None = None      # serial: /dev/ttyACM0, socket://127.0.0.1:5000, ...
-    import_path: str | None = None  # import: a CSV or Parquet file in the paper's layout
     stretches: Annotated[list[_real(ge=1)], Field(min_length=1)]
     forces: Annotated[list[NonNegative], Field(min_length=1)]
     samples: Count
     nodes_x: list[Annotated[int, Field(ge=1)]] | None = None
     nodes_y: list[Annotated[int, Field(ge=1)]] | None = None
-    # The skin the scene is on: {rows, columns} or {channels, grid | x_mm + y_mm}; none is
-    # the paper's 10 × 10 (eskin.skin).
-    skin: SkinSpec | None = None
 
     @model_validator(mode="after")
-    def _source_fields(self) -> Scene:
-        if self.source == "import" and not self.import_path:
-            raise ValueError("source is 'import' but import_path is unset")
+    def _source_fields(self) -> AcquiredScene:
         if self.source == "serial" and not self.port:
             raise ValueError("source is 'serial' but port is unset")
         return self
 
     @model_validator(mode="after")
-    def _kind_fields(self) -> Scene:
+    def _kind_fields(self) -> AcquiredScene:
         kind = KINDS[self.kind]
         two = kind.contacts > 1
         skin = scene_skin(self)
@@ -246,6 +337,77 @@ class Scene(_Section):
         if two and any(force <= 0 for force in self.forces):
             raise ValueError("two-force levels must be > 0 (both indenters touch)")
         return self
+
+
+class ImportedScene(Scene):
+    """A scene read from files (``source: import``): no plan; labels from the files."""
+
+    model_config = ConfigDict(serialize_by_alias=True)
+    import_: Import = Field(alias="import")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _no_plan(cls, data: Any) -> Any:
+        plan = [key for key in PLAN_KEYS if isinstance(data, Mapping) and key in data]
+        if plan:
+            then = "" if "import" in data else "; set import.path to the files"
+            raise ValueError(f"an import scene's labels come from its files, not a plan: "
+                             f"remove {', '.join(plan)}{then}")
+        return data
+
+    @model_validator(mode="after")
+    def _labels(self) -> ImportedScene:
+        """The column map gives every label of the scene's kind, on its skin."""
+        spec, kind, skin = self.import_, KINDS[self.kind], scene_skin(self)
+        columns = spec.columns
+        if columns is None:
+            return self
+        if isinstance(columns.channels, list) and len(columns.channels) != skin.terminals:
+            raise ValueError(f"import.columns.channels lists {len(columns.channels)} columns "
+                             f"but the skin has {skin.terminals} channels ({skin.describe()})")
+        others = [key for key in (*FORCE_KEYS, *POSITION_KEYS)
+                  if getattr(columns, key) is not None
+                  and key.removesuffix("_mm") not in (*kind.force_columns, *kind.node_columns)
+                  and not (key == "force" and kind.contacts > 1)]
+        if others:
+            raise ValueError(f"import.columns.{others[0]} is not a label of a {kind.name} "
+                             f"scene ({', '.join(kind.labels)})")
+        given = [force for force in kind.force_columns if getattr(columns, force) is not None]
+        total = kind.contacts > 1 and columns.force is not None
+        if total and given:
+            raise ValueError(f"import.columns: force (the total) and {', '.join(given)} (per "
+                             "contact) both given; keep one")
+        if not total and len(given) != len(kind.force_columns):
+            need = "force" if kind.contacts == 1 else \
+                f"{' and '.join(kind.force_columns)}, or force (their total)"
+            raise ValueError(f"import.columns needs {need}: the column of the force (N)")
+        sources = spec.position_sources()
+        for node in kind.node_columns:
+            found = [key for key in (node, f"{node}_mm") if key in sources]
+            if len(found) != 1:
+                ways = (f"import.columns.{node} (a node) or .{node}_mm (mm), or a group "
+                        f"{node} or {node}_mm of import.position_from_name")
+                raise ValueError(f"{' and '.join(found)} both give {node}; keep one" if found
+                                 else f"no column gives {node}: set {ways}")
+            if found[0].endswith("_mm") and getattr(skin, f"{node[0]}_mm") is None:
+                raise ValueError(f"{node} is given in mm but the skin places no grid line in "
+                                 f"mm: set skin.{node[0]}_mm ({skin.describe()})")
+        if spec.position_tolerance_mm is not None and not any(k.endswith("_mm")
+                                                              for k in sources):
+            raise ValueError("position_tolerance_mm applies to positions in mm; none is given")
+        return self
+
+
+def _scene_source(value: Any) -> str:
+    source = value.get("source") if isinstance(value, Mapping) else getattr(value, "source", None)
+    return "imported" if source == "import" else "acquired"
+
+
+# A scene's tag (acquired | imported) is pydantic's, not a key: never one of the keys.
+SCENE_SOURCES = ("acquired", "imported")
+SceneSpec = Annotated[
+    Annotated[AcquiredScene, Tag("acquired")] | Annotated[ImportedScene, Tag("imported")],
+    Discriminator(_scene_source)]
 
 
 def scene_skin(scene: Scene) -> AnySkin:
@@ -332,7 +494,7 @@ class Params(_Section):
     sim: Sim
     sim_board: SimBoard
     acquire: Acquire
-    scenes: Annotated[dict[Annotated[str, Field(pattern=SCENE_NAME)], Scene],
+    scenes: Annotated[dict[Annotated[str, Field(pattern=SCENE_NAME)], SceneSpec],
                       Field(min_length=1)]
     ingest: Ingest
     featurize: Featurize
@@ -364,39 +526,47 @@ def _describe(error: dict) -> str:
     return f"{key} = {value!r}: {message}" if key else message
 
 
-def _section_model(loc: tuple) -> type[BaseModel] | None:
-    """The schema section (a pydantic model) at ``loc`` (``("cv",)``, ``("scenes", "a")``),
-    or None where the params there are free-form (hyperparameters)."""
-    model: Any = Params
+def _is_model(model: Any) -> bool:
+    return isinstance(model, type) and issubclass(model, BaseModel)
+
+
+def _keys(model: type[BaseModel]) -> dict[str, Any]:
+    """A section's fields by the key the file writes (``import`` for ``import_``)."""
+    return {field.alias or name: field for name, field in model.model_fields.items()}
+
+
+def _section_models(loc: tuple) -> list[type[BaseModel]]:
+    """The schema section (pydantic models: several where a section takes one of a few
+    forms, as a scene does) at ``loc`` (``("cv",)``, ``("scenes", "a")``), or none where
+    the params there are free-form (hyperparameters)."""
+    models: Any = [Params]
     for part in loc:
-        if isinstance(model, tuple):  # a mapping: any key, then its values' model
-            model = model[1]
+        if isinstance(models, tuple):  # a mapping: any key, then its values' models
+            models = models[1]
             continue
-        if not (isinstance(model, type) and issubclass(model, BaseModel)) or \
-                part not in model.model_fields:
-            return None
-        model = _unwrap(model.model_fields[part].annotation)
-    return model if isinstance(model, type) and issubclass(model, BaseModel) else None
+        found = [_keys(m)[part] for m in models if _is_model(m) and part in _keys(m)]
+        if not found:
+            return []
+        models = _unwrap(found[0].annotation)
+    return [m for m in models if _is_model(m)] if isinstance(models, list) else []
 
 
 def _unwrap(annotation: Any) -> Any:
-    """A field's model, through Optional and Annotated; a dict as (None, its values')."""
-    while True:
-        origin = typing.get_origin(annotation)
-        if origin is Annotated:
-            annotation = typing.get_args(annotation)[0]
-        elif origin in (typing.Union, types.UnionType):
-            options = [a for a in typing.get_args(annotation) if a is not type(None)]
-            annotation = options[0] if len(options) == 1 else None
-        elif origin is dict:
-            return (None, _unwrap(typing.get_args(annotation)[1]))
-        else:
-            return annotation
+    """A field's models, through Optional, Annotated and unions (a list); a dict as (None,
+    its values')."""
+    origin = typing.get_origin(annotation)
+    if origin is Annotated:
+        return _unwrap(typing.get_args(annotation)[0])
+    if origin in (typing.Union, types.UnionType):
+        unwrapped = [_unwrap(a) for a in typing.get_args(annotation) if a is not type(None)]
+        return [m for options in unwrapped if isinstance(options, list) for m in options]
+    if origin is dict:
+        return (None, _unwrap(typing.get_args(annotation)[1]))
+    return [annotation]
 
 
 def _known_keys(loc: tuple) -> list[str]:
-    model = _section_model(loc)
-    return list(model.model_fields) if model is not None else []
+    return list(dict.fromkeys(key for model in _section_models(loc) for key in _keys(model)))
 
 
 def _typo_errors(errors: list[dict]) -> list[str]:
@@ -439,8 +609,10 @@ def validate_params(params: Any, path: Path = DEFAULT_PARAMS) -> Params:
     try:
         return Params.model_validate(params)
     except ValidationError as err:
-        # A skin's layout tag (row_column | channel_array) is pydantic's, not a key.
-        errors = [{**e, "loc": tuple(p for p in e["loc"] if p not in SKIN_LAYOUTS)}
+        # A skin's layout tag (row_column | channel_array) and a scene's (acquired |
+        # imported) are pydantic's, not keys.
+        errors = [{**e, "loc": tuple(p for p in e["loc"]
+                                     if p not in SKIN_LAYOUTS + SCENE_SOURCES)}
                   for e in err.errors()]
         messages = _typo_errors(errors) + [_describe(e) for e in errors]
         more = f" (and {len(messages) - 1} more)" if len(messages) > 1 else ""
@@ -537,8 +709,10 @@ class _TracedModel(_Traced):
 
     def __getattr__(self, name: str) -> Any:
         target = self._target
-        if name in type(target).model_fields or name in (target.model_extra or {}):
-            return self._child(name, getattr(target, name))
+        fields = type(target).model_fields
+        if name in fields or name in (target.model_extra or {}):
+            key = fields[name].alias or name if name in fields else name  # as the file has it
+            return self._child(key, getattr(target, name))
         if name == "model_extra":
             self._whole()
             return target.model_extra

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from eskin.skin import Skin
+from eskin.skin import AnySkin
 
 
 @dataclass(frozen=True)
@@ -31,6 +31,9 @@ class Headline:
     target: str | None     # None: the scores sit directly under the scheme (pairs)
     metric: str
     paper: str = "—"
+    # Shown only where the scores have it: the position error in mm, of a skin that
+    # places its nodes in mm.
+    optional: bool = False
 
 
 # A figure's id names its file, ``reports/figures/<scene>/<id>_<scheme>.png`` (and .svg),
@@ -56,8 +59,8 @@ class Figure:
     caption: str
     draw: str
     scores: tuple[tuple[str, str], ...]
-    targets: tuple[str, ...] = ()   # a confusion grid's targets, with their axis labels
-    axis_labels: tuple[str, ...] = ()
+    targets: tuple[str, ...] = ()   # a confusion grid's targets, with their axes' names
+    axis_labels: tuple[str, ...] = ()  # (x, y, …): the report adds "terminal" or "position"
     title: str = ""                 # what the figure shows, in a few words
 
     def __post_init__(self) -> None:
@@ -103,12 +106,12 @@ class Kind:
         stretch."""
         return [name for contact in self.contact_columns for name in contact] + ["stretch"]
 
-    def file_widths(self, skin: Skin) -> tuple[int, ...]:
+    def file_widths(self, skin: AnySkin) -> tuple[int, ...]:
         """The column counts an imported file of this kind may have."""
         full = skin.terminals + len(self.labels)
         return (full - 1, full) if self.stretch_column_optional else (full,)
 
-    def file_labels(self, width: int, skin: Skin) -> list[str]:
+    def file_labels(self, width: int, skin: AnySkin) -> list[str]:
         """The label columns of an imported file ``width`` columns wide."""
         return self.labels if width == skin.terminals + len(self.labels) else self.labels[:-1]
 
@@ -119,7 +122,7 @@ class Kind:
         pressure"); with two contacts every sample presses, and nothing gates."""
         return self.contacts == 1
 
-    def strata(self, frame, skin: Skin) -> np.ndarray:
+    def strata(self, frame, skin: AnySkin) -> np.ndarray:
         """The stratum of each row for CV: its node, or its combination of nodes."""
         out = np.zeros(len(frame), dtype=np.int64)
         for _, x, y in self.contact_columns:
@@ -151,6 +154,7 @@ ONE_CONTACT = Kind(
         Headline("x within one node", "localise", "x", "within_one"),
         Headline("y accuracy", "localise", "y", "accuracy", "“effective” (Fig. 7)"),
         Headline("y within one node", "localise", "y", "within_one"),
+        Headline("localisation error (mm)", "localise", "position", "error_mm", optional=True),
     ),
     figures=(
         Figure(STRETCH_PARITY, "stretch", "Stretch: predicted against true λ, every prediction "
@@ -164,7 +168,7 @@ ONE_CONTACT = Kind(
                "the contact samples (the detector decides first): x and y terminal, counts "
                "and the share of the samples with that true terminal (paper Fig. 7)",
                "confusion_grid", (("x", "accuracy"), ("y", "accuracy")), ("x", "y"),
-               ("x terminal", "y terminal"), "localisation, one contact"),
+               ("x", "y"), "localisation, one contact"),
         Figure(DETECTION, "detect", "Contact detection: confusion counts and shares; the DET "
                "curve (missed against false contacts, on log axes, every decade of the rare "
                "errors) with the model's decisions and their counts", "detection",
@@ -181,6 +185,8 @@ TWO_CONTACTS = Kind(
         Headline("two forces: force 2 R²", "force", "force2", "r2", "0.771"),
         *(Headline(f"two forces: {t} accuracy", "localise", t, "accuracy", "“high” (Fig. 8)")
           for t in ("x1", "y1", "x2", "y2")),
+        *(Headline(f"two forces: contact {i} localisation error (mm)", "localise",
+                   f"position{i}", "error_mm", optional=True) for i in (1, 2)),
         Headline("two forces: pair accuracy, order-free", "pairs", None, "pair_accuracy"),
         Headline("two forces: pair accuracy, in label order", "pairs", None,
                  "pair_accuracy_ordered"),
@@ -199,7 +205,7 @@ TWO_CONTACTS = Kind(
                "the samples with that true terminal (paper Fig. 8)", "confusion_grid",
                (("x1", "accuracy"), ("y1", "accuracy"), ("x2", "accuracy"),
                 ("y2", "accuracy")), ("x1", "y1", "x2", "y2"),
-               ("x1 terminal", "y1 terminal", "x2 terminal", "y2 terminal"),
+               ("x1", "y1", "x2", "y2"),
                "localisation, two contacts"),
         Figure(FORCE_PARITY, "force", "Force of contact 1 and contact 2: predicted against "
                "true force, mean ± std per level, the std in newtons written beside each "

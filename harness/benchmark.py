@@ -27,13 +27,13 @@ import pandas as pd
 from joblib import Parallel, delayed
 from sklearn.base import BaseEstimator, clone
 
-from eskin.data.schema import CHANNELS
 from eskin.evaluation import metrics
-from eskin.evaluation.crossval import parallel_backend
+from eskin.evaluation.crossval import channel_frame, parallel_backend
 from eskin.evaluation.folds import FoldSplit, assign_folds, fold_splitter
 from eskin.kinds import get_kind
 from eskin.learning.estimators import build_model
 from eskin.learning.tasks import Task, get_task
+from eskin.skin import AnySkin
 
 if TYPE_CHECKING:
     from eskin.config import CV, Bench, Scene, Sim
@@ -72,28 +72,31 @@ def variant_spec(spec: Any) -> dict[str, Any]:
     return spec.model_dump() if hasattr(spec, "model_dump") else dict(spec)
 
 
-def variant_estimator(role: str, spec: Any) -> tuple[BaseEstimator, bool]:
-    """(estimator, share hyperparameters across folds) from a ``bench.tasks`` entry."""
+def variant_estimator(role: str, spec: Any, skin: AnySkin) -> tuple[BaseEstimator, bool]:
+    """(estimator, share hyperparameters across folds) from a ``bench.tasks`` entry, for
+    ``skin``."""
     model, hyper, share = variant_settings(spec)
-    return build_model(role, model, hyper), share
+    return build_model(role, model, hyper, skin), share
 
 
-def _fit_predict(estimator: BaseEstimator, X: np.ndarray, y: np.ndarray, train: np.ndarray,
+def _fit_predict(estimator: BaseEstimator, X: np.ndarray, channels: list[str], y: np.ndarray,
+                 train: np.ndarray,
                  test: np.ndarray) -> tuple[np.ndarray, float, float, BaseEstimator]:
     model = clone(estimator)
     start = time.perf_counter()
-    model.fit(X[train], y[train])
+    model.fit(channel_frame(X[train], channels), y[train])
     fit_s = time.perf_counter() - start
     start = time.perf_counter()
-    predicted = np.asarray(model.predict(X[test]))
+    predicted = np.asarray(model.predict(channel_frame(X[test], channels)))
     return predicted, fit_s, time.perf_counter() - start, model
 
 
 def run_variant(task: Task, data: pd.DataFrame, splitter: FoldSplit,
-                estimator: BaseEstimator, share: bool) -> dict[str, Any]:
+                estimator: BaseEstimator, share: bool, *, skin: AnySkin) -> dict[str, Any]:
     """Score one variant on the splitter's folds (:func:`eskin.evaluation.folds.fold_splitter`
-    over ``data``'s rows): per-target mean scores, seconds, peak MiB."""
-    X = data[CHANNELS].to_numpy(dtype=np.float64)
+    over ``data``'s rows, readings of ``skin``): per-target mean scores, seconds, peak MiB."""
+    channels = skin.channels
+    X = data[channels].to_numpy(dtype=np.float64)
     score: Callable = metrics.SCORERS[task.scorer]
     per_target: dict[str, list[dict[str, float]]] = {}
     fit_s = predict_s = 0.0
@@ -102,7 +105,7 @@ def run_variant(task: Task, data: pd.DataFrame, splitter: FoldSplit,
         per_target[name] = []
         shared = estimator
         for k, (train, test) in enumerate(splitter.split(X)):
-            predicted, f_s, p_s, fitted = _fit_predict(shared, X, y, train, test)
+            predicted, f_s, p_s, fitted = _fit_predict(shared, X, channels, y, train, test)
             if share and k == 0:
                 # Hyperparameters fitted once (on the first training fold, timed above)
                 # and reused: later folds only condition on their data.
@@ -117,16 +120,17 @@ def run_variant(task: Task, data: pd.DataFrame, splitter: FoldSplit,
 
 
 def scaling(task: Task, data: pd.DataFrame, estimator: BaseEstimator, fractions: list[float],
-            seed: int) -> dict[str, Any]:
-    """Fit time at each fraction of the data, resampled with replacement (seeded)."""
-    X = data[CHANNELS].to_numpy(dtype=np.float64)
+            seed: int, skin: AnySkin) -> dict[str, Any]:
+    """Fit time at each fraction of the data (readings of ``skin``), resampled with
+    replacement (seeded)."""
+    X = data[skin.channels]
     y = next(iter(task.target_values(data).values()))
     rng = np.random.default_rng(seed)
     times = {}
     for fraction in fractions:
         rows = rng.choice(len(data), size=int(round(fraction * len(data))), replace=True)
         start = time.perf_counter()
-        clone(estimator).fit(X[rows], y[rows])
+        clone(estimator).fit(X.iloc[rows], y[rows])
         times[str(fraction)] = time.perf_counter() - start
     ordered = [times[str(f)] for f in sorted(fractions)]
     return {"rows_at_1": len(data), "fit_seconds": times,
@@ -174,7 +178,8 @@ def doc_task(doc: Mapping[str, Any]) -> Task:
 
 
 def benchmark_task(task: Task, frame: pd.DataFrame, kind: str, variants: Mapping[str, Mapping],
-                   *, schemes: list[str], folds: int, seed: int, evaluate_folds: int,
+                   *, skin: AnySkin, schemes: list[str], folds: int, seed: int,
+                   evaluate_folds: int,
                    oracle: pd.DataFrame | None, n_jobs: int = 1,
                    log=print) -> dict[str, Any]:
     """Every variant of one task under each scheme, the bound, the front and the gaps."""
@@ -185,12 +190,13 @@ def benchmark_task(task: Task, frame: pd.DataFrame, kind: str, variants: Mapping
                            "evaluate_folds": evaluate_folds, "folds": folds, "schemes": {}}
     for scheme in schemes:
         # The first evaluate_folds folds of the scene's split, on this task's rows
-        splitter = fold_splitter(assign_folds(frame, kind, scheme, folds, seed)[rows],
+        splitter = fold_splitter(assign_folds(frame, kind, scheme, folds, seed, skin=skin)[rows],
                                  evaluate_folds)
         log(f"  {task.name} {scheme}: {len(variants)} variants, "
             f"{splitter.get_n_splits()} folds …")
         runs = Parallel(n_jobs=n_jobs, return_as="generator")(
-            delayed(run_variant)(task, data, splitter, *variant_estimator(task.role, spec))
+            delayed(run_variant)(task, data, splitter, *variant_estimator(task.role, spec, skin),
+                                 skin=skin)
             for spec in variants.values())
         results = {}
         for (name, spec), outcome in zip(variants.items(), runs, strict=True):
@@ -227,6 +233,7 @@ def bayes_bound(scene: str, settings: Scene, dataset_path: Path, out_path: Path,
     "no bound" and the reason instead of stopping. ``settings`` is the scene's params
     section, ``sim`` the simulator's, ``seed`` ``bench.seed`` (the Sobol points of two
     contacts)."""
+    from eskin.config import scene_skin
     from eskin.data.schema import read_dataset, read_metadata
     from eskin.device.physics import skin_params
     from harness import oracle, pair_oracle
@@ -255,17 +262,18 @@ def bayes_bound(scene: str, settings: Scene, dataset_path: Path, out_path: Path,
     # The plan's conditions: one contact (stretch, force, node) or two (a pair of nodes
     # from nodes_x × nodes_y, a force each).
     conditions = [settings.stretches, settings.forces]
-    sim = skin_params(sim)
+    sim, skin = skin_params(sim), scene_skin(settings)
     if get_kind(meta["kind"]).contacts > 1:
         # importance sampling: every sample's answer from each half of the points too
         found = pair_oracle.posterior_predictions(
-            frame, sim, *conditions, settings.nodes_x, settings.nodes_y,
+            frame, sim, *conditions, settings.nodes_x, settings.nodes_y, skin=skin,
             seed=int(seed), progress=progress)
         answers, moves = found.all, pair_oracle.convergence(found, frame)
     else:
-        answers = oracle.posterior_predictions(frame, sim, *conditions, progress=progress)
+        answers = oracle.posterior_predictions(frame, sim, *conditions, skin=skin,
+                                               progress=progress)
         log(f"  {scene} Bayes bound: doubling the grid on {CONVERGENCE_ROWS} samples")
-        moves = oracle.convergence(frame, sim, *conditions, rows=CONVERGENCE_ROWS)
+        moves = oracle.convergence(frame, sim, *conditions, skin=skin, rows=CONVERGENCE_ROWS)
     answers = pd.concat([keys, answers.reset_index(drop=True)], axis=1)
     answers.attrs["convergence"] = json.dumps(moves, sort_keys=True)
     answers.to_parquet(out_path, index=False)
@@ -300,11 +308,12 @@ def bench(scene: str, task_name: str, features_path: Path, bound_path: Path, out
     A task the scene's data cannot support is written as skipped, with the reason."""
     import json
 
-    from eskin.data.schema import read_dataset, read_metadata
+    from eskin.data.schema import dataset_skin, read_dataset, read_metadata
 
     settings = bench
     meta = read_metadata(features_path)
     frame = read_dataset(features_path)
+    skin = dataset_skin(features_path)
     task = get_task(meta["kind"], task_name)
     header = {"scene": scene, "kind": meta["kind"], "task": task_name,
               "dataset_md5": meta["dataset"]["md5"]}
@@ -318,7 +327,7 @@ def bench(scene: str, task_name: str, features_path: Path, bound_path: Path, out
         return f"{scene}/{task_name}: skipped — {reason}"
     oracle, no_bound = read_bound(bound_path, frame)
     with parallel_backend(settings.backend):
-        doc = benchmark_task(task, frame, meta["kind"], settings.tasks[task_name],
+        doc = benchmark_task(task, frame, meta["kind"], settings.tasks[task_name], skin=skin,
                              schemes=list(settings.schemes), folds=int(cv.folds),
                              seed=int(cv.seed), evaluate_folds=int(settings.evaluate_folds),
                              oracle=oracle, n_jobs=int(settings.n_jobs), log=log)
@@ -353,7 +362,7 @@ def summarise(scene: str, bench_dir: Path, features_path: Path, *, bench: Bench,
     import json
 
     from eskin.catalog import TASK_NAMES
-    from eskin.data.schema import read_dataset, read_metadata
+    from eskin.data.schema import dataset_skin, read_dataset, read_metadata
 
     settings = bench
     bench_dir = Path(bench_dir)
@@ -381,10 +390,11 @@ def summarise(scene: str, bench_dir: Path, features_path: Path, *, bench: Bench,
         task = get_task(meta["kind"], "force")
         frame = read_dataset(features_path)
         default = summary["defaults"]["force"]
-        estimator, _ = variant_estimator("force", settings.tasks["force"][default])
+        skin = dataset_skin(features_path)
+        estimator, _ = variant_estimator("force", settings.tasks["force"][default], skin)
         log(f"{scene} scaling: {default} at {settings.scaling_fractions} × the data …")
         grown = scaling(task, frame[task.rows(frame)].reset_index(drop=True), estimator,
-                        list(settings.scaling_fractions), seed=int(settings.seed))
+                        list(settings.scaling_fractions), seed=int(settings.seed), skin=skin)
         worst = max(grown["growth_per_doubling"])
         summary["targets"]["cost_on_doubling"] = {
             **grown, "met": bool(worst <= 2.3),

@@ -33,13 +33,13 @@ import numpy as np
 import pandas as pd
 
 from eskin.acquisition.plan import ScenePlan, plan_from_params
-from eskin.data.schema import CHANNELS
 from eskin.device.physics import SkinModel, SkinParams, Trial
 from eskin.evaluation.crossval import cross_validate
 from eskin.evaluation.folds import assign_folds
 from eskin.kinds import ONE_CONTACT, TWO_CONTACTS, get_kind
 from eskin.learning.estimators import build_model
 from eskin.learning.tasks import get_task
+from eskin.skin import AnySkin
 
 # The paper's numbers (section IV), and how close a fit or a prediction must come.
 TARGETS = {  # name: (paper value, tolerance, fitted?)
@@ -62,7 +62,7 @@ def simulate_plan(sim: SkinParams, plan: ScenePlan, seed: int = 0) -> pd.DataFra
         trial = Trial(model, [seed, trial_no])
         on_skin = [trial.place(c.x, c.y, c.force) for c in condition.contacts if c.touches]
         counts = trial.sample_counts(plan.samples, condition.stretch, on_skin)
-        block = pd.DataFrame(counts, columns=CHANNELS)
+        block = pd.DataFrame(counts, columns=plan.skin.channels)
         block["stretch"] = condition.stretch
         block["trial"] = trial_no
         block["sample"] = np.arange(plan.samples)
@@ -78,13 +78,13 @@ def simulate_plan(sim: SkinParams, plan: ScenePlan, seed: int = 0) -> pd.DataFra
 
 
 def evaluate(frame: pd.DataFrame, kind: str, task_name: str, model: str,
-             hyper: Mapping | None = None, *, scheme: str = "stratified", folds: int = 10,
-             seed: int = 42, n_jobs: int = 2):
-    """Cross-validated result of one registry model on one task."""
+             hyper: Mapping | None = None, *, skin: AnySkin, scheme: str = "stratified",
+             folds: int = 10, seed: int = 42, n_jobs: int = 2):
+    """Cross-validated result of one registry model on one task, on ``skin``'s readings."""
     task = get_task(kind, task_name)
-    fold_of = assign_folds(frame, kind, scheme, folds, seed)
-    return cross_validate(task, frame, fold_of, build_model(task.role, model, hyper), scheme,
-                          n_jobs=n_jobs)
+    fold_of = assign_folds(frame, kind, scheme, folds, seed, skin=skin)
+    return cross_validate(task, frame, fold_of, build_model(task.role, model, hyper, skin),
+                          scheme, skin, n_jobs=n_jobs)
 
 
 def force_by_level(result) -> pd.DataFrame:
@@ -110,24 +110,26 @@ def scores(sim: SkinParams, scenes: Mapping[str, Any], *, full: bool = True,
     # the first scene of each kind (params.yaml's are named after their kinds)
     one, two = (next(name for name, scene in scenes.items() if scene.kind == kind.name)
                 for kind in (ONE_CONTACT, TWO_CONTACTS))
-    single = simulate_plan(sim, plan_from_params(one, scenes[one]))
-    force = evaluate(single, ONE_CONTACT.name, "force", "paper", folds=folds)
+    single_plan, two_plan = plan_from_params(one, scenes[one]), plan_from_params(two, scenes[two])
+    single = simulate_plan(sim, single_plan)
+    skin = single_plan.skin
+    force = evaluate(single, ONE_CONTACT.name, "force", "paper", skin=skin, folds=folds)
     out["single_force force r2"] = force.summary["force"]["r2"]
-    detect = evaluate(single, ONE_CONTACT.name, "detect", "paper", folds=folds)
+    detect = evaluate(single, ONE_CONTACT.name, "detect", "paper", skin=skin, folds=folds)
     out["single_force contact accuracy"] = detect.summary["contact"]["accuracy"]
     if not full:
         return out
     out["single_force stretch r2"] = evaluate(
-        single, ONE_CONTACT.name, "stretch", "paper").summary["stretch"]["r2"]
+        single, ONE_CONTACT.name, "stretch", "paper", skin=skin).summary["stretch"]["r2"]
     out["force by level"] = force_by_level(force)
-    localise = evaluate(single, ONE_CONTACT.name, "localise", "paper")
+    localise = evaluate(single, ONE_CONTACT.name, "localise", "paper", skin=skin)
     out["single_force localise accuracy"] = float(np.mean(
         [localise.summary[a]["accuracy"] for a in ("x", "y")]))
     out["single_force wrong nodes one off"] = neighbour_share(localise)
-    grouped = evaluate(single, ONE_CONTACT.name, "force", "paper", scheme="grouped")
+    grouped = evaluate(single, ONE_CONTACT.name, "force", "paper", skin=skin, scheme="grouped")
     out["single_force force r2 (grouped)"] = grouped.summary["force"]["r2"]
-    pairs = simulate_plan(sim, plan_from_params(two, scenes[two]))
-    two = evaluate(pairs, TWO_CONTACTS.name, "force", "paper")
+    pairs = simulate_plan(sim, two_plan)
+    two = evaluate(pairs, TWO_CONTACTS.name, "force", "paper", skin=two_plan.skin)
     out["two_force force1 r2"] = two.summary["force1"]["r2"]
     out["two_force force2 r2"] = two.summary["force2"]["r2"]
     return out

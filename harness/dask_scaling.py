@@ -28,10 +28,10 @@ from joblib import parallel_config
 
 from eskin.catalog import features_path
 from eskin.config import Params, load_params
-from eskin.data.schema import read_metadata
+from eskin.data.schema import dataset_skin, read_metadata
 from eskin.evaluation.crossval import cross_validate
 from eskin.evaluation.folds import assign_folds
-from eskin.learning.estimators import build_model, model_settings
+from eskin.learning.estimators import build_model, model_for_skin, model_settings
 from eskin.learning.tasks import get_task
 
 TASK = "force"
@@ -74,14 +74,16 @@ def clear(client: Client) -> None:
 def run_cv(scene: str, params: Params, backend: str, n_jobs: int) -> tuple[object, float]:
     frame = pd.read_parquet(features_path(scene))
     kind = read_metadata(features_path(scene))["kind"]
+    skin = dataset_skin(features_path(scene))
     task = get_task(kind, TASK)
     cv = params.cv
-    folds = assign_folds(frame, kind, "grouped", int(cv.folds), int(cv.seed))
-    name, hyper = model_settings(getattr(params.train, TASK), "tuned", kind)
-    estimator = build_model(task.role, name, hyper)
+    folds = assign_folds(frame, kind, "grouped", int(cv.folds), int(cv.seed), skin=skin)
+    section = getattr(params.train, TASK)
+    name, hyper, _ = model_for_skin(section, *model_settings(section, "tuned", kind), skin)
+    estimator = build_model(task.role, name, hyper, skin)
     started = time.perf_counter()
     with parallel_config(backend=backend):
-        result = cross_validate(task, frame, folds, estimator, "grouped", n_jobs=n_jobs)
+        result = cross_validate(task, frame, folds, estimator, "grouped", skin, n_jobs=n_jobs)
     return result, time.perf_counter() - started
 
 

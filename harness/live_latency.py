@@ -28,7 +28,6 @@ import numpy as np
 import pandas as pd
 
 from eskin.catalog import processed_path, stack_path
-from eskin.data.schema import CHANNELS
 from eskin.deploy.stack import ExportedStack, SkinStack
 
 BUDGET_MS = 1.0
@@ -74,9 +73,10 @@ def timings(stack, frames: np.ndarray) -> dict:
 def measure(scene: str, n: int, root: Path = Path(".")) -> dict:
     stack = SkinStack.from_workspace(scene, root)
     exported = ExportedStack.from_file(root / stack_path(scene))
-    data = pd.read_parquet(root / processed_path(scene), columns=CHANNELS)
+    channels = stack.skin.channels
+    data = pd.read_parquet(root / processed_path(scene), columns=channels)
     frames = data.sample(n, random_state=0).to_numpy(dtype=np.float64)
-    baseline = timed(lambda row: stack.featurizer.transform(pd.DataFrame(row, columns=CHANNELS)),
+    baseline = timed(lambda row: stack.featurizer.transform(pd.DataFrame(row, columns=channels)),
                      frames[:, None, :])
     return {"scene": scene, "frames": n, "baseline_median_ms": float(np.median(baseline)),
             "stacks": {"scikit-learn": timings(stack, frames), "onnx": timings(exported, frames)}}

@@ -21,19 +21,22 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.csv as pacsv
 
-from eskin.data.schema import CHANNELS, LABELS
+from eskin.data.schema import LABELS
 from eskin.kinds import ONE_CONTACT
+from eskin.skin import PAPER_SKIN
 
 
 def write_paper_csv(path: Path, rows: int, seed: int = 0, block: int = 500_000) -> int:
-    """A valid single-force CSV of ``rows`` rows (trials of 20 samples); its size."""
+    """A valid single-force CSV of ``rows`` rows (trials of 20 samples) in the paper's
+    layout (its skin's channels, then the labels: what the importer reads); its size."""
     rng = np.random.default_rng(seed)
-    names = CHANNELS + LABELS[ONE_CONTACT.name]
+    channels = PAPER_SKIN.channels
+    names = channels + LABELS[ONE_CONTACT.name]
     with pacsv.CSVWriter(path, pa.schema([(n, pa.float64()) for n in names])) as writer:
         for start in range(0, rows, block):
             n = min(block, rows - start)
             trial = (start + np.arange(n)) // 20
-            data = {c: np.round(rng.normal(500, 40, n), 3) for c in CHANNELS}
+            data = {c: np.round(rng.normal(500, 40, n), 3) for c in channels}
             data["force"] = np.where(trial % 5 == 0, 0.0, 1.2936 + trial % 4)
             data["x"] = (trial % 11).astype(float)
             data["y"] = ((trial // 11) % 11).astype(float)

@@ -18,6 +18,9 @@ posterior over conditions (stretch, force, node) from that one reading:
   and the ADC's quantisation step (as uniform noise);
 * the prior is the plan's: each condition's share of the samples.
 
+The skin is the scene's (any row/column skin: ``skin``, the paper's by default), read
+through the same :class:`~eskin.device.physics.SkinModel` as the simulator built.
+
 Its decisions are Bayes-optimal for each metric — the posterior mean for
 stretch and force (least squares), the most probable answer for contact and
 for x and y of a contact — so its scores bound what a model predicting one
@@ -33,9 +36,10 @@ import numpy as np
 import pandas as pd
 from scipy.special import logsumexp, ndtr
 
-from eskin.data.schema import CHANNELS, contact_mask
-from eskin.device.physics import SKIN, X_NODES, Y_NODES, SkinModel, SkinParams, spread_kernel
+from eskin.data.schema import contact_mask
+from eskin.device.physics import SkinModel, SkinParams, spread_kernel
 from eskin.kinds import ONE_CONTACT
+from eskin.skin import PAPER_SKIN, AnySkin
 
 
 @dataclass(frozen=True)
@@ -121,12 +125,14 @@ def _pressed_means(model: SkinModel, stretch: float, newtons: float, x: int, ys:
                    offsets_x: np.ndarray, offsets_y: np.ndarray, seatings: np.ndarray
                    ) -> np.ndarray:
     """Mean readings of a weight on (x, y) for each y of ``ys`` and every combination of the
-    latents: (len(ys), offsets_x × offsets_y × seatings, 20), latents in that order."""
+    latents: (len(ys), offsets_x × offsets_y × seatings, terminals), latents in that
+    order."""
     p = model.params
     stretched = model.baseline_pf * (1 + model.stretch_sensitivity * (stretch - 1))
     peaks = np.array([model.peak_strain(newtons, stretch, s) for s in seatings])
-    wx = spread_kernel(X_NODES[None, :] - (x + offsets_x[:, None]), p.reach_nodes)  # (ox, 10)
-    wy = spread_kernel(Y_NODES[None, None, :] - (np.asarray(ys, dtype=float)[:, None, None]
+    wx = spread_kernel(model.x_nodes[None, :] - (x + offsets_x[:, None]),
+                       p.reach_nodes)  # (ox, rows)
+    wy = spread_kernel(model.y_nodes[None, None, :] - (np.asarray(ys, dtype=float)[:, None, None]
                                                + offsets_y[None, :, None]), p.reach_nodes)
     field = (wx[None, :, None, None, :, None] * wy[:, None, :, None, None, :]
              * peaks[None, None, None, :, None, None])
@@ -134,7 +140,7 @@ def _pressed_means(model: SkinModel, stretch: float, newtons: float, x: int, ys:
     field = np.minimum(field * model.node_sensitivity, p.strain_max)
     gain = 1.0 / (1.0 - field) - 1.0
     indentation = np.concatenate([gain.mean(axis=5), gain.mean(axis=4)], axis=-1)
-    return (stretched * (1 + indentation)).reshape(len(ys), -1, SKIN.terminals)
+    return (stretched * (1 + indentation)).reshape(len(ys), -1, model.skin.terminals)
 
 
 class _Latents:
@@ -163,19 +169,19 @@ class _Latents:
         """Contact-free: one mean, whatever the latents."""
         m = self.model
         stretched = m.baseline_pf * (1 + m.stretch_sensitivity * (stretch - 1))
-        return np.broadcast_to(stretched, (self.n, SKIN.terminals))
+        return np.broadcast_to(stretched, (self.n, m.skin.terminals))
 
     def pressed(self, stretch: float, newtons: float, x: int) -> np.ndarray:
-        """Means of a weight on (x, y) for every y: (10, latents, 20) in (ox, oy, seating)
-        order."""
+        """Means of a weight on (x, y) for every y: (columns, latents, terminals) in (ox, oy,
+        seating) order."""
         key = (stretch, newtons, x)
         if key not in self._cache:
-            self._cache[key] = _pressed_means(self.model, stretch, newtons, x, Y_NODES,
+            self._cache[key] = _pressed_means(self.model, stretch, newtons, x, self.model.y_nodes,
                                               self.offsets, self.offsets, self.seatings)
         return self._cache[key]
 
     def means(self, conditions: Conditions, which: np.ndarray) -> np.ndarray:
-        """(len(which), latents, 20)."""
+        """(len(which), latents, terminals)."""
         return np.stack([
             self.free(conditions.stretch[i]) if conditions.x[i] == 0 else
             self.pressed(conditions.stretch[i], conditions.force[i], conditions.x[i])[
@@ -205,19 +211,21 @@ class _Latents:
                                + log_weights))
 
 
-def plan_conditions(params: SkinParams, stretches, forces) -> Conditions:
-    """The conditions of a single-force plan (docs/scenes.md): labels and prior."""
+def plan_conditions(params: SkinParams, stretches, forces,
+                    skin: AnySkin = PAPER_SKIN) -> Conditions:
+    """The conditions of a single-force plan on ``skin`` (docs/scenes.md): labels and
+    prior."""
     labels = []
     for stretch in np.asarray(stretches, dtype=float):
         labels.append((stretch, 0.0, 0, 0, "free"))
         for newtons in (float(f) for f in forces if f > 0):
             labels += [(stretch, newtons, x, y, "contact")
-                       for x, y in SKIN.nodes()]
+                       for x, y in skin.nodes()]
     stretch_l, force_l, x_l, y_l, kind = zip(*labels, strict=True)
     kind = np.array(kind)
     # The plan records every node at 0 N and node 0 at every force as contact-free
     # (docs/scenes.md, label convention): per stretch, nodes × 1 + 1 × forces such rows.
-    free_share = SKIN.n_nodes + len(forces)
+    free_share = skin.n_nodes + len(forces)
     prior = np.where(kind == "free", float(free_share), 1.0)
     return Conditions(log_prior=np.log(prior / prior.sum()), stretch=np.array(stretch_l),
                       force=np.array(force_l), x=np.array(x_l), y=np.array(y_l))
@@ -242,16 +250,16 @@ def _log_marginal(readings: np.ndarray, inverse_variance: np.ndarray, means: np.
                   log_weights: np.ndarray, block_values: int = 8_000_000) -> np.ndarray:
     """log p(reading | condition) for rows × conditions, the latents integrated out.
 
-    ``means`` is (conditions, latents, 20). Σ_i (r_i − μ_i)² / v_i with per-row v:
+    ``means`` is (conditions, latents, terminals). Σ_i (r_i − μ_i)² / v_i with per-row v:
     the square expanded into three products, so that the big one is a matrix product;
     conditions go in blocks of about ``block_values`` likelihoods, a bounded buffer."""
-    n_cond, n_lat, _ = means.shape
+    n_cond, n_lat, terminals = means.shape
     out = np.empty((len(readings), n_cond))
     step = max(1, block_values // max(1, len(readings) * n_lat))
     weighted = readings * inverse_variance
     squares = (readings * weighted).sum(1)[:, None]
     for start in range(0, n_cond, step):
-        flat = means[start:start + step].reshape(-1, SKIN.terminals).T
+        flat = means[start:start + step].reshape(-1, terminals).T
         quad = squares - 2.0 * weighted @ flat + inverse_variance @ (flat * flat)
         loglik = -0.5 * quad.reshape(len(readings), -1, n_lat)
         out[:, start:start + step] = logsumexp(loglik + log_weights, axis=2)
@@ -259,18 +267,20 @@ def _log_marginal(readings: np.ndarray, inverse_variance: np.ndarray, means: np.
 
 
 def posterior_predictions(frame: pd.DataFrame, params: SkinParams, stretches, forces, *,
-                          grid: Grid = FINE, chunk: int = 96, progress=None) -> pd.DataFrame:
-    """The oracle's answers for each row: stretch, force, contact (+ probability), x, y."""
-    model = SkinModel(params)
-    cond = plan_conditions(params, stretches, forces)
+                          skin: AnySkin = PAPER_SKIN, grid: Grid = FINE, chunk: int = 96,
+                          progress=None) -> pd.DataFrame:
+    """The oracle's answers for each row of a scene on ``skin``: stretch, force, contact (+
+    probability), x, y."""
+    model = SkinModel(params, skin)
+    cond = plan_conditions(params, stretches, forces, skin)
     every = np.arange(len(cond.x))
     coarse, fine = _Latents(model, COARSE), _Latents(model, grid)
     coarse_means = coarse.means(cond, every)
-    readings = counts_to_pf(model, frame[CHANNELS].to_numpy(dtype=float))
+    readings = counts_to_pf(model, frame[skin.channels].to_numpy(dtype=float))
     inverse = 1.0 / reading_variance(model, frame["sample"].to_numpy())
     contact = cond.x > 0
-    x_onehot = (cond.x[:, None] == X_NODES[None, :].astype(int)) & contact[:, None]
-    y_onehot = (cond.y[:, None] == Y_NODES[None, :].astype(int)) & contact[:, None]
+    x_onehot = (cond.x[:, None] == model.x_nodes[None, :].astype(int)) & contact[:, None]
+    y_onehot = (cond.y[:, None] == model.y_nodes[None, :].astype(int)) & contact[:, None]
     # The coarse pass ranks the conditions of every row; rows it finds alike share their
     # candidates, so the fine pass takes them in chunks of alike rows.
     coarse_post = np.concatenate([
@@ -338,13 +348,15 @@ def oracle_scores(answers: pd.DataFrame, frame: pd.DataFrame) -> dict[str, float
 
 
 def convergence(frame: pd.DataFrame, params: SkinParams, stretches, forces, *,
-                grid: Grid = FINE, rows: int = 200, seed: int = 0) -> dict[str, float]:
+                skin: AnySkin = PAPER_SKIN, grid: Grid = FINE, rows: int = 200,
+                seed: int = 0) -> dict[str, float]:
     """How far each score moves when the grid is doubled, on ``rows`` seeded rows of
     ``frame``; the bound has converged when no move reaches :data:`CONVERGED`.
 
     Force and stretch are compared as MSE over the target's variance (a move in R²)."""
     sample = frame.sample(min(rows, len(frame)), random_state=seed).reset_index(drop=True)
-    scores = [oracle_scores(posterior_predictions(sample, params, stretches, forces, grid=g),
-                            sample) for g in (grid, grid.doubled())]
+    scores = [oracle_scores(posterior_predictions(sample, params, stretches, forces,
+                                                  skin=skin, grid=g), sample)
+              for g in (grid, grid.doubled())]
     return {name: abs(scores[0][name] - scores[1][name]) for name in scores[0]
             if not np.isnan(scores[0][name])}

@@ -42,9 +42,9 @@ from scipy.special import logsumexp, ndtri
 from scipy.stats import qmc
 
 from eskin.acquisition.plan import two_force_plan
-from eskin.data.schema import CHANNELS
-from eskin.device.physics import X_NODES, Y_NODES, SkinModel, SkinParams, spread_kernel
+from eskin.device.physics import SkinModel, SkinParams, spread_kernel
 from eskin.kinds import TWO_CONTACTS
+from eskin.skin import PAPER_SKIN, AnySkin
 from harness.oracle import counts_to_pf, mse_over_variance, reading_variance
 
 LATENTS = 6        # per contact: placement offset x, y (SDs) and seating (SDs of its log)
@@ -116,12 +116,13 @@ class PairSkin:
                           p.placement_max_nodes)
         seating = np.exp(p.seating_variation * latents[:, 2])
         peak = self._peak(newtons, stretch, seating)
-        wx = spread_kernel(X_NODES[None, :] - (x + offsets[:, 0])[:, None], p.reach_nodes)
-        wy = spread_kernel(Y_NODES[None, :] - (y + offsets[:, 1])[:, None], p.reach_nodes)
+        m = self.model
+        wx = spread_kernel(m.x_nodes[None, :] - (x + offsets[:, 0])[:, None], p.reach_nodes)
+        wy = spread_kernel(m.y_nodes[None, :] - (y + offsets[:, 1])[:, None], p.reach_nodes)
         return peak[:, None, None] * wx[:, :, None] * wy[:, None, :]
 
     def means(self, cond: PairConditions, which: np.ndarray, latents: np.ndarray) -> np.ndarray:
-        """Mean readings in pF, (len(which), 20), for condition ``which[k]`` with latents
+        """Mean readings in pF, (len(which), terminals), for condition ``which[k]`` with latents
         ``latents[k]`` (contact 1's three, then contact 2's)."""
         p, m = self.params, self.model
         stretch = cond.stretch[which]
@@ -289,38 +290,39 @@ class Answers:
     halves: tuple[pd.DataFrame, pd.DataFrame]
 
 
-def _decide(log_post: np.ndarray, cond: PairConditions) -> pd.DataFrame:
+def _decide(log_post: np.ndarray, cond: PairConditions, model: SkinModel) -> pd.DataFrame:
     """Bayes decisions from log posteriors (R, C): posterior means of stretch and forces,
-    the most probable value of each position."""
+    the most probable value of each position (a node of ``model``'s skin)."""
     log_post = log_post - logsumexp(log_post, axis=1, keepdims=True)
     post = np.exp(log_post)
     out = {"stretch": post @ cond.stretch, "force1": post @ cond.force1,
            "force2": post @ cond.force2}
     for name in POSITIONS:
-        nodes = X_NODES if name.startswith("x") else Y_NODES
+        nodes = model.x_nodes if name.startswith("x") else model.y_nodes
         onehot = getattr(cond, name)[:, None] == nodes[None, :].astype(int)
         out[name] = np.argmax(post @ onehot, axis=1) + 1
     return pd.DataFrame(out)
 
 
 def posterior_predictions(frame: pd.DataFrame, params: SkinParams, stretches, forces,
-                          nodes_x, nodes_y, *, sampling: Sampling = Sampling(),
-                          seed: int = 0, chunk: int = 8, n_jobs: int = -1,
-                          progress=None) -> Answers:
-    """The oracle's answers for each row: stretch, force1 and force2 (posterior means), and
-    x1, y1, x2, y2 (each its most probable value); and the same from each half of the
-    points, which :func:`convergence` compares. Chunks of rows run in parallel (joblib's
-    ``n_jobs``); each row's answer is the same however they are run."""
+                          nodes_x, nodes_y, *, skin: AnySkin = PAPER_SKIN,
+                          sampling: Sampling = Sampling(), seed: int = 0, chunk: int = 8,
+                          n_jobs: int = -1, progress=None) -> Answers:
+    """The oracle's answers for each row of a scene on ``skin``: stretch, force1 and force2
+    (posterior means), and x1, y1, x2, y2 (each its most probable value); and the same from
+    each half of the points, which :func:`convergence` compares. Chunks of rows run in
+    parallel (joblib's ``n_jobs``); each row's answer is the same however they are run."""
     from joblib import Parallel, delayed
 
-    skin = PairSkin(SkinModel(params))
+    model = SkinModel(params, skin)
+    pairs = PairSkin(model)
     cond = pair_conditions(stretches, forces, nodes_x, nodes_y)
-    readings = counts_to_pf(skin.model, frame[CHANNELS].to_numpy(dtype=float))
-    inverse = 1.0 / reading_variance(skin.model, frame["sample"].to_numpy())
+    readings = counts_to_pf(model, frame[skin.channels].to_numpy(dtype=float))
+    inverse = 1.0 / reading_variance(model, frame["sample"].to_numpy())
     normals = ndtri(qmc.Sobol(LATENTS, scramble=True, seed=seed).random(sampling.points))
     starts = range(0, len(frame), chunk)
     parts = Parallel(n_jobs=n_jobs, return_as="generator")(
-        delayed(_log_posterior)(skin, cond, readings[s:s + chunk], inverse[s:s + chunk],
+        delayed(_log_posterior)(pairs, cond, readings[s:s + chunk], inverse[s:s + chunk],
                                 normals, sampling.inflate) for s in starts)
     blocks = []
     for start, block in zip(starts, parts, strict=True):
@@ -329,7 +331,7 @@ def posterior_predictions(frame: pd.DataFrame, params: SkinParams, stretches, fo
             progress(min(start + chunk, len(frame)), len(frame))
     log_post = (np.concatenate(blocks, axis=1) if blocks
                 else np.empty((len(HALVES), 0, len(cond))))
-    everything, *halves = (_decide(part, cond) for part in log_post)
+    everything, *halves = (_decide(part, cond, model) for part in log_post)
     return Answers(everything, tuple(halves))
 
 

@@ -28,10 +28,10 @@ import numpy as np
 import pandas as pd
 import yaml
 
-from eskin.acquisition.plan import plan_from_params
+from eskin.acquisition.plan import ScenePlan, plan_from_params
 from eskin.config import Params, Soak, untraced, validate_params
 from eskin.data import build
-from eskin.data.schema import CHANNELS, LABELS
+from eskin.data.schema import LABELS
 from eskin.device.faults import KINDS
 
 KEY = ["trial", "sample"]
@@ -111,9 +111,10 @@ def soak_params(params: Params, settings: Soak, fault_log: Path, scene: str) -> 
     return out
 
 
-def compare(reference: pd.DataFrame, frame: pd.DataFrame, kind: str) -> dict[str, int]:
-    """Lost, duplicated, extra and differing samples of ``frame`` against ``reference``."""
-    values = CHANNELS + LABELS[kind] + ["session"]
+def compare(reference: pd.DataFrame, frame: pd.DataFrame, plan: ScenePlan) -> dict[str, int]:
+    """Lost, duplicated, extra and differing samples of ``frame`` against ``reference``, the
+    datasets of ``plan``."""
+    values = plan.skin.channels + LABELS[plan.kind] + ["session"]
     merged = reference[KEY + values].merge(
         frame[KEY + values].drop_duplicates(KEY), on=KEY, how="outer",
         suffixes=("_clean", "_soak"), indicator=True)
@@ -185,7 +186,7 @@ def run_soak(params: Params, settings: Soak, workdir: Path,
         scene=scene, conditions=len(plan.conditions), rows_expected=plan.n_samples,
         rows=len(frame), faults={kind: counted.get(kind, 0) for kind in KINDS},
         kills=len(killed_after), killed_after=killed_after,
-        **compare(reference, frame, plan.kind), crc_passed=crc_passed,
+        **compare(reference, frame, plan), crc_passed=crc_passed,
         seconds=time.monotonic() - started, runs=runs)
 
 

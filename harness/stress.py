@@ -29,9 +29,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from eskin.data.schema import CHANNELS
 from eskin.kinds import ONE_CONTACT
 from eskin.learning.tasks import Task
+from eskin.skin import AnySkin
 
 # Invariance tolerances of a `same` case: regression predictions within this share of
 # the target's standard deviation; classifications within this share of rows; scores.
@@ -43,9 +43,10 @@ KIND = ONE_CONTACT.name
 
 def _channels(transform: Callable[[np.ndarray], np.ndarray]):
     def apply(frame: pd.DataFrame, context: Mapping[str, Any]) -> pd.DataFrame:
+        channels = context["skin"].channels
         out = frame.copy()
-        values = transform(frame[CHANNELS].to_numpy(dtype=np.float64))
-        out[CHANNELS] = pd.DataFrame(values, index=frame.index, columns=CHANNELS)
+        values = transform(frame[channels].to_numpy(dtype=np.float64))
+        out[channels] = pd.DataFrame(values, index=frame.index, columns=channels)
         return out
     return apply
 
@@ -65,7 +66,7 @@ def _pf(scale: float):
 
 
 def _float32(frame: pd.DataFrame, context: Mapping[str, Any]) -> pd.DataFrame:
-    return frame.astype({c: np.float32 for c in CHANNELS})
+    return frame.astype({c: np.float32 for c in context["skin"].channels})
 
 
 def _duplicated_rows(frame: pd.DataFrame, context: Mapping[str, Any]) -> pd.DataFrame:
@@ -74,9 +75,9 @@ def _duplicated_rows(frame: pd.DataFrame, context: Mapping[str, Any]) -> pd.Data
 
 def _repeated_samples(frame: pd.DataFrame, context: Mapping[str, Any]) -> pd.DataFrame:
     """Every sample of a trial an exact copy of its first: a board that stopped updating."""
+    channels = context["skin"].channels
     out = frame.copy()
-    first = frame.groupby("trial")[CHANNELS].transform("first")
-    out[CHANNELS] = first
+    out[channels] = frame.groupby("trial")[channels].transform("first")
     return out
 
 
@@ -86,8 +87,9 @@ def _set_channel(index: int, value: float):
 
 
 def _collinear(frame: pd.DataFrame, context: Mapping[str, Any]) -> pd.DataFrame:
+    channels = context["skin"].channels
     out = frame.copy()
-    out[CHANNELS[3]] = frame[CHANNELS[2]]
+    out[channels[3]] = frame[channels[2]]
     return out
 
 
@@ -140,24 +142,25 @@ CASES: tuple[Case, ...] = (
 )
 
 
-def models_under_test(train: Any) -> list[tuple[str, str, dict[str, Any]]]:
+def models_under_test(train: Any, skin: AnySkin) -> list[tuple[str, str, dict[str, Any]]]:
     """(task, model name, hyperparameters) of the tuned and paper configurations of the
-    ``train`` section."""
+    ``train`` section, as they train on ``skin``."""
     from eskin.catalog import TASK_NAMES
-    from eskin.learning.estimators import model_settings
+    from eskin.learning.estimators import model_for_skin, model_settings
 
     out = []
     for task in TASK_NAMES:
         task_params = getattr(train, task)
         for configuration in ("tuned", "paper"):
-            name, hyper = model_settings(task_params, configuration, KIND)
+            name, hyper, _ = model_for_skin(
+                task_params, *model_settings(task_params, configuration, KIND), skin)
             if (task, name, hyper) not in out:
                 out.append((task, name, hyper))
     return out
 
 
 def fit_case(frame: pd.DataFrame, task_name: str, model: str, hyper: Mapping[str, Any],
-             folds: int, seed: int) -> dict[str, Any]:
+             folds: int, seed: int, skin: AnySkin) -> dict[str, Any]:
     """One model's grouped cross-validation on one (stressed) frame, warnings counted.
 
     Runs in a worker process; returns predictions and scores, or the error."""
@@ -172,9 +175,10 @@ def fit_case(frame: pd.DataFrame, task_name: str, model: str, hyper: Mapping[str
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
-            fold_of = assign_folds(frame, KIND, "grouped", folds, seed)
-            result = cross_validate(task, frame, fold_of, build_model(task.role, model, hyper),
-                                    "grouped", n_jobs=1)
+            fold_of = assign_folds(frame, KIND, "grouped", folds, seed, skin=skin)
+            result = cross_validate(task, frame, fold_of,
+                                    build_model(task.role, model, hyper, skin), "grouped", skin,
+                                    n_jobs=1)
         except Exception as err:  # every error is an outcome here, judged by the case
             return {"error": f"{type(err).__name__}: {err}", "warnings": _count(caught),
                     "seconds": time.perf_counter() - start}
@@ -245,7 +249,7 @@ def _same(predictions: np.ndarray, reference: Mapping[str, Any], scorer: str
     return changed <= TOLERANCE["labels_changed"], {"labels_changed": changed}
 
 
-def run_suite(frames: Mapping[str, pd.DataFrame], params: Any, *,
+def run_suite(frames: Mapping[str, pd.DataFrame], params: Any, skin: AnySkin, *,
               cases: tuple[Case, ...] = CASES, folds: int = 3, seed: int = 0,
               models: list[tuple[str, str, dict[str, Any]]] | None = None,
               log=print) -> list[dict[str, Any]]:
@@ -253,13 +257,14 @@ def run_suite(frames: Mapping[str, pd.DataFrame], params: Any, *,
 
     ``frames``: ``default`` (the features the cases transform) and one frame per
     other dataset a case names (``noise_zero``, ``noise_x10``); ``params``: the
-    :class:`eskin.config.Params` (its ``train`` and ``sim`` sections)."""
+    :class:`eskin.config.Params` (its ``train`` and ``sim`` sections); ``skin``: the one
+    the frames were taken on."""
     from joblib.externals.loky import get_reusable_executor
 
     from eskin.learning.tasks import get_task
 
-    models = models or models_under_test(params.train)
-    context = {"sim": params.sim.model_dump()}
+    models = models or models_under_test(params.train, skin)
+    context = {"sim": params.sim.model_dump(), "skin": skin}
     rows, references = [], {}
     for case in cases:
         if case.dataset not in frames:
@@ -271,7 +276,7 @@ def run_suite(frames: Mapping[str, pd.DataFrame], params: Any, *,
             executor = get_reusable_executor(max_workers=1, timeout=60)
             try:
                 outcome = executor.submit(fit_case, frame, task, model, hyper, folds,
-                                          seed).result()
+                                          seed, skin).result()
             except Exception as err:  # the worker died (a segfault): an outcome, not the end
                 outcome = {"error": f"{type(err).__name__}: {err}", "warnings": {},
                            "seconds": 0.0}
@@ -287,7 +292,8 @@ def run_suite(frames: Mapping[str, pd.DataFrame], params: Any, *,
     return rows
 
 
-def large_factorisation(frame: pd.DataFrame, rows: int, seed: int) -> dict[str, Any]:
+def large_factorisation(frame: pd.DataFrame, rows: int, seed: int,
+                        skin: AnySkin) -> dict[str, Any]:
     """The exact GP on ``rows`` training samples (one Cholesky of that order) in this
     process, scored on the remaining samples: the case that segfaulted OpenBLAS."""
     from sklearn.metrics import r2_score
@@ -297,7 +303,7 @@ def large_factorisation(frame: pd.DataFrame, rows: int, seed: int) -> dict[str, 
 
     task = get_task(KIND, "force")
     y = task.target_values(frame)["force"]
-    X = frame[CHANNELS].to_numpy(dtype=np.float64)
+    X = frame[skin.channels].to_numpy(dtype=np.float64)
     order = np.random.default_rng(seed).permutation(len(frame))
     train, test = order[:rows], order[rows:]
     start = time.perf_counter()
@@ -324,11 +330,12 @@ def stress(params: Any, scene: str, features_path, out_dir, *, scratch, log=prin
     from eskin.acquisition import acquire
     from eskin.config import required
     from eskin.data import build
-    from eskin.data.schema import describe_source, read_dataset, read_metadata
+    from eskin.data.schema import dataset_skin, describe_source, read_dataset, read_metadata
     from eskin.learning.features import featurize_scene
 
     settings = required(params, "stress")
     meta = read_metadata(features_path)
+    skin = dataset_skin(features_path)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     out_json, out_md, out_html = (out_dir / f"{scene}.{ext}" for ext in ("json", "md", "html"))
@@ -360,16 +367,16 @@ def stress(params: Any, scene: str, features_path, out_dir, *, scratch, log=prin
                         board=params.sim_board, progress=False)
         build.ingest(scene, noisy, root / "raw", root / "processed", ingest=params.ingest)
         featurize_scene(scene, root / "processed", root / "features", root / "models",
-                        featurize=params.featurize)
+                        settings=params.featurize)
         frames[name] = read_dataset(root / "features" / f"{scene}.parquet")
     log(f"stress: {len(frames['default']):,} samples of {len(trials)} trials, "
         f"{int(settings.folds)}-fold grouped CV")
-    rows = run_suite(frames, params, folds=int(settings.folds), seed=int(settings.seed),
+    rows = run_suite(frames, params, skin, folds=int(settings.folds), seed=int(settings.seed),
                      log=log)
     if int(settings.large_gp_rows) > 0:
         log(f"  large_exact_gp: exact GP on {int(settings.large_gp_rows):,} samples …")
         rows.append(large_factorisation(features, int(settings.large_gp_rows),
-                                        int(settings.seed)))
+                                        int(settings.seed), skin))
         log(f"  large_exact_gp     force     exact_gp                {rows[-1]['outcome']} "
             f"({rows[-1]['seconds']} s, R² {rows[-1]['score']:.3f})")
     doc = {"scene": scene, "source": describe_source(meta), "noise_cases": noise_note,

@@ -12,7 +12,7 @@ def main(scene: str) -> str:
     params = load_params()
     get_scene(params, scene)
     return featurize_scene(scene, PROCESSED_DIR, FEATURES_DIR, MODELS_DIR,
-                           featurize=params.featurize).summary
+                           settings=params.featurize).summary
 
 
 if __name__ == "__main__":

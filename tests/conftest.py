@@ -96,7 +96,7 @@ def featurize_step(params, scene: str, processed_dir: Path, features_dir: Path,
     from eskin.learning.features import featurize_scene
 
     return featurize_scene(scene, processed_dir, features_dir, models_dir,
-                           featurize=typed(params).featurize)
+                           settings=typed(params).featurize)
 
 
 def train_step(params, scene: str, task: str, features_dir: Path, **kwargs):

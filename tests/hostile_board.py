@@ -2,7 +2,9 @@
 
 Written from the protocol's text alone (docs/protocol.md): it imports nothing from
 ``eskin`` (its own CRC-8, its own frame encoding, its own command parser), so
-the host is tested against a counterpart that does not share its mistakes.
+the host is tested against a counterpart that does not share its mistakes. Its skin
+has ``rows`` × ``columns`` terminals (the paper's 10 × 10 unless told): it announces
+``terminals=rows+columns`` and sends that many readings, x1..xR then y1..yC.
 It speaks the simulated-board extension too (``SIM CLEAR``, ``SIM TRIAL n``,
 ``SIM PRESS x y N``), so readings are a function of the trial, the stretch,
 the presses and the sample index: a condition asked again reads the same,
@@ -57,8 +59,6 @@ import threading
 import time
 import tty
 
-TERMINALS = 20
-
 
 def crc8(data: bytes) -> int:
     crc = 0
@@ -92,8 +92,11 @@ LONG_LINE = b"~" * (1 << 20) + b"\n"  # 1 MiB of junk in one line
 
 class HostileBoard:
     def __init__(self, *, device_id: str = "hostile-0001", misbehaviour: str | None = None,
-                 at: int = 50, damage_first: bool = False) -> None:
+                 at: int = 50, damage_first: bool = False, rows: int = 10,
+                 columns: int = 10) -> None:
         self.device_id = device_id
+        self.rows = rows
+        self.terminals = rows + columns
         self.misbehaviour = misbehaviour
         self.at = at
         self.damage_first = damage_first
@@ -121,12 +124,13 @@ class HostileBoard:
 
     def counts(self, other: bool) -> list[int]:
         if other:
-            return [777] * TERMINALS
+            return [777] * self.terminals
         key = f"{self.trial}|{self.stretch_mm}|{sorted(self.presses)}|{self.index}"
-        digest = hashlib.sha256(key.encode()).digest()
-        pressed = {int(x) for x, _, _ in self.presses} | {10 + int(y) for _, y, _ in self.presses}
-        return [500 + 7 * t + digest[t] % 9 + (120 if t + 1 in pressed else 0)
-                for t in range(TERMINALS)]
+        digest = hashlib.sha256(key.encode()).digest() * 2  # 64 bytes: one per terminal
+        pressed = ({int(x) for x, _, _ in self.presses}
+                   | {self.rows + int(y) for _, y, _ in self.presses})
+        return [500 + 7 * (t % 50) + digest[t] % 9 + (120 if t + 1 in pressed else 0)
+                for t in range(self.terminals)]
 
     def frame(self) -> bytes:
         line = frame_line(self.seq, self.t_ms, self.counts(self.hijacked))
@@ -137,7 +141,8 @@ class HostileBoard:
 
     def hello(self) -> bytes:
         who = "OTHER-9999" if self.hijacked else self.device_id
-        return f"#HELLO eskin hostile-1.0 terminals=20 adc_bits=10 id={who}\n".encode()
+        return (f"#HELLO eskin hostile-1.0 terminals={self.terminals} adc_bits=10 "
+                f"id={who}\n").encode()
 
     # ---------------------------------------------------------------- commands
 

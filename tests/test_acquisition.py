@@ -10,19 +10,29 @@ import time
 
 import pandas as pd
 import pytest
-from conftest import acquire_step, eskin, ingest_step, small_scenes, typed, write_params
+from conftest import (
+    acquire_step,
+    eskin,
+    ingest_step,
+    prepared_scene,
+    small_scenes,
+    typed,
+    write_params,
+)
 
 from eskin.acquisition.plan import plan_from_params
 from eskin.acquisition.rawlog import read_log
 from eskin.acquisition.session import acquire_scene, simulated_board
 from eskin.config import Soak
-from eskin.data.schema import CHANNELS, LABELS, read_metadata
+from eskin.data.schema import LABELS, DatasetError, read_metadata
 from eskin.device.physics import skin_params
+from eskin.skin import PAPER_SKIN
 from harness.soak import run_soak, wait_for_conditions
 
 # What a sample is, independent of how the link delivered it (seq and t_ms count wire
 # traffic, and a retried condition uses more of it).
-CONTENT = ["trial", "sample", *CHANNELS]
+PAPER_CHANNELS = PAPER_SKIN.channels  # the scenes of these tests are on the paper's skin
+CONTENT = ["trial", "sample", *PAPER_CHANNELS]
 
 
 def acquire_and_ingest(params, root, scene="single_force"):
@@ -65,7 +75,7 @@ def test_small_scene_has_exactly_the_planned_rows_and_labels(clean_run):
     assert set(frame["stretch"]) == {1.0, 1.07921}
     no_contact = frame[frame["x"] == 0]
     assert set(no_contact["force"]) == {0.0, 3.2536}
-    assert list(frame.columns[:20]) == CHANNELS
+    assert list(frame.columns[:20]) == PAPER_CHANNELS
     assert list(frame.columns[20:24]) == LABELS["single_force"]
 
 
@@ -130,7 +140,7 @@ def test_a_changed_simulator_parameter_reacquires_everything(clean_run, tmp_path
     assert "404 condition(s) acquired, 0 reused" in summary
     ingest_step(changed, "single_force", tmp_path, tmp_path / "processed")
     frame = pd.read_parquet(tmp_path / "processed" / "single_force.parquet")
-    assert not frame[CHANNELS].equals(clean[CHANNELS])
+    assert not frame[PAPER_CHANNELS].equals(clean[PAPER_CHANNELS])
     assert len(read_log(tmp_path / "acquisition.log").sessions) == 2, "nothing lost: both kept"
 
 
@@ -208,3 +218,76 @@ def test_ctrl_c_stops_cleanly_with_everything_received_on_disk(clean_run, tmp_pa
     assert eskin(["ingest", "single_force"], tmp_path).returncode == 0
     frame = pd.read_parquet(tmp_path / "data" / "processed" / "single_force.parquet")
     pd.testing.assert_frame_equal(frame[CONTENT + ["session"]], clean[CONTENT + ["session"]])
+
+
+SIZES = {  # scene → (skin, its plan's changes): small plans, so that each runs in seconds
+    "single_force": ({"rows": 8, "columns": 8},
+                     {"stretches": [1.0], "forces": [0.0, 3.2536], "samples": 2}),
+    "two_force": ({"rows": 16, "columns": 12},
+                  {"forces": [1.2936, 5.2136], "nodes_x": [1, 9, 16], "nodes_y": [1, 12],
+                   "samples": 2}),
+}
+
+
+def test_a_raw_log_of_another_skins_board_is_refused_at_ingest(repo_params, tmp_path):
+    """A log recorded on the paper's skin, ingested after the scene's skin was changed to
+    8 × 8 (by hand, without acquiring again): one line naming both, the log kept."""
+    params = small_scenes(repo_params)
+    params["scenes"]["single_force"].update(stretches=[1.0], forces=[0.0, 3.2536], samples=2)
+    acquire_step(params, "single_force", tmp_path / "raw", progress=False)
+    log = (tmp_path / "raw" / "acquisition.log").read_bytes()
+    params["scenes"]["single_force"]["skin"] = {"rows": 8, "columns": 8}
+    with pytest.raises(DatasetError, match=r"has 20 terminals, but scene single_force is on "
+                       r"the 8 × 8 row/column skin \(16 terminals\): set "
+                       r"scenes.single_force.skin to the board's skin"):
+        ingest_step(params, "single_force", tmp_path / "raw", tmp_path / "processed")
+    assert (tmp_path / "raw" / "acquisition.log").read_bytes() == log
+
+
+@pytest.mark.parametrize("scene", sorted(SIZES))
+def test_a_skin_of_another_size_is_acquired_over_the_pty_into_its_own_dataset(
+        repo_params, tmp_path, scene):
+    """The acquire step on a simulated 8 × 8 (single force) and 16 × 12 (two forces) skin,
+    then ingest: the skin's channels, its nodes, its eskin.skin metadata."""
+    from eskin.data.schema import dataset_skin
+    from eskin.skin import Skin
+
+    skin, plan_changes = SIZES[scene]
+    params = small_scenes(repo_params)
+    params["cv"]["folds"] = 2
+    params["scenes"][scene].update(skin=skin, **plan_changes)
+    plan = plan_from_params(scene, typed(params).scenes[scene])
+    path = prepared_scene(params, scene, tmp_path)
+    frame = pd.read_parquet(path)
+    rows, columns = skin["rows"], skin["columns"]
+    channels = [f"cx{i}" for i in range(1, rows + 1)] + [f"cy{i}" for i in range(1, columns + 1)]
+    assert list(frame.columns[:rows + columns]) == channels
+    assert not frame.columns[rows + columns:].str.match(r"c[xy]\d").any()
+    assert len(frame) == plan.n_samples
+    assert read_metadata(path)["skin"] == skin and dataset_skin(path) == Skin(rows, columns)
+    assert read_metadata(path)["device"]["terminals"] == rows + columns
+    if scene == "single_force":
+        assert len(frame) == (1 + rows * columns) * 2 * 2
+        assert frame["x"].max() == rows and frame["y"].max() == columns
+        # a weight on the last row and column raises their terminals the most
+        pressed = frame[(frame["x"] == rows) & (frame["y"] == columns) & (frame["force"] > 0)]
+        change = pressed[channels].mean() - frame.loc[frame["x"] == 0, channels].mean()
+        assert change.iloc[:rows].idxmax() == f"cx{rows}"
+        assert change.iloc[rows:].idxmax() == f"cy{columns}"
+    else:
+        assert set(frame["x2"]) <= {1, 9, 16} and frame["y2"].max() == columns
+
+
+def test_a_board_source_on_a_channel_array_is_refused_before_any_acquisition(repo_params):
+    from eskin.acquisition.acquire import check_scenes
+
+    params = copy.deepcopy(repo_params)
+    params["scenes"]["single_force"]["skin"] = {"channels": ["bx", "by", "bz"],
+                                                "grid": [3, 3]}
+    params["scenes"]["single_force"]["samples"] = 2
+    typed_params = typed(params)
+    with pytest.raises(ValueError, match="scenes.single_force: source 'simulated' reads a "
+                       "row/column skin over protocol v1, but its skin is an array of 3 "
+                       "channels, 3 × 3 press positions: record it with its own instrument "
+                       r"and import it \(source: import, import: \{path: ...\}\)"):
+        check_scenes(typed_params.scenes, typed_params.cv)

@@ -8,12 +8,13 @@ from scipy.linalg import LinAlgError
 from sklearn.metrics import r2_score
 from sklearn.utils.estimator_checks import check_estimator
 
-from eskin.data.schema import CHANNELS, contact_mask, read_dataset
+from eskin.data.schema import contact_mask, read_dataset
 from eskin.device.physics import SkinModel, SkinParams
 from eskin.evaluation.folds import fold_splitter
 from eskin.learning.estimators import build_model
 from eskin.learning.gp import FixedKernelGaussianProcess, SparseGaussianProcess, stable_cholesky
 from eskin.learning.tasks import get_task
+from eskin.skin import PAPER_SKIN
 from harness import benchmark
 from harness.oracle import (
     CONVERGED,
@@ -151,8 +152,9 @@ def test_a_variant_is_scored_on_the_given_folds_only(small_dataset):
     _, frame = small_dataset
     task = get_task("single_force", "stretch")
     folds = np.arange(len(frame)) % 5
-    estimator, share = benchmark.variant_estimator("stretch", {"model": "paper"})
-    result = benchmark.run_variant(task, frame, fold_splitter(folds, 2), estimator, share)
+    estimator, share = benchmark.variant_estimator("stretch", {"model": "paper"}, PAPER_SKIN)
+    result = benchmark.run_variant(task, frame, fold_splitter(folds, 2), estimator, share,
+                                   skin=PAPER_SKIN)
     assert result["scores"]["stretch"]["r2"] > 0.9
     assert result["seconds_per_fold"] > 0
     assert result["peak_memory_mb"] is None or result["peak_memory_mb"] > 0
@@ -171,9 +173,9 @@ def test_shared_hyperparameters_are_fitted_once(small_dataset, monkeypatch):
     spec = {"model": "sparse_gp", "n_inducing": 50, "hyper_subsample": 100}
     for share, expected in ((True, 1), (False, 3)):
         calls.clear()
-        estimator, _ = benchmark.variant_estimator("force", spec)
+        estimator, _ = benchmark.variant_estimator("force", spec, PAPER_SKIN)
         result = benchmark.run_variant(task, frame, fold_splitter(folds, 3), estimator,
-                                       share)
+                                       share, skin=PAPER_SKIN)
         assert len(calls) == expected
         assert np.isfinite(result["scores"]["force"]["r2"])
 
@@ -185,8 +187,8 @@ def test_variants_go_through_joblib_and_a_parallel_run_scores_the_same(small_dat
     params, frame = small_dataset
     task = get_task("single_force", "stretch")
     variants = {"paper": {"model": "paper"}, "ridge": {"model": "ridge", "alpha": 1.0}}
-    common = dict(schemes=["grouped"], folds=3, seed=0, evaluate_folds=2, oracle=None,
-                  log=lambda _: None)
+    common = dict(skin=PAPER_SKIN, schemes=["grouped"], folds=3, seed=0, evaluate_folds=2,
+                  oracle=None, log=lambda _: None)
     one = benchmark.benchmark_task(task, frame, "single_force", variants, n_jobs=1, **common)
     with parallel_backend("threading"):
         two = benchmark.benchmark_task(task, frame, "single_force", variants, n_jobs=2, **common)
@@ -233,15 +235,16 @@ def test_the_strongest_force_model_does_not_beat_the_bound_on_held_out_trials(li
     from eskin.evaluation.folds import assign_folds
 
     sim, frame, force = light_and_heavy
-    folds = assign_folds(frame, "single_force", "grouped", 4, seed=0)
+    folds = assign_folds(frame, "single_force", "grouped", 4, seed=0, skin=PAPER_SKIN)
     train, test = folds != 0, folds == 0
     rows = frame[test].reset_index(drop=True)
     answers = posterior_predictions(rows, sim, [1.0], [0.0, 1.2936, 3.2536, 5.2136])
     bound_r2 = r2_score(force[test], answers["force"])
+    channels = PAPER_SKIN.channels  # by name: the x and y terminals
     for name, hyper in (("hist_gradient_boosting", {}), ("physics_profile", {"monotone": False})):
-        model = build_model("force", name, {"seed": 0, **hyper})
-        model.fit(frame.loc[train, CHANNELS].to_numpy(float), force[train])
-        predicted = model.predict(frame.loc[test, CHANNELS].to_numpy(float))
+        model = build_model("force", name, {"seed": 0, **hyper}, PAPER_SKIN)
+        model.fit(frame.loc[train, channels], force[train])
+        predicted = model.predict(frame.loc[test, channels])
         assert r2_score(force[test], predicted) < bound_r2, (name, bound_r2)
 
 
@@ -292,7 +295,7 @@ def test_the_pair_bound_converges_and_no_strong_model_beats_it(two_contacts):
     from harness import pair_oracle
 
     sim, conditions, frame = two_contacts
-    folds = assign_folds(frame, "two_force", "grouped", 5, seed=0)
+    folds = assign_folds(frame, "two_force", "grouped", 5, seed=0, skin=PAPER_SKIN)
     train, test = folds != 0, folds == 0
     rows = frame[test].reset_index(drop=True)
     coarse = pair_oracle.posterior_predictions(rows[:12], sim, *conditions,
@@ -302,7 +305,7 @@ def test_the_pair_bound_converges_and_no_strong_model_beats_it(two_contacts):
     moved = pair_oracle.convergence(found, rows)
     assert max(moved.values()) < CONVERGED, moved
     answers = found.all
-    X = frame[CHANNELS].to_numpy(float)
+    X = frame[PAPER_SKIN.channels]  # by name: the x and y terminals
     for task_name in ("force", "localise"):
         task = get_task("two_force", task_name)
         for target, y in task.target_values(frame).items():

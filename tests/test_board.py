@@ -76,3 +76,48 @@ def test_identity_follows_every_setting():
     assert base != simulator_identity(SkinParams(noise_pf=0.031), 101.0)
     assert base != simulator_identity(SkinParams(seed=1), 101.0)
     assert base != simulator_identity(SkinParams(), 100.0)
+
+
+def test_the_papers_skin_reads_byte_for_byte_as_before(repo_params):
+    """The paper's skin, with no skin declared, answers exactly what it answered before
+    skins of other sizes existed (hashes recorded then): the default pipeline's raw data,
+    keys and ids are unchanged."""
+    import hashlib
+
+    from eskin.device.board import probe_answers
+
+    sim = SkinParams.from_mapping(repo_params["sim"])
+    assert hashlib.sha256(probe_answers(sim, 101.0)).hexdigest() == (
+        "65c0a0f3b62eaf0641a161b00a2425b516ee0c06d222d71ddc8a7501ed689d41")
+    assert simulator_identity(sim, 101.0) == "sim-93228d05d5a2"
+    board = SimulatedBoard(sim)
+    out = board.hello() + b"".join(board.handle(command.encode()) for command in (
+        "SIM TRIAL 77", "STRETCH 3.5", "SIM PRESS 2 9 4.5", "SAMPLE 30",
+        "SIM PRESS 10 10 50", "SAMPLE 7"))
+    assert hashlib.sha256(out).hexdigest() == (
+        "72fa4d060ff23f7a157d61266ab8219d3d7c8c3e43f71793a7771fea4d1d7a5c")
+
+
+@pytest.mark.parametrize(("rows", "columns"), [(8, 8), (16, 12), (2, 32)])
+def test_a_board_of_any_size_sends_its_terminals_and_refuses_presses_off_its_skin(rows,
+                                                                                   columns):
+    from eskin.skin import Skin
+
+    skin = Skin(rows, columns)
+    board = SimulatedBoard(SkinParams(), skin=skin)
+    parser = FrameParser(skin.terminals)
+    hello = parser.feed(board.hello())[0]
+    assert hello.terminals == rows + columns
+    assert hello.device_id != simulator_identity(SkinParams(), 101.0), "its own id"
+    assert parser.feed(board.handle(f"SIM PRESS {rows + 1} 1 1".encode()))[0].details == (
+        f"{rows + 1} is outside 1..{rows}")
+    assert parser.feed(board.handle(f"SIM PRESS 1 {columns + 1} 1".encode()))[0].details == (
+        f"{columns + 1} is outside 1..{columns}")
+    board.handle(b"SIM TRIAL 1")
+    rest = np.mean([e.counts for e in parser.feed(board.handle(b"SAMPLE 20"))
+                    if isinstance(e, Frame)], 0)
+    board.handle(f"SIM PRESS {rows} {columns} 5.2136".encode())
+    frames = [e for e in parser.feed(board.handle(b"SAMPLE 20")) if isinstance(e, Frame)]
+    assert len(frames) == 20 and all(len(f.counts) == rows + columns for f in frames)
+    change = np.mean([f.counts for f in frames], 0) - rest
+    assert np.argmax(change[:rows]) == rows - 1 and np.argmax(change[rows:]) == columns - 1

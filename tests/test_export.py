@@ -16,27 +16,31 @@ import pytest
 from sklearn.base import BaseEstimator, RegressorMixin
 from sklearn.ensemble import HistGradientBoostingClassifier, HistGradientBoostingRegressor
 
-from eskin.data.schema import CHANNELS
 from eskin.deploy.export import ExportError, compare, stack_to_onnx, write_stack
 from eskin.deploy.stack import ExportedStack, SkinStack
+from eskin.evaluation.crossval import channel_frame
 from eskin.learning.estimators import REGISTRY, ActiveTerminals, ForceProfile, build_model
 from eskin.learning.features import make_featurizer
+from eskin.skin import PAPER_SKIN, ChannelArray, Skin
+
+CHANNELS = PAPER_SKIN.channels
 
 
-def readings(n: int, seed: int) -> np.ndarray:
-    """ADC-like counts: integers, so that neighbours tie; a press lifts a few terminals."""
+def readings(n: int, seed: int, skin: Skin = PAPER_SKIN) -> np.ndarray:
+    """ADC-like counts of ``skin``'s terminals: integers, so that neighbours tie; a press
+    lifts a few terminals of each axis."""
     rng = np.random.default_rng(seed)
-    counts = rng.integers(500, 504, size=(n, 20)).astype(float)
+    counts = rng.integers(500, 504, size=(n, skin.terminals)).astype(float)
     for row in range(n):
-        for axis in (0, 10):
+        for start, width in ((0, skin.rows), (skin.rows, skin.columns)):
             for _ in range(rng.integers(0, 3)):  # 0, 1 or 2 presses: 0 to 2 peaks
-                at = axis + rng.integers(0, 10)
+                at = start + rng.integers(0, width)
                 counts[row, at] += rng.integers(1, 40)
     return counts
 
 
 def fitted(role: str, name: str, X, y, **hyper):
-    return build_model(role, name, hyper).fit(pd.DataFrame(X, columns=CHANNELS), y)
+    return build_model(role, name, hyper, PAPER_SKIN).fit(pd.DataFrame(X, columns=CHANNELS), y)
 
 
 def exported(stack: SkinStack, tmp_path) -> ExportedStack:
@@ -68,7 +72,7 @@ def test_a_single_force_stack_exports_with_the_same_estimates(featurizer, tmp_pa
                      "y": fitted("localise", "hist_gradient_boosting", F, where % 3,
                                  max_iter=10)},
     }
-    stack = SkinStack("synthetic", "single_force", transform, models,
+    stack = SkinStack("synthetic", "single_force", PAPER_SKIN, transform, models,
                       rest=X[~contact].mean(axis=0))
     onnx_stack = exported(stack, tmp_path)
     assert_same(stack, onnx_stack, readings(800, seed=2))
@@ -87,7 +91,7 @@ def test_a_two_force_stack_exports_with_the_same_estimates(tmp_path):
                                    max_iter=15),
                   "force2": fitted("force", "random_forest", X, X[:, 14], n_estimators=5)},
     }
-    stack = SkinStack("synthetic", "two_force", make_featurizer("raw").fit(
+    stack = SkinStack("synthetic", "two_force", PAPER_SKIN, make_featurizer("raw").fit(
         pd.DataFrame(X, columns=CHANNELS)), models, skipped={"stretch": "one level"})
     onnx_stack = exported(stack, tmp_path)
     test = readings(800, seed=4)
@@ -121,10 +125,13 @@ def test_a_missing_value_takes_the_branch_each_split_learnt(tmp_path):
             np.testing.assert_allclose(ours[0].ravel(), model.predict(test), rtol=0, atol=1e-12)
 
 
-def test_the_transformers_match_numpy_to_the_last_bit():
+@pytest.mark.parametrize("skin", [PAPER_SKIN, Skin(8, 12), Skin(16, 12), Skin(3, 4)],
+                         ids=lambda skin: f"{skin.rows}x{skin.columns}")
+def test_the_transformers_match_numpy_to_the_last_bit(skin):
     """ForceProfile's sums run in numpy's order, ActiveTerminals breaks ties as a stable
     argsort does: both give numpy's values exactly, on every row — but for the log of
-    the amplitude ratio, whose last bit is onnxruntime's log (the next step rounds to 1e-6)."""
+    the amplitude ratio, whose last bit is onnxruntime's log (the next step rounds to 1e-6)
+    — on each axis of any R × C skin."""
     import onnxruntime
     from skl2onnx import convert_sklearn
     from skl2onnx.common.data_types import DoubleTensorType
@@ -132,14 +139,16 @@ def test_the_transformers_match_numpy_to_the_last_bit():
     from eskin.deploy.export import CONVERTER_OPSETS, _register
 
     _register()
-    X = readings(3000, seed=5) * 1.37  # sums of non-integers, where order shows
-    log_ratios = [24, 29]
+    # Sums of non-integers, where order shows; by name, and in numpy's own (C) order
+    X = channel_frame(readings(3000, seed=5, skin=skin) * 1.37, skin.channels)
+    n = skin.terminals
+    log_ratios = [n + 4, n + 9]
     for transformer in (ForceProfile(quiet=3).fit(X), ActiveTerminals().fit(X)):
-        model = convert_sklearn(transformer, initial_types=[("x", DoubleTensorType([None, 20]))],
+        model = convert_sklearn(transformer, initial_types=[("x", DoubleTensorType([None, n]))],
                                 target_opset=CONVERTER_OPSETS)
         session = onnxruntime.InferenceSession(model.SerializeToString())
-        ours = session.run(None, {"x": X[:500]})[0]  # 500 rows: within numpy's buffer
-        theirs = transformer.transform(X[:500])
+        ours = session.run(None, {"x": X.to_numpy()[:500]})[0]  # 500 rows: in numpy's buffer
+        theirs = transformer.transform(channel_frame(X.to_numpy()[:500], skin.channels))
         exact = [c for c in range(theirs.shape[1])
                  if not (isinstance(transformer, ActiveTerminals) and c in log_ratios)]
         np.testing.assert_array_equal(ours[:, exact], theirs[:, exact])
@@ -163,7 +172,7 @@ def test_every_model_of_the_registry_exports(role, name, tmp_path):
     task, target = {"stretch": ("stretch", "stretch"), "force": ("force", "force"),
                     "detect": ("detect", "contact"), "localise": ("localise", "x")}[role]
     models = {task: {target: fitted(role, name, X, targets[role], **SMALL.get((role, name), {}))}}
-    stack = SkinStack("every", "single_force", make_featurizer("raw").fit(X), models)
+    stack = SkinStack("every", "single_force", PAPER_SKIN, make_featurizer("raw").fit(X), models)
     assert_same(stack, exported(stack, tmp_path), readings(300, seed=13))
 
 
@@ -180,7 +189,7 @@ class Channel3(RegressorMixin, BaseEstimator):
 
 def test_a_model_without_an_onnx_form_is_one_clear_error():
     X = readings(200, seed=8)
-    stack = SkinStack("own", "two_force", make_featurizer("raw").fit(X),
+    stack = SkinStack("own", "two_force", PAPER_SKIN, make_featurizer("raw").fit(X),
                       {"force": {"force1": Channel3().fit(X, X[:, 0])}})
     with pytest.raises(ExportError, match="cannot export Channel3: Unable to find a shape"):
         stack_to_onnx(stack)
@@ -188,14 +197,40 @@ def test_a_model_without_an_onnx_form_is_one_clear_error():
 
 def test_the_file_says_what_it_is(tmp_path):
     X = readings(300, seed=9)
-    stack = SkinStack("meta", "two_force", make_featurizer("raw").fit(X),
+    stack = SkinStack("meta", "two_force", PAPER_SKIN, make_featurizer("raw").fit(X),
                       {"force": {"force1": fitted("force", "hist_gradient_boosting", X, X[:, 0],
                                                   max_iter=3)}},
                       device={"id": "board-7"})
     path = write_stack(stack, tmp_path / "s.onnx", sources={"models/meta/force.joblib": "ab"})
     props = {p.key: p.value for p in onnx.load(path).metadata_props}
     assert props["eskin.scene"] == "meta" and '"board-7"' in props["eskin.device"]
+    assert "eskin.skin" not in props  # the paper's: its stacks keep their bytes
     loaded = ExportedStack.from_file(path)
+    assert loaded.skin == PAPER_SKIN
     loaded.check_board("board-7")
     with pytest.raises(ValueError, match="trained on device board-7"):
         loaded.check_board("board-8")
+
+
+@pytest.mark.parametrize("skin", [Skin(8, 12), ChannelArray(("m1x", "m1y", "m2x"), 3, 2,
+                                                            (0.0, 5.0, 10.0), (0.0, 5.0))],
+                         ids=["8x12", "channel_array"])
+def test_a_stack_is_as_wide_as_its_skin_and_names_it(skin, tmp_path):
+    """The file's input is the skin's channels, its metadata names the skin, and a frame
+    of another width is one line saying which skin the stack reads."""
+    rng = np.random.default_rng(14)
+    X = pd.DataFrame(rng.normal(500, 5, (200, skin.terminals)), columns=skin.channels)
+    force = X.iloc[:, 0].to_numpy() - 495
+    models = {"force": {"force1": build_model("force", "hist_gradient_boosting",
+                                              {"max_iter": 5}, skin).fit(X, force)}}
+    stack = SkinStack("wide", "two_force", skin, make_featurizer("raw").fit(X), models)
+    path = write_stack(stack, tmp_path / "s.onnx", sources={})
+    graph_input = onnx.load(path).graph.input[0].type.tensor_type.shape.dim
+    assert graph_input[1].dim_value == skin.terminals
+    loaded = ExportedStack.from_file(path)
+    assert loaded.skin == skin
+    assert_same(stack, loaded, X.to_numpy())
+    for each in (stack, loaded):
+        with pytest.raises(ValueError, match=rf"^the wide stack is for the .*: a frame has "
+                                             rf"{skin.terminals} channels, got 21$"):
+            each.predict(np.zeros((1, 21)))

@@ -26,30 +26,35 @@ from eskin.acquisition.session import acquire_scene
 from eskin.device.board import FIRMWARE, SimulatedBoard, simulator_identity
 from eskin.device.emulated import (
     EMULATED_ID,
-    FIRMWARE_ELF,
-    HARNESS,
     cav424_volts,
     emulated_board,
+    firmware_elf,
+    harness,
 )
 from eskin.device.faults import LinkFaults
 from eskin.device.link import LinkError
 from eskin.device.physics import SkinModel, SkinParams
 from eskin.device.protocol import Frame, parse_line
+from eskin.skin import PAPER_SKIN, Skin
 
 REST_MM = 101.0
+EIGHT = Skin(8, 8)  # skins of other sizes, their firmware built by emulated_board
+WIDE = Skin(20, 18)  # its x17..x20 and y17, y18 on the third and fourth multiplexers
 ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
 def sim(repo_params):
-    for built in (FIRMWARE_ELF, HARNESS):
+    for built in (firmware_elf(PAPER_SKIN), harness(PAPER_SKIN)):
         assert built.exists(), f"{built} is missing: `make test` builds it (make firmware)"
     return SkinParams.from_mapping(repo_params["sim"])
 
 
 @pytest.fixture
-def board(sim):
-    with emulated_board(sim, rest_length_mm=REST_MM, samples=5) as (port, rig):
+def board(sim, request):
+    """The emulated board of the paper's skin, or of the skin a test parametrizes."""
+    skin = getattr(request, "param", PAPER_SKIN)
+    with emulated_board(sim, skin=skin, rest_length_mm=REST_MM, samples=5) as (port, rig):
         # Emulated time runs slower than real time on a busy machine (a 2 s stretch of the
         # clamp took over 10 s once): the deadline is for a board that is gone, not slow.
         link = serial.Serial(port, 115200, timeout=60)
@@ -117,8 +122,9 @@ def test_streaming_goes_on_while_commands_are_answered(board):
 
 
 def emulated_and_python_frames(link, rig, sim, conditions, samples):
-    """Each (mm, trial, contacts) on both boards: their frames' counts, (frames, 20) each."""
-    python = SimulatedBoard(sim)
+    """Each (mm, trial, contacts) on both boards of the rig's skin: their frames' counts,
+    (frames, terminals) each."""
+    python = SimulatedBoard(sim, skin=rig.model.skin)
     ours, theirs = [], []
     for mm, trial, contacts in conditions:
         for command in (f"STRETCH {mm}", "SIM CLEAR", f"SIM TRIAL {trial}",
@@ -139,13 +145,23 @@ def emulated_and_python_frames(link, rig, sim, conditions, samples):
     return np.array(ours), np.array(theirs)
 
 
+@pytest.mark.parametrize("board", [PAPER_SKIN, EIGHT, WIDE], ids=["10x10", "8x8", "20x18"],
+                         indirect=True)
 def test_the_firmware_reads_what_the_python_board_sends_for_the_same_trials(board, sim):
+    """On the paper's skin and on others, each firmware built for its own skin: the
+    presses on the last row and column reach the terminals of the third and fourth
+    multiplexers on the 20 × 18."""
     link, rig = board
+    skin = rig.model.skin
     conditions = [("0.000", 9, []), ("7.999", 5, [(3, 4, 3.2536)]),
-                  ("15.998", 11, [(10, 1, 5.2136), (1, 10, 1.2936)]),
+                  ("15.998", 11, [(skin.rows, 1, 5.2136), (1, skin.columns, 1.2936)]),
                   ("0.000", 12, [(6, 6, 1.2936)])]
     ours, theirs = emulated_and_python_frames(link, rig, sim, conditions, samples=5)
-    assert ours.shape == theirs.shape == (20, 20)
+    assert ours.shape == theirs.shape == (20, skin.terminals)
+    hello = parse_line(ask(link, b"HELLO").rstrip(b"\n"))
+    assert hello.terminals == skin.terminals
+    assert hello.firmware == ("fw-1.0.0" if skin == PAPER_SKIN
+                              else f"fw-1.0.0+{skin.rows}x{skin.columns}")
     differ = ours != theirs
     # A voltage reaches simavr in 1/64 of an ADC step: within that of a transition a
     # reading may round the other way (module docstring of eskin.device.emulated).
@@ -228,13 +244,19 @@ def test_a_failing_rig_is_named_in_the_hosts_error(sim, tmp_path, monkeypatch):
     assert len(read_log(tmp_path / LOG_NAME).completed) == 2
 
 
-def test_a_scene_of_params_yaml_is_acquired_from_the_firmware(small_params, tmp_path):
+@pytest.mark.parametrize("skin", [None, {"rows": 16, "columns": 12}], ids=["paper", "16x12"])
+def test_a_scene_of_params_yaml_is_acquired_from_the_firmware(small_params, tmp_path, skin):
     """``source: emulated`` (here ``eskin acquire --source emulated``) acquires a scene from
-    the firmware through the unchanged host code, and ingest makes a dataset of it."""
+    the firmware built for the scene's skin through the unchanged host code, and ingest
+    makes a dataset of it, with that skin's channels."""
+    from eskin.data.schema import read_metadata
     from tests.conftest import write_params
 
+    rows, columns = (10, 10) if skin is None else (skin["rows"], skin["columns"])
     small_params["scenes"]["two_force"].update(
-        forces=[5.2136], nodes_x=[1, 10], nodes_y=[1, 10], samples=4)
+        forces=[5.2136], nodes_x=[1, rows], nodes_y=[1, columns], samples=4)
+    if skin is not None:
+        small_params["scenes"]["two_force"]["skin"] = skin
     small_params["cv"]["folds"] = 2
     write_params(tmp_path, small_params)
     for command in (["acquire", "two_force", "--source", "emulated", "--no-progress"],
@@ -245,15 +267,22 @@ def test_a_scene_of_params_yaml_is_acquired_from_the_firmware(small_params, tmp_
         assert done.returncode == 0, done.stderr
     log = read_log(tmp_path / "data/raw/two_force" / LOG_NAME)
     assert log.sessions[-1]["simulator"]["emulated"] is True
-    rows = pd.read_parquet(tmp_path / "data/processed/two_force.parquet")
-    assert len(rows) == 6 * 4  # 6 pairs of the 4 corner nodes, 4 samples each
+    path = tmp_path / "data/processed/two_force.parquet"
+    data = pd.read_parquet(path)
+    assert len(data) == 6 * 4  # 6 pairs of the 4 corner nodes, 4 samples each
+    assert [c for c in data.columns if c[:2] in ("cx", "cy")] == (
+        [f"cx{i}" for i in range(1, rows + 1)] + [f"cy{i}" for i in range(1, columns + 1)])
+    assert read_metadata(path).get("skin") == skin  # recorded when not the paper's
+    device = log.sessions[-1]["device"]
+    assert device["terminals"] == rows + columns and device["firmware"].startswith("fw-")
 
 
 def test_a_board_without_an_id_is_given_one_once_and_refused_before(sim, tmp_path):
     """A new board says id=unset, which any other new board shares: acquisition from a
     port refuses it, saying how to give it one; `eskin device set-id` does, once."""
     plan = two_force_plan("pairs", [1.0], [5.2136], [1, 10], [1, 10], samples=4)
-    with emulated_board(sim, rest_length_mm=REST_MM, samples=4) as (port, _rig):
+    with emulated_board(sim, skin=PAPER_SKIN, rest_length_mm=REST_MM,
+                        samples=4) as (port, _rig):
         with pytest.raises(AcquisitionError, match=f"the board on {port} has no device id "
                            f"\\(id=unset\\): give it one, once: eskin device set-id {port} <id>"):
             acquire_scene(plan, tmp_path, source="serial", port=port, sim=sim,
@@ -268,3 +297,29 @@ def test_a_board_without_an_id_is_given_one_once_and_refused_before(sim, tmp_pat
         assert again.returncode == 1
         assert again.stderr.strip().endswith(
             f"the board on {port} already has the id 'lab2-skin1': an id is set once")
+
+
+def test_the_firmware_header_maps_each_terminal_to_its_multiplexer():
+    """x1..x16 and y1..y16 on multiplexers 0 and 1, x17.. and y17.. on 2 and 3; only the
+    multiplexers a skin uses are driven; the paper's firmware keeps its name."""
+    from eskin.device.firmware import FirmwareSkinError, firmware_tag, skin_header, terminal_map
+    from eskin.skin import ChannelArray
+
+    mapping = terminal_map(WIDE)
+    assert mapping[:2] == [(0, 0), (0, 1)] and mapping[15:17] == [(0, 15), (2, 0)]
+    assert mapping[20:22] == [(1, 0), (1, 1)] and mapping[36:] == [(3, 0), (3, 1)]
+    assert "#define MULTIPLEXERS_USED 0xf" in skin_header(WIDE)
+    paper = skin_header(PAPER_SKIN)
+    assert "#define TERMINALS 20" in paper and "#define MULTIPLEXERS_USED 0x3" in paper
+    assert (firmware_tag(PAPER_SKIN), firmware_tag(EIGHT)) == ("", "+8x8")
+    with pytest.raises(FirmwareSkinError, match="the firmware reads a row/column skin"):
+        skin_header(ChannelArray(("a", "b"), 2, 2))
+
+
+def test_a_firmware_beyond_32_rows_is_refused_in_one_line():
+    done = subprocess.run(["make", "-s", "-C", str(ROOT / "firmware/eskin"), "ROWS=40",
+                           "COLUMNS=8", f"PYTHON={sys.executable}"], capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode != 0
+    assert "firmware for ROWS=40 COLUMNS=8: a skin has 2 to 32 rows, got 40" in done.stderr
+    assert not (ROOT / "firmware/eskin/build/40x8/eskin.elf").exists()

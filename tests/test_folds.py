@@ -11,11 +11,13 @@ from sklearn.model_selection import check_cv, cross_val_score
 from sklearn.model_selection import cross_validate as sklearn_cross_validate
 from sklearn.neighbors import KNeighborsRegressor
 
-from eskin.data.schema import CHANNELS
 from eskin.evaluation.crossval import cross_validate
 from eskin.evaluation.folds import FoldSplit, fold_splitter
 from eskin.learning.tasks import Task
+from eskin.skin import PAPER_SKIN
 from harness import benchmark
+
+CHANNELS = PAPER_SKIN.channels
 
 # Fold numbers with rows no fold tests (-1), folds out of order and a gap (no 3..8).
 FOLDS = np.array([2, 0, 1, -1, 2, 9, 1, 0, -1, 2, 0, 1, 2, 9, 0, -1, 1, 2, 0, 1,
@@ -96,7 +98,7 @@ EXPECTED_BOUND = {"r2": -3.0792397497754864, "mse": 710.25, "mae": 23.25, "mae_s
 def test_out_of_fold_predictions_are_those_of_the_old_fold_loop():
     task, frame = synthetic()
     result = cross_validate(task, frame, FOLDS, KNeighborsRegressor(n_neighbors=1),
-                            "stratified")
+                            "stratified", PAPER_SKIN)
     predicted = [None if pd.isna(v) else float(v) for v in result.predictions["target_pred"]]
     assert predicted == EXPECTED_OOF
     assert result.predictions["fold"].tolist() == EXPECTED_FOLD
@@ -109,7 +111,7 @@ def test_the_bench_scores_the_old_fold_loops_folds():
     data = frame[rows].reset_index(drop=True)
     splitter = fold_splitter(FOLDS[rows], 2)
     scores = benchmark.run_variant(task, data, splitter, KNeighborsRegressor(n_neighbors=1),
-                                   False)["scores"]["target"]
+                                   False, skin=PAPER_SKIN)["scores"]["target"]
     for name, value in EXPECTED_VARIANT.items():
         assert scores[name] == pytest.approx(value, rel=1e-12)
     oracle = pd.DataFrame({"target": data["target"].to_numpy()[::-1].copy()})
@@ -127,11 +129,12 @@ def test_cv_and_the_bench_run_their_folds_through_the_splitter(monkeypatch):
                         or split(self, *a, **k))
     monkeypatch.setattr(FoldSplit, "fold", lambda self, k: calls.append("fold")
                         or fold(self, k))
-    cross_validate(task, frame, FOLDS, KNeighborsRegressor(n_neighbors=1), "stratified")
+    cross_validate(task, frame, FOLDS, KNeighborsRegressor(n_neighbors=1), "stratified",
+                   PAPER_SKIN)
     assert calls.count("fold") == 4
     calls.clear()
     rows = task.rows(frame)
     data = frame[rows].reset_index(drop=True)
     benchmark.run_variant(task, data, fold_splitter(FOLDS[rows]),
-                          KNeighborsRegressor(n_neighbors=1), False)
+                          KNeighborsRegressor(n_neighbors=1), False, skin=PAPER_SKIN)
     assert calls == ["split"]

@@ -83,11 +83,10 @@ def write_lab_pairs(path: Path) -> int:
 
 def scenes(lab_single: Path, lab_pairs: Path, port: str) -> dict:
     return {
-        "lab_single": {"kind": "single_force", "source": "import", "import_path": str(lab_single),
-                       "stretches": [1.0, 1.1], "forces": [0.0, 2.0, 4.0], "samples": SAMPLES},
-        "lab_pairs": {"kind": "two_force", "source": "import", "import_path": str(lab_pairs),
-                      "stretches": [1.0], "forces": [1.5, 3.0], "nodes_x": list(NODES),
-                      "nodes_y": list(NODES), "samples": SAMPLES},
+        "lab_single": {"kind": "single_force", "source": "import",
+                       "import": {"path": str(lab_single)}},
+        "lab_pairs": {"kind": "two_force", "source": "import",
+                      "import": {"path": str(lab_pairs)}},
         "board_day1": {"kind": "single_force", "source": "serial", "port": port,
                        "stretches": [1.0], "forces": [0.0, 3.2536], "samples": 3},
     }

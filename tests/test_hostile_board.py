@@ -14,6 +14,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 from conftest import eskin, small_scenes, write_params
@@ -25,20 +26,23 @@ from eskin.acquisition.runner import AcquisitionError, SimulatedPlacer
 from eskin.acquisition.session import run_session
 from eskin.config import validate_params
 from eskin.data.ingest import ingest_log
-from eskin.data.schema import CHANNELS, LABELS
+from eskin.data.schema import LABELS
 from eskin.device.host import (
     Greeted,
     HostProtocol,
     Junk,
     OtherBoard,
+    OtherSkin,
     Restarted,
     SampleComplete,
     SampleFrame,
     Stray,
     Violation,
 )
+from eskin.skin import PAPER_SKIN
 
-CONTENT = ["trial", "sample", *CHANNELS, *LABELS["single_force"]]
+PAPER_CHANNELS = PAPER_SKIN.channels  # the scenes of these tests are on the paper's skin
+CONTENT = ["trial", "sample", *PAPER_CHANNELS, *LABELS["single_force"]]
 TIMEOUT_S, RECONNECT_S = 0.5, 2.0
 
 
@@ -144,6 +148,19 @@ def test_protocol_tells_a_restart_from_another_board():
     assert [type(e) for e in events[2:]] == [Stray] * 3, "nothing of b2 is credited"
 
 
+def test_protocol_refuses_a_board_of_other_terminals_than_the_skin_it_reads():
+    """A host reading the paper's skin (20 terminals) greets a 16-terminal board: the
+    greeting ends in OtherSkin, and that board's frames never parse as the skin's."""
+    host = HostProtocol(terminals=20)
+    host.send_greeting()
+    events = host.receive(b"#HELLO eskin fw terminals=16 adc_bits=10 id=b8\n#OK STREAM OFF\n")
+    assert [type(e) for e in events] == [OtherSkin]
+    assert (events[0].hello.terminals, events[0].expected) == (16, 20)
+    narrow = b"".join(frame_line(i, 12 * i, [500] * 16) for i in range(2))
+    assert all(isinstance(e, Junk) and "expected 22" in e.error.reason
+               for e in host.receive(narrow))
+
+
 def test_protocol_a_damaged_first_frame_with_no_seq_to_place_it_costs_one_retry():
     """Issue 40, finding 1: after a connect (or a #HELLO) the host has no seq to compare
     with. A damaged first frame made it owe the seq after the answer's last frame, so
@@ -230,7 +247,7 @@ def test_another_board_mid_request_stops_and_none_of_its_frames_is_stored(
     stored = {key: [f.counts for f in a.frames] for key, a in contents.completed.items()}
     for key, rows in stored.items():
         assert all(777 not in counts for counts in rows)
-        expected = clean[clean["trial"] == key][CHANNELS].to_numpy().tolist()
+        expected = clean[clean["trial"] == key][PAPER_CHANNELS].to_numpy().tolist()
         assert [list(map(float, r)) for r in rows] == expected
 
 
@@ -294,7 +311,7 @@ def test_a_board_that_lags_by_a_frame_is_given_up_on_never_stored_shifted(
     contents = read_log(tmp_path / "acquisition.log")
     assert len(contents.completed) == 49
     for key, attempt in contents.completed.items():
-        expected = clean[clean["trial"] == key][CHANNELS].to_numpy().tolist()
+        expected = clean[clean["trial"] == key][PAPER_CHANNELS].to_numpy().tolist()
         assert [list(map(float, f.counts)) for f in attempt.frames] == expected
 
 
@@ -398,6 +415,52 @@ def test_a_kill_at_the_first_prompt_leaves_a_log_the_next_run_continues(tmp_path
     assert eskin(["ingest", "single_force"], tmp_path).returncode == 0
 
 
+def skin_params(repo_params, rows, columns):
+    """Small single-force params on a ``rows`` × ``columns`` skin: one stretch, 3 samples."""
+    params = hostile_params(repo_params)
+    params["scenes"]["single_force"].update(stretches=[1.0], forces=[0.0, 3.2536], samples=3,
+                                            skin={"rows": rows, "columns": columns})
+    return params
+
+
+def test_a_board_of_8_by_8_terminals_gives_the_8_by_8_dataset(tmp_path, repo_params):
+    """The independent board with 16 terminals, a scene on an 8 × 8 skin: every condition
+    stored, 16 channels, the pressed row and column the raised ones."""
+    params = skin_params(repo_params, 8, 8)
+    report, plan = acquire_from(HostileBoard(rows=8, columns=8), tmp_path, params)
+    assert report.conditions == 2 * 65 and report.frames_rejected == 0
+    frame = ingest_log(tmp_path / "acquisition.log", plan).frame
+    channels = [f"cx{i}" for i in range(1, 9)] + [f"cy{i}" for i in range(1, 9)]
+    assert [c for c in frame.columns if c[:2] in ("cx", "cy")] == channels
+    pressed = frame[(frame["force"] > 0) & (frame["x"] == 3) & (frame["y"] == 8)]
+    assert len(pressed) == 3
+    raised = pressed[channels].to_numpy() - frame.loc[frame["x"] == 0, channels].mean().to_numpy()
+    assert set(np.flatnonzero(raised.min(axis=0) > 60)) == {2, 8 + 7}  # cx3 and cy8
+
+
+@pytest.mark.parametrize(("rows", "columns", "board"), [(10, 10, (8, 8)), (16, 12, (10, 10))])
+def test_a_board_of_another_size_is_refused_in_one_line_and_nothing_is_lost(
+        tmp_path, repo_params, rows, columns, board):
+    """`eskin acquire` on a scene whose skin is not the board's: exit 1, one line with
+    both counts and the key to set, and the raw log as it was, byte for byte."""
+    params = skin_params(repo_params, rows, columns)
+    if (rows, columns) == (10, 10):
+        del params["scenes"]["single_force"]["skin"]  # the paper's skin, by default
+    log = tmp_path / "data" / "raw" / "single_force" / "acquisition.log"
+    log.parent.mkdir(parents=True)
+    log.write_bytes(b"#eskin-raw 1\n")
+    code, stderr, _, _ = run_cli_against(HostileBoard(rows=board[0], columns=board[1]),
+                                         tmp_path, params)
+    terminals = sum(board)
+    assert code == 1 and "Traceback" not in stderr, stderr
+    assert stderr.count("\n") == 1, stderr
+    assert (f"has {terminals} terminals (terminals={terminals} in its #HELLO), but the "
+            f"scene's skin is the {rows} × {columns} row/column skin ({rows + columns} "
+            "terminals): set scenes.single_force.skin to the board's rows and columns "
+            f"({{rows: R, columns: C}} with R + C = {terminals})") in stderr, stderr
+    assert log.read_bytes() == b"#eskin-raw 1\n"
+
+
 def test_an_empty_or_headerless_log_from_an_earlier_version_is_continued(honest, tmp_path):
     params, clean = honest
     plan = plan_from_params("single_force", validate_params(params).scenes["single_force"])
@@ -470,7 +533,9 @@ MISTAKES = {
                     "'serail': Input should be 'simulated', 'emulated', 'serial' or "
                     "'import'"),
     "import with no file": (("scenes", "two_force", "source"), "import",
-                            "scenes.two_force: source is 'import' but import_path is unset"),
+                            "scenes.two_force: an import scene's labels come from its files, "
+                            "not a plan: remove stretches, forces, samples, nodes_x, nodes_y; "
+                            "set import.path to the files"),
     "serial with no port": (("scenes", "two_force", "source"), "serial",
                             "scenes.two_force: source is 'serial' but port is unset"),
 }
@@ -499,8 +564,10 @@ def test_invalid_yaml_and_a_directory_import_path_are_one_line(tmp_path, repo_pa
     assert result.returncode == 1 and result.stderr.startswith(
         "eskin: error: params.yaml:3:1: not valid YAML"), result.stderr
     params = copy.deepcopy(repo_params)
-    params["scenes"]["single_force"].update(source="import", import_path=str(tmp_path))
+    params["scenes"]["single_force"] = {"kind": "single_force", "source": "import",
+                                        "import": {"path": str(tmp_path)}}
     write_params(tmp_path, params)
     result = eskin(["acquire", "single_force"], tmp_path)
     assert result.returncode == 1 and "Traceback" not in result.stderr
-    assert "is a directory" in result.stderr and "import_path" in result.stderr, result.stderr
+    assert "the folder has no CSV or Parquet file" in result.stderr and \
+        "import.path" in result.stderr, result.stderr

@@ -10,7 +10,8 @@ import pytest
 from conftest import acquire_step, ingest_step
 
 from eskin.data.importer import import_paper_layout
-from eskin.data.schema import CHANNELS, DatasetError, arrow_schema, read_metadata
+from eskin.data.schema import DatasetError, arrow_schema, read_metadata
+from eskin.skin import PAPER_SKIN
 
 rng = np.random.default_rng(0)
 
@@ -44,7 +45,7 @@ def test_csv_in_the_paper_layout_gets_the_dataset_schema(tmp_path):
 
 
 def test_header_row_and_two_force_layout_without_stretch(tmp_path):
-    header = CHANNELS + ["force1", "x1", "y1", "force2", "x2", "y2"]
+    header = PAPER_SKIN.channels + ["force1", "x1", "y1", "force2", "x2", "y2"]
     path = write_csv(tmp_path / "two.csv", paper_rows(kind="two_force"), header)
     result = import_paper_layout(path, "two_force")
     assert len(result.frame) == 24 and (result.frame["stretch"] == 1.0).all()
@@ -115,9 +116,10 @@ def test_truncated_parquet_is_a_clear_error(tmp_path):
 def test_import_source_runs_through_the_pipeline_steps(tmp_path, small_params):
     source = write_csv(tmp_path / "lab.csv", paper_rows())
     params = copy.deepcopy(small_params)
-    params["scenes"]["single_force"].update(source="import", import_path=str(source))
+    params["scenes"]["single_force"] = {"kind": "single_force", "source": "import",
+                                        "import": {"path": str(source)}}
     acquire_step(params, "single_force", tmp_path / "raw")
-    assert (tmp_path / "raw" / "import.csv").read_bytes() == source.read_bytes()
+    assert (tmp_path / "raw" / "import" / "lab.csv").read_bytes() == source.read_bytes()
     message = ingest_step(params, "single_force", tmp_path / "raw", tmp_path / "out").summary
     assert "24 rows" in message
     frame = pq.read_table(tmp_path / "out" / "single_force.parquet").to_pandas()
@@ -183,15 +185,16 @@ def test_a_header_naming_a_column_elsewhere_says_what_to_rename(tmp_path):
 
 
 BAD_SCENES = {
-    "missing file": (lambda d: {"import_path": str(d / "nowhere.csv")},
-                     "scenes.lab.import_path = '{d}/nowhere.csv': no such file"),
-    "other kind's layout": (lambda d: {"import_path": str(write_csv(
-        d / "two.csv", paper_rows(kind="two_force")))},
-        "scenes.lab.import_path: {d}/two.csv: 26 columns, but the single_force layout has 24 "
-        "— that is the two_force layout"),
+    "missing file": (lambda d: {"import": {"path": str(d / "nowhere.csv")}},
+                     "scenes.lab.import.path = '{d}/nowhere.csv': no such file"),
+    "other kind's layout": (lambda d: {"import": {"path": str(write_csv(
+        d / "two.csv", paper_rows(kind="two_force")))}},
+        "scenes.lab.import: {d}/two.csv: 26 columns, but the single_force layout has 24 "
+        "— that is the two_force layout (the skin's 20 channels, then force, x, y, "
+        "stretch); for another instrument's files, name their columns in import.columns"),
     "too few trials": (lambda d: {"kind": "two_force", "source": "simulated",
                                   "stretches": [1.0], "forces": [1.0], "nodes_x": [1, 6],
-                                  "nodes_y": [1]},
+                                  "nodes_y": [1], "samples": 4},
                        "scenes.lab: 1 trials (conditions), but grouped CV with cv.folds = 10 "
                        "needs at least 10; add stretches, forces or nodes, or lower cv.folds"),
 }
@@ -205,9 +208,7 @@ def test_a_bad_scene_stops_every_acquisition_before_it_starts(tmp_path, repo_par
 
     make, expected = BAD_SCENES[mistake]
     params = copy.deepcopy(repo_params)
-    params["scenes"]["lab"] = {"kind": "single_force", "source": "import",
-                               "stretches": [1.0, 1.1], "forces": [0.0, 2.0], "samples": 4,
-                               **make(tmp_path)}
+    params["scenes"]["lab"] = {"kind": "single_force", "source": "import", **make(tmp_path)}
     write_params(tmp_path, params)
     result = eskin(["acquire", "single_force", "--no-progress"], tmp_path)
     assert result.returncode == 1 and result.stderr.count("\n") == 1, result.stderr

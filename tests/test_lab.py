@@ -22,6 +22,7 @@ from eskin.evaluation.crossval import cross_validate, parallel_backend
 from eskin.evaluation.folds import assign_folds
 from eskin.learning.estimators import build_model
 from eskin.learning.tasks import get_task
+from eskin.skin import PAPER_SKIN
 from tests.conftest import prepared_scene, small_scenes
 
 # ---------------------------------------------------------------- Dask
@@ -51,11 +52,12 @@ def dataset(tmp_path_factory, repo_params):
 def cv_on(backend: str, frame: pd.DataFrame, n_jobs: int = 2,
           model: str = "hist_gradient_boosting"):
     task = get_task("single_force", "force")
-    folds = assign_folds(frame, "single_force", "grouped", 10, 42)
+    folds = assign_folds(frame, "single_force", "grouped", 10, 42, skin=PAPER_SKIN)
     hyper = {"max_iter": 60} if model == "hist_gradient_boosting" else {"n_estimators": 30}
     estimator = build_model("force", model, {**hyper, "seed": 0})
     with parallel_backend(backend):
-        return cross_validate(task, frame, folds, estimator, "grouped", n_jobs=n_jobs)
+        return cross_validate(task, frame, folds, estimator, "grouped", PAPER_SKIN,
+                              n_jobs=n_jobs)
 
 
 def test_dask_gives_the_predictions_of_loky_and_ships_the_features_once(cluster, dataset,

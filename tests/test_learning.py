@@ -10,8 +10,7 @@ from sklearn.utils.estimator_checks import check_estimator
 
 from eskin.catalog import TASK_NAMES
 from eskin.config import TaskModels
-from eskin.data.schema import CHANNELS, md5_file
-from eskin.skin import PAPER_SKIN
+from eskin.data.schema import md5_file
 from eskin.evaluation.crossval import cross_validate, parallel_backend
 from eskin.evaluation.folds import assign_folds, strata
 from eskin.learning.estimators import (
@@ -22,6 +21,9 @@ from eskin.learning.estimators import (
 )
 from eskin.learning.features import BaselineDelta, fit_featurizer
 from eskin.learning.tasks import TASKS, get_task
+from eskin.skin import PAPER_SKIN
+
+CHANNELS = PAPER_SKIN.channels
 
 
 @pytest.fixture(scope="module")
@@ -54,8 +56,8 @@ def train(project, scene, task, out, params=None, **kwargs):
 
 def test_every_stratified_fold_holds_every_node(project):
     frame = features(project)
-    folds = assign_folds(frame, "single_force", "stratified", 10, seed=42)
-    nodes = strata(frame, "single_force")
+    folds = assign_folds(frame, "single_force", "stratified", 10, seed=42, skin=PAPER_SKIN)
+    nodes = strata(frame, "single_force", PAPER_SKIN)
     assert set(folds) == set(range(10))
     for fold in range(10):
         assert set(nodes[folds == fold]) == set(range(101)), f"fold {fold} misses a node"
@@ -63,7 +65,7 @@ def test_every_stratified_fold_holds_every_node(project):
 
 def test_grouped_folds_never_put_a_trial_on_both_sides(project):
     frame = features(project)
-    folds = assign_folds(frame, "single_force", "grouped", 10, seed=42)
+    folds = assign_folds(frame, "single_force", "grouped", 10, seed=42, skin=PAPER_SKIN)
     folds_per_trial = pd.Series(folds).groupby(frame["trial"].to_numpy()).nunique()
     assert folds_per_trial.eq(1).all()
     assert set(folds) == set(range(10))
@@ -71,29 +73,31 @@ def test_grouped_folds_never_put_a_trial_on_both_sides(project):
 
 def test_stratified_folds_split_trials_which_is_why_grouped_exists(project):
     frame = features(project)
-    folds = assign_folds(frame, "single_force", "stratified", 10, seed=42)
+    folds = assign_folds(frame, "single_force", "stratified", 10, seed=42, skin=PAPER_SKIN)
     assert pd.Series(folds).groupby(frame["trial"].to_numpy()).nunique().gt(1).any()
 
 
 def test_folds_follow_the_seed(project):
     frame = features(project)
-    a = assign_folds(frame, "single_force", "stratified", 10, seed=1)
-    assert np.array_equal(a, assign_folds(frame, "single_force", "stratified", 10, seed=1))
-    assert not np.array_equal(a, assign_folds(frame, "single_force", "stratified", 10, seed=2))
+    a = assign_folds(frame, "single_force", "stratified", 10, seed=1, skin=PAPER_SKIN)
+    again, other = (assign_folds(frame, "single_force", "stratified", 10, seed=seed,
+                                 skin=PAPER_SKIN) for seed in (1, 2))
+    assert np.array_equal(a, again)
+    assert not np.array_equal(a, other)
 
 
 def test_two_force_strata_are_the_pair_of_nodes(project):
     frame = features(project, "two_force")
-    pairs = strata(frame, "two_force")
+    pairs = strata(frame, "two_force", PAPER_SKIN)
     assert len(np.unique(pairs)) == 36
-    folds = assign_folds(frame, "two_force", "stratified", 10, seed=0)
+    folds = assign_folds(frame, "two_force", "stratified", 10, seed=0, skin=PAPER_SKIN)
     assert set(pairs[folds == 0]) == set(np.unique(pairs))
 
 
 def test_grouped_cv_with_too_few_trials_is_a_clear_error(project):
     frame = features(project).iloc[:15]  # three trials
     with pytest.raises(ValueError, match="needs at least 10 trials; this dataset has 3"):
-        assign_folds(frame, "single_force", "grouped", 10, seed=0)
+        assign_folds(frame, "single_force", "grouped", 10, seed=0, skin=PAPER_SKIN)
 
 
 # ------------------------------------------------------------------ tasks and labels
@@ -174,7 +178,7 @@ def test_subsampled_gp_keeps_every_force_level(project):
 
 def test_baseline_features_are_zero_mean_on_rest_samples(project):
     frame = pd.read_parquet(project[1] / "processed" / "single_force.parquet")
-    featurizer = fit_featurizer("baseline", frame, "single_force")
+    featurizer = fit_featurizer("baseline", frame, "single_force", PAPER_SKIN)
     rest = (frame["stretch"] == 1.0) & ((frame["force"] == 0) | (frame["x"] == 0))
     delta = featurizer.transform(frame.loc[rest, CHANNELS])
     assert np.allclose(delta.mean(axis=0), 0.0, atol=1e-9)
@@ -186,10 +190,10 @@ def test_out_of_fold_predictions_cover_each_row_once(project, capsys):
     """… and the folds' progress is shown as they finish (issue 21: training was silent)."""
     frame = features(project)
     task = get_task("single_force", "localise")
-    folds = assign_folds(frame, "single_force", "stratified", 10, seed=42)
+    folds = assign_folds(frame, "single_force", "stratified", 10, seed=42, skin=PAPER_SKIN)
     result = cross_validate(task, frame, folds, build_model("localise", "paper",
                                                             {"n_estimators": 10}), "stratified",
-                            progress="scene/localise CV")
+                            PAPER_SKIN, progress="scene/localise CV")
     assert "scene/localise CV" in capsys.readouterr().err
     assert len(result.predictions) == task.rows(frame).sum()
     assert result.predictions[["x_pred", "y_pred"]].notna().all().all()
@@ -267,7 +271,8 @@ def test_a_task_model_may_be_named_per_kind():
 
 
 def test_node_ids_are_row_major():
-    assert PAPER_SKIN.node_id(np.array([0, 1, 1, 10]), np.array([0, 1, 10, 10])).tolist() == [0, 1, 10, 100]
+    ids = PAPER_SKIN.node_id(np.array([0, 1, 1, 10]), np.array([0, 1, 10, 10]))
+    assert ids.tolist() == [0, 1, 10, 100]
 
 
 def test_the_paper_configuration_switch_picks_every_tasks_paper_entry():
@@ -285,13 +290,15 @@ def test_folds_give_the_same_predictions_on_every_joblib_backend(backend, projec
     """cv.backend: a Dask or Ray cluster would take the folds through the same joblib path."""
     frame, kind = features(project), "single_force"
     task_ = get_task(kind, "force")
-    folds = assign_folds(frame, kind, "grouped", 4, 0)
+    folds = assign_folds(frame, kind, "grouped", 4, 0, skin=PAPER_SKIN)
     estimator = build_model("force", "hist_gradient_boosting",
                             {"max_iter": 20, "learning_rate": 0.1, "seed": 0})
     with parallel_backend("sequential"):
-        reference = cross_validate(task_, frame, folds, estimator, "grouped", n_jobs=1)
+        reference = cross_validate(task_, frame, folds, estimator, "grouped", PAPER_SKIN,
+                                   n_jobs=1)
     with parallel_backend(backend):
-        result = cross_validate(task_, frame, folds, estimator, "grouped", n_jobs=2)
+        result = cross_validate(task_, frame, folds, estimator, "grouped", PAPER_SKIN,
+                                n_jobs=2)
     pd.testing.assert_frame_equal(result.predictions, reference.predictions)
     assert result.per_fold == reference.per_fold
 
@@ -322,7 +329,7 @@ def test_force_profile_reads_stretch_and_press_in_any_units(repo_params):
     plan = single_force_plan("t", [1.0, 1.15842], [0.0, 1.2936, 5.2136], samples=2)
     frame = simulate_plan(sim, plan, seed=3)
     force = get_task("single_force", "force").target_values(frame)["force"]
-    X = frame[CHANNELS].to_numpy(float)
+    X = frame[CHANNELS]  # by name: the x and y terminals
     features = ForceProfile().fit(X, force).transform(X)
     stretch, peak_x = features[:, 20], features[:, 21]
     assert np.corrcoef(stretch, frame["stretch"])[0, 1] > 0.95
@@ -332,6 +339,6 @@ def test_force_profile_reads_stretch_and_press_in_any_units(repo_params):
     for other_units in (X * 1e-12, X + 1e6):  # farads; an offset
         assert np.allclose(ForceProfile().fit(other_units, force).transform(other_units),
                            features, atol=1e-5)
-        predictions = [build_model("force", "physics_profile", {"max_iter": 20})
+        predictions = [build_model("force", "physics_profile", {"max_iter": 20}, PAPER_SKIN)
                        .fit(data, force).predict(data) for data in (X, other_units)]
         assert np.allclose(*predictions, atol=1e-9 * np.ptp(force))

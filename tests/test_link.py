@@ -226,3 +226,31 @@ def test_frames_that_came_in_the_same_read_as_another_boards_hello_are_handed_ov
     assert next(stream) == ours
     with pytest.raises(DeviceChanged, match="OTHER-9999"):
         next(stream)
+
+
+def test_eskin_device_simulate_serves_the_skin_of_a_scene(tmp_path, repo_params):
+    """`eskin device simulate --scene S` serves scene S's skin: a host reading that skin
+    samples its frames; a host reading the paper's is refused, saying both counts."""
+    import copy
+
+    from conftest import write_params
+
+    from eskin.device.link import SkinMismatch
+
+    params = copy.deepcopy(repo_params)
+    params["scenes"]["single_force"]["skin"] = {"rows": 16, "columns": 12}
+    write_params(tmp_path, params)
+    board = subprocess.Popen([sys.executable, "-m", "eskin", "device", "simulate", "--scene",
+                              "single_force"], cwd=tmp_path, stdout=subprocess.PIPE, text=True)
+    try:
+        port = board.stdout.readline().strip()
+        with SerialLink(port, terminals=28, timeout_s=5.0) as link:
+            assert link.connect().terminals == 28
+            batch = link.sample(SampleBatch(3))
+            assert batch.problem is None and {len(f.counts) for f in batch.frames} == {28}
+        with SerialLink(port, terminals=20, timeout_s=5.0) as link, pytest.raises(
+                SkinMismatch, match="has 28 terminals .* not the 20 of the skin read"):
+            link.connect()
+    finally:
+        board.terminate()
+        board.wait(timeout=10)

@@ -36,6 +36,7 @@ from eskin.device.protocol import encode_frame
 from eskin.evaluation.crossval import fit_final
 from eskin.learning.estimators import build_model, model_settings
 from eskin.learning.tasks import get_task
+from eskin.skin import PAPER_SKIN
 from tests.conftest import (
     acquire_step,
     featurize_step,
@@ -65,11 +66,12 @@ def stack(tmp_path_factory, repo_params):
         task = get_task("single_force", name)
         model, hyper = model_settings(getattr(typed(params).train, name), "tuned",
                                       "single_force")
-        models[name] = fit_final(task, features, build_model(task.role, model, hyper))
+        models[name] = fit_final(task, features, build_model(task.role, model, hyper, PAPER_SKIN),
+                                 PAPER_SKIN)
     featurizer = joblib.load(root / "models" / "single_force" / "featurizer.joblib")
-    return params, SkinStack("single_force", "single_force", featurizer, models,
+    return params, SkinStack("single_force", "single_force", PAPER_SKIN, featurizer, models,
                              device=read_metadata(processed)["device"],
-                             rest=rest_reading(pd.read_parquet(processed)))
+                             rest=rest_reading(pd.read_parquet(processed), PAPER_SKIN))
 
 
 # (command sent once this many estimates are out, what it does). Estimates trail the
@@ -426,7 +428,8 @@ def test_the_live_view_shows_a_press_where_and_as_hard_as_it_is(stack, tmp_path)
         except Exception as err:  # noqa: BLE001 - reported by the test below
             failure.append(err)
 
-    with LiveView(scene="single_force", kind="single_force", device="sim") as view:
+    with LiveView(scene="single_force", kind="single_force", device="sim",
+                  skin=PAPER_SKIN) as view:
         worker = threading.Thread(target=loop, args=(view,), daemon=True)
         worker.start()
         try:

@@ -26,6 +26,7 @@ COMMANDS = {
     "train": ["train", TYPO, "force", "--no-track"],
     "live": ["live", TYPO, "--simulated", "--frames", "1"],
     "export": ["export", TYPO],
+    "device": ["device", "simulate", "--scene", TYPO],
 }
 
 # Every stage that takes a scene (python -m stages.<module> <scene> ...), by its main().

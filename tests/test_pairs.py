@@ -7,6 +7,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from eskin.evaluation.pairs import match_contacts, pair_outcomes, pair_scores, score_pairs
+from eskin.skin import PAPER_SKIN
 
 
 def sample(true, predicted, forces_true=(1.0, 5.0), forces_pred=(1.0, 5.0)):
@@ -98,7 +99,6 @@ def test_a_ghost_pair_is_counted_as_a_ghost_and_a_plain_error_is_not():
 
 def test_active_terminals_find_the_pressed_rows_and_columns_in_any_units(repo_params):
     from eskin.acquisition.plan import two_force_plan
-    from eskin.data.schema import CHANNELS
     from eskin.device.physics import SkinParams
     from eskin.learning.estimators import ActiveTerminals
     from harness.calibrate import simulate_plan
@@ -106,7 +106,7 @@ def test_active_terminals_find_the_pressed_rows_and_columns_in_any_units(repo_pa
     sim = SkinParams.from_mapping(repo_params["sim"])
     frame = simulate_plan(sim, two_force_plan("t", [1.0], [1.2936, 5.2136], [1, 6, 10],
                                               [1, 6, 10], samples=2), seed=3)
-    X = frame[CHANNELS].to_numpy(float)
+    X = frame[PAPER_SKIN.channels]  # by name: the x and y terminals
     features = ActiveTerminals().fit_transform(X)
     peaks_x = features[:, 20:22]                      # the two x peaks, lower first
     distinct = (frame["x1"] != frame["x2"]).to_numpy()

@@ -134,3 +134,52 @@ def test_unknown_or_invalid_parameters_are_rejected_by_name():
         SkinParams.from_mapping({"noise_sd": 1.0})
     with pytest.raises(ValueError, match="strain_max"):
         SkinParams.from_mapping({"strain_max": 1.5})
+
+
+@pytest.mark.parametrize(("rows", "columns"), [(8, 8), (16, 12)])
+def test_a_skin_of_any_size_has_its_own_terminals_and_nodes(rows, columns):
+    from eskin.skin import Skin
+
+    model = SkinModel(PARAMS, Skin(rows, columns))
+    assert model.capacitance(1.0).shape == (rows + columns,)
+    assert model.node_sensitivity.shape == (rows, columns)
+    field = model.strain_field([Indenter(rows, 1, 5.0)], 1.0)
+    assert field.shape == (rows, columns) and field[rows - 1, 0] == field.max() > 0
+    assert Trial(model, [1]).sample_counts(4, 1.0, []).shape == (4, rows + columns)
+
+
+def test_a_channel_array_is_not_simulated():
+    from eskin.skin import ChannelArray
+
+    with pytest.raises(ValueError, match="the simulated skin is a row/column skin; array of "
+                       "3 channels, 2 × 2 press positions is recorded by another instrument"):
+        SkinModel(PARAMS, ChannelArray(("a", "b", "c"), 2, 2))
+
+
+def test_the_bayes_bound_reads_a_skin_of_any_size(repo_params):
+    """harness.oracle on a 6 × 5 skin: the simulated board's readings of a weight on each
+    corner, and of none, are placed where they were pressed."""
+    import pandas as pd
+
+    from eskin.device.board import SimulatedBoard
+    from eskin.device.protocol import Frame, FrameParser
+    from eskin.skin import Skin
+    from harness import oracle
+
+    sim, skin = SkinParams.from_mapping(repo_params["sim"]), Skin(6, 5)
+    board, parser, rows = SimulatedBoard(sim, skin=skin), FrameParser(skin.terminals), []
+    for trial, (x, y) in enumerate([(0, 0), (1, 1), (6, 5), (3, 2)], start=1):
+        board.handle(b"SIM TRIAL %d" % trial)
+        board.handle(b"SIM CLEAR")
+        if x:
+            board.handle(f"SIM PRESS {x} {y} 3.2536".encode())
+        frames = [e for e in parser.feed(board.handle(b"SAMPLE 3")) if isinstance(e, Frame)]
+        rows += [{**dict(zip(skin.channels, f.counts, strict=True)), "sample": i,
+                  "stretch": 1.0, "force": 3.2536 if x else 0.0, "x": x, "y": y}
+                 for i, f in enumerate(frames)]
+    frame = pd.DataFrame(rows)
+    answers = oracle.posterior_predictions(frame, sim, [1.0], [0.0, 3.2536], skin=skin)
+    touching = frame["x"] > 0
+    assert answers["contact"].tolist() == touching.tolist()
+    assert (answers.loc[touching, ["x", "y"]].to_numpy()
+            == frame.loc[touching, ["x", "y"]].to_numpy()).all()

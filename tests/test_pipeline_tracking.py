@@ -27,8 +27,9 @@ from conftest import (
 from test_stage_deps import params_mismatches
 
 from eskin.config import TaskModels
-from eskin.data.schema import CHANNELS, md5_file
+from eskin.data.schema import md5_file
 from eskin.learning.estimators import model_settings
+from eskin.skin import PAPER_SKIN
 
 
 def run(args, cwd, env):
@@ -286,7 +287,7 @@ def test_a_repro_groups_its_task_runs_under_one_pipeline_run(scratch):
     assert "grouped.fold.contact.accuracy" not in logged
     model = mlflow.sklearn.load_model(f"runs:/{run_id}/detect-contact")
     features = pd.read_parquet(root / "data" / "features" / "single_force.parquet")
-    assert set(model.predict(features[CHANNELS].head(50))) <= {False, True}
+    assert set(model.predict(features[PAPER_SKIN.channels].head(50))) <= {False, True}
     # The pipeline run carries the whole params file, for `eskin compare`.
     parent = mlflow.MlflowClient().get_run(runs.iloc[0]["tags.mlflow.parentRunId"])
     assert parent.data.params["sim.seed"] == str(yaml.safe_load(

@@ -1,5 +1,6 @@
 """Wire protocol v1: CRC, frame encoding and the sans-I/O parser."""
 
+import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
@@ -114,7 +115,7 @@ def test_lines_that_end_in_cr_only_are_named_as_the_cause():
 @settings(max_examples=400, deadline=None)
 @given(st.binary(max_size=600))
 def test_arbitrary_bytes_never_raise_and_never_yield_a_bad_frame(data):
-    for event in FrameParser().feed(data):
+    for event in FrameParser(20).feed(data):
         if isinstance(event, Frame):
             body, _, crc = event.line.rstrip(b"\r").rpartition(b"*")
             assert int(crc, 16) == crc8(body)
@@ -130,7 +131,7 @@ def test_arbitrary_bytes_never_raise_and_never_yield_a_bad_frame(data):
          chunk=1)
 def test_valid_frames_survive_garbage_between_them_and_any_chunking(frames, garbage, chunk):
     stream = b"".join(garbage + b"\n" + encode_frame(*f) for f in frames)
-    parser = FrameParser()
+    parser = FrameParser(20)  # the paper's skin: a #HELLO of another count changes no frame
     events = [e for i in range(0, len(stream), chunk) for e in parser.feed(stream[i:i + chunk])]
     got = [(e.seq, e.t_ms, list(e.counts)) for e in events if isinstance(e, Frame)]
     # garbage may itself hold a newline-free valid frame only with a 1-in-256 CRC chance
@@ -145,3 +146,27 @@ def test_valid_frames_survive_garbage_between_them_and_any_chunking(frames, garb
             expected.append((seq, t, counts))
         last = seq
     assert [g for g in got if g in expected] == expected
+
+
+def test_a_frame_carries_the_terminals_the_host_expects():
+    wide = encode_frame(0, 0, [1023] * 64)  # a 32 × 32 skin: a line beyond 256 bytes
+    assert isinstance(FrameParser(64).feed(wide)[0], Frame)
+    refused = FrameParser(20).feed(wide)[0]
+    assert isinstance(refused, ParseError) and "longer than 256 bytes" in refused.reason
+    narrow = FrameParser(20).feed(encode_frame(0, 0, [500] * 16))[0]
+    assert narrow.reason == "frame has 18 fields, expected 22 (seq, t_ms and 20 readings)"
+    assert parse_line(encode_frame(0, 0, [500] * 16)[:-1], 16).counts == (500,) * 16
+
+
+def test_without_an_expected_count_the_parser_takes_the_boards_hello():
+    parser = FrameParser()
+    events = parser.feed(b"#HELLO eskin fw terminals=64 adc_bits=10 id=a\n"
+                         + encode_frame(0, 0, [7] * 64) + encode_frame(1, 0, [7] * 20))
+    assert [type(e) for e in events] == [Hello, Frame, ParseError]
+    assert parser.terminals == 64 and "expected 66" in events[2].reason
+
+
+@pytest.mark.parametrize("count", [0, 65])
+def test_a_hello_beyond_protocol_v1s_terminals_is_not_trusted(count):
+    event = parse_line(b"#HELLO eskin fw terminals=%d adc_bits=10 id=a" % count)
+    assert isinstance(event, ParseError) and "protocol v1 carries 1..64" in event.reason

@@ -10,10 +10,11 @@ from eskin.data.schema import DatasetError
 from eskin.device.protocol import encode_frame, parse_line
 
 FRAME = parse_line(encode_frame(0, 0, [500] * 20)[:-1])
+DEVICE = {"id": "d", "firmware": "f", "terminals": 20}  # frames are read at its width
 
 
 def write_one_condition(path, key="k1"):
-    writer = RawLogWriter(path, {"session": "s001", "device": {"id": "d", "firmware": "f"}})
+    writer = RawLogWriter(path, {"session": "s001", "device": DEVICE})
     attempt = writer.begin({"key": key, "stretch": 1.0, "contacts": [[0, 0, 0.0]]})
     writer.frames(attempt, [FRAME])
     writer.end(attempt, 1)
@@ -27,7 +28,7 @@ def test_torn_last_line_is_ignored_and_cut_on_reopen(tmp_path):
         handle.write(b"B\t2\t{\"key\": \"k2\", \"stre")  # killed mid-write
     contents = read_log(path)
     assert contents.torn_tail and set(contents.completed) == {"k1"} and not contents.bad_lines
-    RawLogWriter(path, {"session": "s002", "device": {"id": "d", "firmware": "f"}}).close()
+    RawLogWriter(path, {"session": "s002", "device": DEVICE}).close()
     assert path.read_bytes().endswith(b"\n") and b'"k2"' not in path.read_bytes()
     assert set(read_log(path).completed) == {"k1"}
 
@@ -84,7 +85,7 @@ def test_cli_turns_errors_into_one_line_and_exit_one(tmp_path, small_params):
 
 def test_a_reason_that_is_not_ascii_is_written_escaped_not_lost(tmp_path):
     path = tmp_path / "acquisition.log"
-    writer = RawLogWriter(path, {"session": "s001", "device": {"id": "d", "firmware": "f"}})
+    writer = RawLogWriter(path, {"session": "s001", "device": DEVICE})
     attempt = writer.begin({"key": "k1", "stretch": 1.0, "contacts": [[0, 0, 0.0]]})
     writer.abandon(attempt, "limit 40 or 10 σ\ton /dev/ttyÄCM0")
     writer.close()

@@ -11,9 +11,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from eskin.catalog import TASK_NAMES
-from eskin.data.schema import CHANNELS, read_dataset
+from eskin.data.schema import read_dataset
 from eskin.learning.estimators import build_model, model_settings
 from eskin.learning.tasks import get_task
+from eskin.skin import PAPER_SKIN
 from harness import stress
 
 
@@ -43,7 +44,7 @@ def small(tmp_path_factory, repo_params):
 @pytest.fixture(scope="module")
 def suite(small):
     params, frames = small
-    return stress.run_suite(frames, typed(params), folds=3, log=lambda _: None)
+    return stress.run_suite(frames, typed(params), PAPER_SKIN, folds=3, log=lambda _: None)
 
 
 def test_every_case_passes_or_ends_in_a_clear_error(suite):
@@ -97,7 +98,8 @@ def test_the_verdict_fails_what_it_should():
 def test_the_exact_gp_factorises_a_large_matrix_of_repeated_samples(small):
     _, frames = small
     tripled = pd.concat([frames["default"]] * 3, ignore_index=True)  # singular without jitter
-    row = stress.large_factorisation(tripled, 4500, seed=0)  # ≥ 4096: the one-thread path
+    # ≥ 4096 rows: the one-thread path
+    row = stress.large_factorisation(tripled, 4500, seed=0, skin=PAPER_SKIN)
     assert row["outcome"] == "pass" and row["score"] > 0.5
 
 
@@ -112,9 +114,9 @@ def default_fits(small):
         task = get_task("single_force", task_name)
         name, hyper = model_settings(section, "tuned")
         data = frame[task.rows(frame)]
-        X = data[CHANNELS].to_numpy(dtype=np.float64)
+        X = data[PAPER_SKIN.channels].astype(np.float64)  # by name: the x and y terminals
         target = next(iter(task.target_values(data).values()))
-        model = build_model(task.role, name, hyper).fit(X, target)
+        model = build_model(task.role, name, hyper, PAPER_SKIN).fit(X, target)
         out.append((task_name, name, hyper, X, target, model.predict(X)))
     return out
 
@@ -126,7 +128,8 @@ def test_any_positive_rescaling_leaves_the_default_models_predictions(default_fi
     scale = 10.0 ** np.asarray(exponents)
     for task_name, name, hyper, X, target, before in default_fits:
         role = get_task("single_force", task_name).role
-        after = build_model(role, name, hyper).fit(X * scale, target).predict(X * scale)
+        after = build_model(role, name, hyper, PAPER_SKIN).fit(X * scale, target).predict(
+            X * scale)
         if np.issubdtype(np.asarray(before).dtype, np.floating):
             spread = np.std(target) or 1.0
             assert np.max(np.abs(after - before)) / spread <= 1e-6, (task_name, name)

@@ -15,17 +15,17 @@ from pathlib import Path
 from eskin.acquisition.plan import plan_from_params
 from eskin.acquisition.runner import AcquisitionReport
 from eskin.acquisition.session import acquire_scene
-from eskin.config import CV, Acquire, Scene, Sim, SimBoard
-from eskin.data.importer import check_layout, copy_import
-from eskin.data.schema import DatasetError
+from eskin.config import CV, Acquire, Scene, Sim, SimBoard, scene_skin
+from eskin.data.importer import check_import, copy_import
 from eskin.device.faults import LinkFaults
 from eskin.device.physics import skin_params
 
 
 @dataclass(frozen=True)
 class Acquired:
-    """What :func:`acquire` did: the scene's raw data (``imported``: the copy of its
-    import file; ``report``: the acquisition's, for a board or the simulator)."""
+    """What :func:`acquire` did: the scene's raw data (``imported``: the folder of the
+    copies of its import files; ``report``: the acquisition's, for a board or the
+    simulator)."""
 
     scene: str
     raw_dir: Path
@@ -39,12 +39,12 @@ def acquire(name: str, scene: Scene, raw_dir: Path, *, acquire: Acquire, sim: Si
     """Acquire (or import) scene ``name`` (its params section ``scene``) into ``raw_dir``,
     with the ``acquire``, ``sim`` and ``sim_board`` sections. Run :func:`check_scenes`
     on every scene first (the stage and the command line do)."""
-    plan = plan_from_params(name, scene)
     if scene.source == "import":
-        source = Path(scene.import_path)  # checked by check_scenes
-        target = copy_import(source, raw_dir, plan.kind)
-        return Acquired(name, Path(raw_dir), target, None,
-                        f"{name}: imported {source} as {target}")
+        copies = copy_import(name, scene, raw_dir)
+        return Acquired(name, Path(raw_dir), copies[0].parent, None,
+                        f"{name}: imported {len(copies)} file(s) of {scene.import_.path} "
+                        f"into {copies[0].parent}")
+    plan = plan_from_params(name, scene)
     report = acquire_scene(
         plan, raw_dir, source=scene.source, sim=skin_params(sim),
         rest_length_mm=float(acquire.rest_length_mm), port=scene.port,
@@ -62,38 +62,21 @@ def check_scenes(scenes: Mapping[str, Scene], cv: CV) -> None:
     """What can be wrong with any scene, found before the first acquisition starts (so a
     typo in the last scene does not wait for the first to be recorded): an import file
     missing, unreadable or not in its kind's layout; a plan with fewer trials than the
-    grouped folds. One line naming the scene, the key and the file. (The stage calls it
-    under :func:`eskin.config.validating`: checking other scenes is not reading knobs.)"""
+    grouped folds; a board's scene on a skin no board reads (a channel array). One line
+    naming the scene, the key and the file. (The stage calls it under
+    :func:`eskin.config.validating`: checking other scenes is not reading knobs.)"""
     for name, scene in scenes.items():
+        skin = scene_skin(scene)
+        if scene.source != "import" and not skin.row_column:
+            raise ValueError(f"scenes.{name}: source {scene.source!r} reads a row/column skin "
+                             f"over protocol v1, but its skin is an {skin.describe()}: record "
+                             "it with its own instrument and import it (source: import, "
+                             "import: {path: ...})")
         if scene.source == "import":
-            path = check_import_path(name, scene)
-            try:
-                check_layout(Path(path), scene.kind)
-            except DatasetError as err:
-                raise DatasetError(f"scenes.{name}.import_path: {err}") from None
+            check_import(name, scene)
             continue
         trials = len(plan_from_params(name, scene).conditions)
         if "grouped" in cv.schemes and trials < int(cv.folds):
             raise ValueError(f"scenes.{name}: {trials} trials (conditions), but grouped CV "
                              f"with cv.folds = {cv.folds} needs at least {cv.folds}; "
                              "add stretches, forces or nodes, or lower cv.folds")
-
-
-def check_import_path(name: str, scene: Scene) -> str:
-    """``scenes.<name>.import_path``, checked to be a readable file (not a directory)."""
-    source = scene.import_path
-    if not source:
-        raise ValueError(f"scenes.{name}: source is 'import' but import_path is unset")
-    path = Path(source)
-    if path.is_dir():
-        raise ValueError(f"scenes.{name}.import_path = {source!r} is a directory; name "
-                         "the CSV or Parquet file in it")
-    if not path.exists():
-        raise FileNotFoundError(f"scenes.{name}.import_path = {source!r}: no such file")
-    try:
-        with path.open("rb") as handle:
-            handle.read(1)
-    except OSError as err:
-        raise ValueError(f"scenes.{name}.import_path = {source!r}: cannot be read "
-                         f"({err.strerror})") from None
-    return source

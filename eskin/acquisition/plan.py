@@ -24,12 +24,12 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from eskin.kinds import KINDS, ONE_CONTACT, TWO_CONTACTS
 from eskin.config import scene_skin
+from eskin.kinds import KINDS, ONE_CONTACT, TWO_CONTACTS
 from eskin.skin import PAPER_SKIN, AnySkin
 
 if TYPE_CHECKING:
-    from eskin.config import Scene
+    from eskin.config import AcquiredScene
 
 
 @dataclass(frozen=True, order=True)
@@ -113,10 +113,10 @@ def two_force_plan(name: str, stretches: Sequence[float], forces: Sequence[float
     return ScenePlan(name, TWO_CONTACTS.name, conditions, samples, skin)
 
 
-def plan_from_params(name: str, scene: Scene) -> ScenePlan:
+def plan_from_params(name: str, scene: AcquiredScene) -> ScenePlan:
     """The plan of scene ``name`` from its params.yaml section (``params.scenes[name]``),
-    which :class:`eskin.config.Scene` has checked (kind, ranges, nodes, two-force levels),
-    on the scene's skin."""
+    which :class:`eskin.config.AcquiredScene` has checked (kind, ranges, nodes, two-force
+    levels), on the scene's skin. An import scene has no plan: its labels are its files'."""
     skin = scene_skin(scene)
     stretches = [float(s) for s in scene.stretches]
     forces = [float(f) for f in scene.forces]

@@ -125,7 +125,11 @@ def read_log(path: Path) -> LogContents:
                 if attempt is None:
                     raise ValueError(f"record for attempt {attempt_no} that never began")
                 if tag == "F":
-                    event = parse_line(payload.encode("ascii"))
+                    # As many readings as the session's board said it has terminals.
+                    terminals = attempt.session.get("device", {}).get("terminals")
+                    if not isinstance(terminals, int):
+                        raise ValueError("its session record gives no device terminals")
+                    event = parse_line(payload.encode("ascii"), terminals)
                     if isinstance(event, ParseError) or not isinstance(event, Frame):
                         reason = event.reason if isinstance(event, ParseError) else "not a frame"
                         raise ValueError(f"stored frame does not verify: {reason}")

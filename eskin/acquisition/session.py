@@ -38,10 +38,11 @@ from eskin.acquisition.runner import (
     acquire,
 )
 from eskin.device.faults import LinkFaults
-from eskin.device.link import SerialLink, set_device_id
+from eskin.device.link import SerialLink, SkinMismatch, set_device_id
 from eskin.device.physics import SkinParams
 from eskin.device.process import child_board
 from eskin.device.protocol import UNSET_ID, Hello
+from eskin.skin import PAPER_SKIN, AnySkin
 
 
 @dataclass(frozen=True)
@@ -51,16 +52,16 @@ class RunningBoard:
 
 
 @contextlib.contextmanager
-def simulated_board(sim: SkinParams, *, rest_length_mm: float, corrupt_fraction: float = 0.0,
-                    frame_period_ms: int = 12, faults: LinkFaults | None = None,
-                    socket_port: int | None = None,
+def simulated_board(sim: SkinParams, *, skin: AnySkin = PAPER_SKIN, rest_length_mm: float,
+                    corrupt_fraction: float = 0.0, frame_period_ms: int = 12,
+                    faults: LinkFaults | None = None, socket_port: int | None = None,
                     start_timeout_s: float = 30.0) -> Iterator[RunningBoard]:
-    """Run the simulated board in a child process; yield its port and process.
+    """Run the simulated board of ``skin`` in a child process; yield its port and process.
 
     On a pty the port is a symlink that follows the board's pty, so a link that
     vanishes and comes back (a ``vanish`` fault) is found again at the same path.
     """
-    config = {"sim": sim.as_dict(), "rest_length_mm": rest_length_mm,
+    config = {"sim": sim.as_dict(), "skin": skin.as_dict(), "rest_length_mm": rest_length_mm,
               "corrupt_fraction": corrupt_fraction, "frame_period_ms": frame_period_ms,
               "faults": (faults or LinkFaults()).as_dict()}
     with tempfile.TemporaryDirectory(prefix="eskin-board-") as scratch:
@@ -105,8 +106,16 @@ def run_session(plan: ScenePlan, raw_dir: Path, *, port: str, placer: Placer,
               "simulated" if simulator else "serial")
     log_path = Path(raw_dir) / LOG_NAME
     contents = read_log_if_any(log_path)
-    with SerialLink(port, timeout_s=timeout_s) as link:
-        hello = link.connect()
+    with SerialLink(port, terminals=plan.skin.terminals, timeout_s=timeout_s) as link:
+        try:
+            hello = link.connect()
+        except SkinMismatch as err:  # before the log is touched: nothing is lost
+            raise AcquisitionError(
+                f"{plan.name}: the board on {port} has {err.hello.terminals} terminals "
+                f"(terminals={err.hello.terminals} in its #HELLO), but the scene's skin is the "
+                f"{plan.skin.describe()}: set scenes.{plan.name}.skin to the board's rows "
+                f"and columns ({{rows: R, columns: C}} with R + C = {err.hello.terminals}), "
+                "or connect the board built for this skin; nothing was recorded") from None
         if hello.device_id == UNSET_ID and simulator is None:
             # Its data would be filed under an id that any other new board shares.
             raise AcquisitionError(f"the board on {port} has no device id (id={UNSET_ID}): "
@@ -156,7 +165,7 @@ def acquire_scene(plan: ScenePlan, raw_dir: Path, *, source: str, sim: SkinParam
                "max_attempts": max_attempts, "reconnect_s": reconnect_s,
                "max_jump_counts": max_jump_counts, "progress": progress}
     if source == "simulated":
-        with simulated_board(sim, rest_length_mm=rest_length_mm,
+        with simulated_board(sim, skin=plan.skin, rest_length_mm=rest_length_mm,
                              corrupt_fraction=corrupt_fraction, faults=faults,
                              frame_period_ms=frame_period_ms) as board:
             return run_session(plan, raw_dir, port=board.port, placer=SimulatedPlacer(),
@@ -167,12 +176,13 @@ def acquire_scene(plan: ScenePlan, raw_dir: Path, *, source: str, sim: SkinParam
         from eskin.device.board import FIRMWARE, simulator_identity
         from eskin.device.emulated import EMULATED_ID, emulated_board
 
-        with emulated_board(sim, rest_length_mm=rest_length_mm, samples=plan.samples,
-                            faults=emulated_faults,
+        with emulated_board(sim, skin=plan.skin, rest_length_mm=rest_length_mm,
+                            samples=plan.samples, faults=emulated_faults,
                             vanish_s=(faults or LinkFaults()).vanish_s) as (emulated_port, rig):
             # Its EEPROM starts erased in every run: it is given its id, as a new board is.
             set_device_id(emulated_port, EMULATED_ID, timeout_s=timeout_s)
-            placer = EmulatedPlacer(rig, simulator_identity(sim, rest_length_mm), FIRMWARE)
+            placer = EmulatedPlacer(rig, simulator_identity(sim, rest_length_mm, plan.skin),
+                                    FIRMWARE)
             return run_session(plan, raw_dir, port=emulated_port, placer=placer,
                                simulator={"params": sim.as_dict(), "seed": sim.seed,
                                           "emulated": True}, **options)

@@ -8,10 +8,11 @@ from pathlib import Path
 
 from eskin.acquisition.plan import plan_from_params
 from eskin.acquisition.rawlog import LOG_NAME
-from eskin.config import Ingest, Scene
-from eskin.data.importer import find_import, import_to_dataset
+from eskin.config import ImportedScene, Ingest, Scene, scene_skin
+from eskin.data.importer import find_import, import_recording, import_to_dataset
 from eskin.data.ingest import ingest_log, live_frames
 from eskin.data.schema import write_dataset, write_quarantine
+from eskin.kinds import get_kind
 
 
 @dataclass(frozen=True)
@@ -34,30 +35,71 @@ def ingest(name: str, scene: Scene, raw_dir: Path, processed_dir: Path, *,
     """Raw data of scene ``name`` (its params section ``scene``) →
     ``<processed_dir>/<name>.parquet``, its quarantine CSV and the frames recorded live
     (``<name>.live.parquet``), with the ``ingest`` section."""
-    plan = plan_from_params(name, scene)
     bad_rows = ingest.bad_rows
     out = Path(processed_dir) / f"{name}.parquet"
     if scene.source == "import":
-        # Streamed to Parquet chunk by chunk: memory does not grow with the file.
-        quarantine, metadata = import_to_dataset(find_import(raw_dir), plan.kind, out,
-                                                 bad_rows=bad_rows, scene=name,
-                                                 imported_from=scene.import_path)
-        rows = metadata["source"]["rows_in_file"] - metadata["source"]["rows_quarantined"]
-        live = live_frames(None, plan.skin)  # an imported scene has no board to record from
+        quarantine, metadata = _import(name, scene, raw_dir, out, bad_rows)
+        source = metadata["source"]
+        rows = (source["rows_in_file"] - source["rows_quarantined"]
+                - source.get("rows_at_rest", 0))
+        live = live_frames(None, scene_skin(scene))  # an import has no board to record from
+        hiccups, labels = _hiccup_note(metadata), _labels_note(metadata)
     else:
+        plan = plan_from_params(name, scene)
         result = ingest_log(Path(raw_dir) / LOG_NAME, plan, bad_rows=bad_rows)
         write_dataset(result.frame, plan.kind, out, result.metadata, skin=plan.skin)
         quarantine, rows, live = result.quarantine, len(result.frame), result.live
+        hiccups = labels = ""
     quarantine_path = Path(processed_dir) / f"{name}.quarantine.csv"
     write_quarantine(quarantine, quarantine_path)
     live.to_parquet(live_path(processed_dir, name), index=False)
-    note = f"; {len(quarantine)} row(s) quarantined" if quarantine else ""
+    note = (f"; {len(quarantine)} row(s) quarantined{hiccups}" if quarantine else "") + labels
     if len(live):
         note += (f"; {len(live)} live-recorded frame(s) of {live['session'].nunique()} "
                  f"session(s) → {live_path(processed_dir, name)}")
     return Ingested(name, out, int(rows), quarantine_path, len(quarantine),
                     live_path(processed_dir, name), len(live),
                     f"{name}: {rows} rows → {out}{note}")
+
+
+def _import(name: str, scene: ImportedScene, raw_dir: Path, out: Path, bad_rows: str
+            ) -> tuple[list[dict], dict]:
+    """An import scene's copies under ``raw_dir`` → the dataset ``out``, streamed (the
+    paper's layout) or a file at a time (a column map): memory does not grow with the
+    recording."""
+    spec, skin = scene.import_, scene_skin(scene)
+    files = find_import(raw_dir, name)
+    if spec.columns is None:
+        return import_to_dataset(files[0], scene.kind, out, skin=skin, bad_rows=bad_rows,
+                                 scene=name, imported_from=spec.path)
+    return import_recording(files, spec, scene.kind, skin, out, bad_rows=bad_rows, scene=name)
+
+
+def _hiccup_note(metadata: dict) -> str:
+    """`` (12 dropped frames, 30 stale repeats)``: the sensor's hiccups among the
+    quarantined rows, if any."""
+    source = metadata["source"]
+    parts = [f"{source[key]} {what}" for key, what in (("dropped_frames", "dropped frame(s)"),
+                                                      ("stale_repeats", "stale repeat(s)"))
+             if source.get(key)]
+    return f" ({', '.join(parts)})" if parts else ""
+
+
+def _labels_note(metadata: dict) -> str:
+    """What an import's labels are made of, where the files alone do not say: the contact
+    rule's share of contacts, rows at rest left out, a total force in place of
+    per-contact forces."""
+    source, note = metadata["source"], ""
+    contact_n = (source.get("force") or {}).get("contact_n")
+    if contact_n is not None and get_kind(metadata["kind"]).contacts == 1:
+        note += (f"; {source['contact_share']:.0%} contacts (force > {contact_n:g} N over "
+                 "each file's rest offset)")
+    if source.get("rows_at_rest"):
+        note += f"; {source['rows_at_rest']} row(s) at rest left out (every row presses)"
+    if "force" in metadata.get("labels", []):
+        note += ("; total force only: trains the total force and the contacts' positions, "
+                 "cannot give per-contact forces")
+    return note
 
 
 def live_path(processed_dir: Path, scene: str) -> Path:

@@ -18,8 +18,8 @@ import pandas as pd
 from eskin.acquisition.plan import ScenePlan
 from eskin.acquisition.rawlog import LogContents, acquisition_sessions, read_log_if_any
 from eskin.data.schema import DatasetError, sha256_file
-from eskin.skin import PAPER_SKIN, AnySkin
 from eskin.kinds import get_kind
+from eskin.skin import PAPER_SKIN, AnySkin
 
 BAD_ROW_POLICIES = ("error", "quarantine")
 
@@ -74,6 +74,12 @@ def _rows(contents: LogContents, plan: ScenePlan, path: Path) -> pd.DataFrame:
         raise DatasetError(f"{path}: the raw log holds sessions of scene(s) {others} besides "
                            f"{plan.name}; each scene has its own log (data/raw/<scene>/)")
     device = sessions[-1]["device"]
+    if device.get("terminals") != plan.skin.terminals:
+        raise DatasetError(
+            f"{path}: the raw log's board (device {device.get('id')}) has "
+            f"{device.get('terminals')} terminals, but scene {plan.name} is on the "
+            f"{plan.skin.describe()}: set scenes.{plan.name}.skin to the board's skin, or "
+            f"acquire this scene again on the board built for it")
     attempts, missing = [], []
     for condition in plan.conditions:
         attempt = contents.completed.get(condition.key(device["id"], device["firmware"]))

@@ -33,8 +33,6 @@ from eskin.errors import EskinError
 from eskin.kinds import KINDS, get_kind
 from eskin.skin import PAPER_SKIN, AnySkin, skin_from_dict, skin_of_columns
 
-SKIN = PAPER_SKIN
-CHANNELS = SKIN.channels
 LABELS = {name: kind.labels for name, kind in KINDS.items()}
 PROVENANCE = ["session", "trial", "sample", "seq", "t_ms"]
 SCHEMA_VERSION = "1"

@@ -1,12 +1,14 @@
 """Export: a scene's whole trained stack as one ONNX file, run by onnxruntime.
 
-A robot-side process needs the estimates, not eskin: the file takes ``counts`` (n × 20
-channel readings, float64, x1..x10 then y1..y10) and gives one output per estimate,
+A robot-side process needs the estimates, not eskin: the file takes ``counts`` (n × the
+skin's channels, float64, in its order: x1..xR then y1..yC on a row/column skin, 20 on the
+paper's) and gives one output per estimate,
 named as :attr:`eskin.deploy.stack.SkinStack.columns` (``contact`` is boolean, the rest float64),
 with the same gating as the scikit-learn stack (no contact: x and y NaN, force 0). Its
 metadata (``metadata_props``) carries the scene, its kind, the board the training data
-came from, the training rest reading a tare is taken against, and the md5 of every model
-file it was made from. Loading it takes onnxruntime and numpy only::
+came from, the training rest reading a tare is taken against, the md5 of every model
+file it was made from, and the skin (``eskin.skin``, as params.yaml declares it) when it is
+not the paper's. Loading it takes onnxruntime and numpy only::
 
     import onnxruntime, numpy
     session = onnxruntime.InferenceSession("models/single_force/stack.onnx")
@@ -46,10 +48,10 @@ from sklearn.ensemble import (
 )
 from sklearn.preprocessing import FunctionTransformer
 
-from eskin.data.schema import CHANNELS
+from eskin.data.schema import skin_metadata
 from eskin.errors import EskinError
 from eskin.kinds import get_kind
-from eskin.learning.estimators import ActiveTerminals, ForceProfile
+from eskin.learning.estimators import ActiveTerminals, ForceProfile, row_column_skin
 from eskin.learning.features import BaselineDelta
 
 OPSETS = {"": 21, "ai.onnx.ml": 5}
@@ -154,47 +156,48 @@ def _baseline_delta(scope, operator, container) -> None:
 
 
 def _force_profile(scope, operator, container) -> None:
-    """:meth:`ForceProfile.transform`, step for step."""
+    """:meth:`ForceProfile.transform`, step for step, on each axis of its skin."""
     model, nodes = operator.raw_operator, _Nodes(scope, container)
-    # A square skin's axes: both ``half`` wide (a rectangular skin is not exported yet).
-    half = model.ROWS
+    skin = row_column_skin(model)
+    axes = ((0, skin.rows), (skin.rows, skin.terminals))  # (first, last + 1) of x, then y
     level = nodes.round(nodes.op("Div", nodes.op("Sub", operator.inputs[0].full_name,
                                                  nodes.const(model.rest_mean_)),
                                  nodes.const(model.rest_sd_)), 6)
     lowest = [nodes.op("Div", nodes.row_sum(nodes.op(
-        "TopK", nodes.columns(level, a, a + half), nodes.const([model.quiet], np.int64),
+        "TopK", nodes.columns(level, start, stop), nodes.const([model.quiet], np.int64),
         outputs=2, axis=1, largest=0, sorted=1)[0], model.quiet), nodes.const(model.quiet * 1.0))
-              for a in (0, half)]
+              for start, stop in axes]
     stretch = nodes.op("Div", nodes.op("Add", *lowest), nodes.const(2.0))
     change = nodes.op("Sub", level, stretch)
     columns = [change, stretch]
-    for a in (0, half):
-        axis = nodes.columns(change, a, a + half)
+    for start, stop in axes:
+        axis = nodes.columns(change, start, stop)
         top = nodes.op("ArgMax", axis, axis=1, keepdims=1)
         padded = nodes.op("Pad", axis, nodes.const([0, 1, 0, 1], np.int64))
         around = [nodes.op("GatherElements", padded,
                            nodes.op("Add", top, nodes.const([[shift]], np.int64)), axis=1)
                   for shift in (0, 1, 2)]
         columns += [nodes.op("GatherElements", axis, top, axis=1),
-                    nodes.row_sum(nodes.op("Relu", axis), half),
+                    nodes.row_sum(nodes.op("Relu", axis), stop - start),
                     nodes.op("Add", nodes.op("Add", around[0], around[1]), around[2]),
                     nodes.op("Cast", top, to=TensorProto.DOUBLE)]
     nodes.op("Concat", *columns, out=operator.outputs[0].full_name, axis=1)
 
 
 def _active_terminals(scope, operator, container) -> None:
-    """:meth:`ActiveTerminals.transform`, step for step. The two strongest peaks are
-    ``argsort(kind="stable")[-2:]``, which breaks a tie towards the higher terminal;
-    TopK breaks it towards the lower index, so it runs on the axis reversed."""
+    """:meth:`ActiveTerminals.transform`, step for step, on each axis of its skin. The two
+    strongest peaks are ``argsort(kind="stable")[-2:]``, which breaks a tie towards the
+    higher terminal; TopK breaks it towards the lower index, so it runs on the axis
+    reversed."""
     model, nodes = operator.raw_operator, _Nodes(scope, container)
     change = nodes.round(nodes.op("Div", nodes.op("Sub", operator.inputs[0].full_name,
                                                   nodes.const(model.rest_)),
                                   nodes.const(model.unit_)), 6)
-    width = model.ROWS  # both axes this wide: a square skin, as _force_profile
+    skin = row_column_skin(model)
     minus_inf = nodes.const([[-np.inf]])
     columns, signs = [change], []
-    for a in (0, width):
-        axis = nodes.columns(change, a, a + width)
+    for start, width in ((0, skin.rows), (skin.rows, skin.columns)):
+        axis = nodes.columns(change, start, start + width)
         n = nodes.op("Shape", axis, start=0, end=1)
         edge = nodes.op("Expand", minus_inf, nodes.op("Concat", n, nodes.const([1], np.int64),
                                                       axis=0))
@@ -481,7 +484,7 @@ def _register() -> None:
                                 lambda op: _same_shape(op, op.raw_operator.n_features_in_),
                                 _baseline_delta)
     update_registered_converter(ForceProfile, "EskinForceProfile",
-                                lambda op: _same_shape(op, op.raw_operator.CHANNELS + 9),
+                                lambda op: _same_shape(op, op.raw_operator.n_features_in_ + 9),
                                 _force_profile)
     update_registered_converter(ActiveTerminals, "EskinActiveTerminals",
                                 lambda op: _same_shape(op, op.raw_operator.n_features_in_ + 11),
@@ -553,7 +556,8 @@ def stack_to_onnx(stack) -> onnx.ModelProto:
 
     def include(model, prefix: str, source: str) -> list[str]:
         """``model``'s graph fed from ``source``; its outputs' names."""
-        converted = onnx.compose.add_prefix(_convert(model, "input", len(CHANNELS)), prefix)
+        converted = onnx.compose.add_prefix(_convert(model, "input", stack.skin.terminals),
+                                            prefix)
         graph_nodes.append(helper.make_node("Identity", [source], [f"{prefix}input"]))
         graph_nodes.extend(converted.graph.node)
         initializers.extend(converted.graph.initializer)
@@ -619,7 +623,7 @@ def stack_to_onnx(stack) -> onnx.ModelProto:
         graph_nodes.append(helper.make_node("Identity", [value], [name]))
     graph = helper.make_graph(
         graph_nodes, f"eskin_{stack.scene}",
-        [helper.make_tensor_value_info(INPUT, TensorProto.DOUBLE, [None, len(CHANNELS)])],
+        [helper.make_tensor_value_info(INPUT, TensorProto.DOUBLE, [None, stack.skin.terminals])],
         [helper.make_tensor_value_info(name, TensorProto.BOOL if name == "contact"
                                        else TensorProto.DOUBLE, [None])
          for name in stack.columns],
@@ -653,14 +657,18 @@ class _Builder:
 
 
 def metadata(stack, sources: dict[str, str]) -> dict[str, str]:
-    """What the file says of itself (``metadata_props``, all strings)."""
+    """What the file says of itself (``metadata_props``, all strings): the skin only when
+    it is not the paper's, as a dataset records it (:func:`eskin.data.schema.skin_metadata`),
+    so that the paper's stacks keep their bytes."""
     return {"eskin.scene": stack.scene, "eskin.kind": stack.kind,
             "eskin.columns": json.dumps(stack.columns),
             "eskin.device": json.dumps(stack.device),
             "eskin.rest_counts": json.dumps(None if stack.rest is None
                                             else [float(v) for v in stack.rest]),
             "eskin.skipped": json.dumps(stack.skipped),
-            "eskin.sources_md5": json.dumps(sources, sort_keys=True)}
+            "eskin.sources_md5": json.dumps(sources, sort_keys=True),
+            **{f"eskin.{key}": json.dumps(value, sort_keys=True)
+               for key, value in skin_metadata(stack.skin).items()}}
 
 
 def write_stack(stack, path: Path, sources: dict[str, str]) -> Path:
@@ -737,8 +745,8 @@ def export_scene(scene: str, root: Path = Path("."), *, check: bool = True) -> s
     out = write_stack(stack, root / stack_path(scene), sources)
     if not check:
         return f"{scene}: stack → {out}"
-    counts = pd.read_parquet(root / processed_path(scene), columns=list(CHANNELS)).to_numpy(
-        dtype=np.float64)
+    counts = pd.read_parquet(root / processed_path(scene),
+                             columns=stack.skin.channels).to_numpy(dtype=np.float64)
     report = compare(ExportedStack.from_file(out), stack, counts)
     report["bytes"] = out.stat().st_size
     path = root / export_report_path(scene)

@@ -20,7 +20,6 @@ from typing import Any
 
 import numpy as np
 
-from eskin.data.schema import CHANNELS
 from eskin.deploy.stack import ExportedStack, SkinStack
 
 TARE_FRAMES = 100  # about 1.2 s of the stream at the board's 12 ms frame period
@@ -46,8 +45,8 @@ class Tare:
         return cls(offset, reading, _recent=reading.copy())
 
     @classmethod
-    def none(cls) -> Tare:
-        return cls(np.zeros(len(CHANNELS)), None)
+    def none(cls, channels: int) -> Tare:
+        return cls(np.zeros(channels), None)
 
     def apply(self, counts: np.ndarray) -> np.ndarray:
         return np.asarray(counts, dtype=np.float64) - self.offset
@@ -86,13 +85,13 @@ def live_estimates(stack: SkinStack | ExportedStack, batches: Iterable[list], *,
     (``tare_frames=0``: no tare). ``batches`` are the events as they arrived: a batch's
     frames are predicted together, as a scikit-learn call costs milliseconds whatever
     its rows, so the stack keeps up with the board. ``with_change``: each estimate also
-    carries ``change_counts``, the 20 channels' change since the tare (the live view's
+    carries ``change_counts``, every channel's change since the tare (the live view's
     bars)."""
     from eskin.device.host import Junk, StreamFrame, StreamGap
     from eskin.device.link import StreamOverflow
 
     taring: list[np.ndarray] = []
-    tare = Tare.none() if tare_frames <= 0 else None
+    tare = Tare.none(stack.skin.terminals) if tare_frames <= 0 else None
     for batch in batches:
         records: list[dict[str, Any] | None] = []
         pending: list[tuple[int, Any]] = []  # (index in records, frame) to predict

@@ -7,7 +7,9 @@ checked against dvc.lock (or from the MLflow registry by alias:
 :func:`eskin.tracking.registry.stack_from_registry`, which imports MLflow; this module
 does not). :class:`ExportedStack` is the same stack as one ONNX file
 (:mod:`eskin.deploy.export`), run by onnxruntime. Both have ``predict(counts)`` from
-n rows of channel readings (x terminals, then y) to a DataFrame of estimates.
+n rows of channel readings (the skin's channels, in its order: x terminals then y on a
+row/column skin) to a DataFrame of estimates. A stack knows its skin (:attr:`SkinStack.skin`):
+the one its training data were taken on, recorded in the ONNX file beside it.
 
 A kind whose detector gates (one contact: eskin/kinds.py) detects contact, and locates
 and weighs a contact only where it detects one (elsewhere x and y are NaN and the force
@@ -28,10 +30,11 @@ import yaml
 from threadpoolctl import ThreadpoolController
 
 from eskin.catalog import TASK_NAMES, features_path, featurizer_path, model_path, processed_path
-from eskin.data.schema import CHANNELS, read_metadata
+from eskin.data.schema import dataset_skin, read_metadata
 from eskin.errors import EskinError
 from eskin.kinds import get_kind
 from eskin.learning.saved import load_models
+from eskin.skin import AnySkin, skin_from_dict
 
 # A few frames are too little work to share between OpenMP threads (gradient boosting):
 # waking them costs more than they save, and much more when the other core is busy
@@ -47,10 +50,12 @@ class StackError(EskinError, ValueError):
 
 @dataclass
 class SkinStack:
-    """A scene's trained models, as one estimator from the 20 channels to the estimates."""
+    """A scene's trained models, as one estimator from the skin's channels to the
+    estimates."""
 
     scene: str
     kind: str
+    skin: AnySkin                              # the skin its training data were taken on
     featurizer: Any
     models: dict[str, dict[str, Any]]          # task → target → fitted estimator
     skipped: dict[str, str] = field(default_factory=dict)  # task → why it has no model
@@ -71,6 +76,7 @@ class SkinStack:
                              f"run `dvc repro` (or `eskin featurize {scene}` and "
                              f"`eskin train {scene} <task>`)")
         meta = read_metadata(features)
+        skin = dataset_skin(features)
 
         def load_recorded(path: Path):
             if not (root / path).exists():
@@ -91,8 +97,9 @@ class SkinStack:
         rest = None
         processed = root / processed_path(scene)
         if processed.exists():
-            rest = rest_reading(pd.read_parquet(processed))
-        return cls(scene, meta["kind"], featurizer, models, skipped, meta.get("device"), rest)
+            rest = rest_reading(pd.read_parquet(processed), skin)
+        return cls(scene, meta["kind"], skin, featurizer, models, skipped, meta.get("device"),
+                   rest)
 
     # ------------------------------------------------------------ predicting
 
@@ -101,20 +108,19 @@ class SkinStack:
         return get_kind(self.kind).stack_outputs
 
     def predict(self, counts) -> pd.DataFrame:
-        """Estimates for each row of ``counts`` (n × 20 channel readings, x1..x10 then
-        y1..y10, in the units the stack was trained on)."""
-        values = np.atleast_2d(np.asarray(counts, dtype=np.float64))
-        if values.shape[1] != len(CHANNELS):
-            raise ValueError(f"a frame has {len(CHANNELS)} channels, got {values.shape[1]}")
+        """Estimates for each row of ``counts`` (n × the skin's channels, in its order —
+        x1..xR then y1..yC on a row/column skin — in the units the stack was trained on)."""
+        values = frame_values(counts, self.scene, self.skin)
         if len(values) <= ONE_THREAD_ROWS:
             with _THREADS.limit(limits=1, user_api="openmp"):
                 return self._predict(values)
         return self._predict(values)
 
     def _predict(self, values: np.ndarray) -> pd.DataFrame:
-        X = pd.DataFrame(values, columns=CHANNELS)
+        channels = self.skin.channels
+        X = pd.DataFrame(values, columns=channels)
         features = pd.DataFrame(np.asarray(self.featurizer.transform(X), dtype=np.float64),
-                                columns=CHANNELS)
+                                columns=channels)
         n = len(features)
         out = pd.DataFrame(index=range(n))
         out["stretch"] = self._regress("stretch", "stretch", features)
@@ -171,6 +177,16 @@ class SkinStack:
         check_board(self.scene, self.device, device_id)
 
 
+def frame_values(counts, scene: str, skin: AnySkin) -> np.ndarray:
+    """``counts`` as n rows of float64, each as wide as ``skin`` has channels (else one
+    line saying which skin the stack reads)."""
+    values = np.atleast_2d(np.asarray(counts, dtype=np.float64))
+    if values.shape[1] != skin.terminals:
+        raise ValueError(f"the {scene} stack is for the {skin.describe()}: a frame has "
+                         f"{skin.terminals} channels, got {values.shape[1]}")
+    return values
+
+
 def check_board(scene: str, device: dict | None, device_id: str) -> None:
     """A stack trained on one board's data reads another's wrong (every terminal has its
     own baseline and gain): refuse it, saying what to do."""
@@ -186,10 +202,12 @@ class ExportedStack:
     """The stack as one ONNX file (``eskin export``, :mod:`eskin.deploy.export`), run by
     onnxruntime: the same :meth:`predict` as :class:`SkinStack`, a tenth of its time per
     frame or less (``make bench``), and nothing of eskin's training side needed to load it.
-    The file names its scene, kind, board and rest reading in its metadata."""
+    The file names its scene, kind, board and rest reading in its metadata, and its skin
+    (``eskin.skin``) when it is not the paper's, whose stacks predate it byte for byte."""
 
     scene: str
     kind: str
+    skin: AnySkin
     device: dict | None
     rest: np.ndarray | None
     columns: list[str]
@@ -214,14 +232,14 @@ class ExportedStack:
         if "eskin.scene" not in meta:
             raise StackError(f"{path} is not an eskin stack (it has no eskin.scene metadata)")
         rest = json.loads(meta["eskin.rest_counts"])
-        return cls(meta["eskin.scene"], meta["eskin.kind"], json.loads(meta["eskin.device"]),
+        skin = skin_from_dict(json.loads(meta.get("eskin.skin", "null")))
+        return cls(meta["eskin.scene"], meta["eskin.kind"], skin,
+                   json.loads(meta["eskin.device"]),
                    None if rest is None else np.asarray(rest, dtype=np.float64),
                    json.loads(meta["eskin.columns"]), session)
 
     def predict(self, counts) -> pd.DataFrame:
-        values = np.ascontiguousarray(np.atleast_2d(np.asarray(counts, dtype=np.float64)))
-        if values.shape[1] != len(CHANNELS):
-            raise ValueError(f"a frame has {len(CHANNELS)} channels, got {values.shape[1]}")
+        values = np.ascontiguousarray(frame_values(counts, self.scene, self.skin))
         if not np.isfinite(values).all():  # as the scikit-learn stack refuses them
             raise ValueError("a frame has a reading that is NaN or infinite")
         return pd.DataFrame(dict(zip(self.columns, self.session.run(self.columns,
@@ -232,18 +250,19 @@ class ExportedStack:
         check_board(self.scene, self.device, device_id)
 
 
-def rest_reading(frame: pd.DataFrame) -> np.ndarray | None:
-    """The training data's reading with nothing pressed, at the lowest stretch: what a tare
-    takes a live board's offset from. None for a scene without such samples."""
+def rest_reading(frame: pd.DataFrame, skin: AnySkin) -> np.ndarray | None:
+    """The training data's reading (of ``skin``'s channels) with nothing pressed, at the
+    lowest stretch: what a tare takes a live board's offset from. None for a scene without
+    such samples."""
     from eskin.learning.features import baseline_rows
 
     rows = baseline_rows(frame)
     if not rows.any():
         return None
-    return frame.loc[rows, CHANNELS].to_numpy(dtype=np.float64).mean(axis=0)
+    return frame.loc[rows, skin.channels].to_numpy(dtype=np.float64).mean(axis=0)
 
 
-def featurizer_for(scene: str, meta: dict, features: Path, root: Path):
+def featurizer_for(scene: str, meta: dict, features: Path, skin: AnySkin, root: Path):
     """The featurizer that made ``features``: ``raw`` is the identity; a fitted one is the
     workspace's, if the workspace's features are these (their md5s agree)."""
     from eskin.data.schema import md5_file
@@ -251,8 +270,8 @@ def featurizer_for(scene: str, meta: dict, features: Path, root: Path):
 
     method = meta["featurize"]["method"]
     if method == "raw":
-        return make_featurizer("raw").fit(pd.DataFrame([[0.0] * len(CHANNELS)],
-                                                       columns=CHANNELS))
+        return make_featurizer("raw").fit(pd.DataFrame([[0.0] * skin.terminals],
+                                                       columns=skin.channels))
     workspace = root / features_path(scene)
     if workspace.exists() and md5_file(workspace) == md5_file(features):
         relative = featurizer_path(scene)

@@ -1,6 +1,7 @@
 """The live view: a page on 127.0.0.1 showing what the stack makes of each frame.
 
-A person pressing the skin looks at it: the 10×10 map with the estimated contact(s)
+A person pressing the skin looks at it: the skin's map of nodes (size_x × size_y: R × C on
+a row/column skin, 10 × 10 on the paper's) with the estimated contact(s)
 (marked by force), the force, the location, the stretch, whether there is contact and
 how sure the detector is, the drift since the tare, every channel's change since the
 tare as bars, and the frame rate. The page holds an ``EventSource`` on ``/events``;
@@ -19,7 +20,7 @@ import threading
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Any
 
-from eskin.skin import PAPER_SKIN as SKIN
+from eskin.skin import AnySkin
 
 KEEPALIVE_S = 10.0  # an idle stream sends a comment this often, so a dead client is noticed
 
@@ -29,7 +30,7 @@ PAGE = """<!doctype html>
 body {{ font-family: system-ui, sans-serif; margin: 1.5em; background: #fafafa; color: #222; }}
 h1 {{ font-size: 1.2em; margin: 0 0 .8em; }}
 main {{ display: flex; gap: 2em; align-items: flex-start; }}
-#map {{ display: grid; grid-template-columns: 1.6em repeat({rows}, 2.6em); gap: 3px; }}
+#map {{ display: grid; grid-template-columns: 1.6em repeat({size_x}, 2.6em); gap: 3px; }}
 #map div {{ height: 2.6em; display: flex; align-items: center; justify-content: center;
   font-size: .75em; color: #777; }}
 #map .cell {{ background: #e4e7eb; border-radius: 4px; color: #222; }}
@@ -62,18 +63,17 @@ main {{ display: flex; gap: 2em; align-items: flex-start; }}
 <script>
 const map = document.getElementById("map");
 map.appendChild(document.createElement("div"));
-for (let x = 1; x <= {rows}; x++) {{
+for (let x = 1; x <= {size_x}; x++) {{
   const label = document.createElement("div"); label.textContent = "x" + x; map.appendChild(label);
 }}
-for (let y = {columns}; y >= 1; y--) {{
+for (let y = {size_y}; y >= 1; y--) {{
   const label = document.createElement("div"); label.textContent = "y" + y; map.appendChild(label);
-  for (let x = 1; x <= {rows}; x++) {{
+  for (let x = 1; x <= {size_x}; x++) {{
     const cell = document.createElement("div");
     cell.className = "cell"; cell.id = `cell-${{x}}-${{y}}`; map.appendChild(cell);
   }}
 }}
-const names = [...Array({rows}).keys()].map(i => "x" + (i + 1))
-  .concat([...Array({columns}).keys()].map(i => "y" + (i + 1)));
+const names = {names};
 for (const name of names) {{
   const bar = document.createElement("div"); bar.id = "bar-" + name;
   document.getElementById("bars").appendChild(bar);
@@ -129,12 +129,20 @@ events.onmessage = message => show(JSON.parse(message.data));
 """
 
 
+def bar_names(skin: AnySkin) -> list[str]:
+    """Each channel's bar label: a row/column skin's terminals as the map names them (x1..xR,
+    y1..yC), a channel array's channels by their own names."""
+    return [c.removeprefix("c") for c in skin.channels] if skin.row_column else skin.channels
+
+
 class LiveView:
     """Serve the page; :meth:`show` each record of :func:`eskin.deploy.live.live_estimates`."""
 
-    def __init__(self, *, scene: str, kind: str, device: str, port: int = 0) -> None:
-        self.page = PAGE.format(scene=scene, kind=kind, device=device, rows=SKIN.rows,
-                                columns=SKIN.columns, terminals=SKIN.terminals).encode()
+    def __init__(self, *, scene: str, kind: str, device: str, skin: AnySkin,
+                 port: int = 0) -> None:
+        self.page = PAGE.format(scene=scene, kind=kind, device=device, size_x=skin.size_x,
+                                size_y=skin.size_y, terminals=skin.terminals,
+                                names=json.dumps(bar_names(skin))).encode()
         self._state: dict[str, Any] = {"estimate": None, "lost": 0, "rejected": 0, "tare": None}
         self._version = 0
         self._changed = threading.Condition()

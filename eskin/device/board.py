@@ -17,8 +17,9 @@ import json
 import numpy as np
 
 from eskin import __version__
-from eskin.device.physics import SKIN, Indenter, SkinModel, SkinParams, Trial
+from eskin.device.physics import Indenter, SkinModel, SkinParams, Trial
 from eskin.device.protocol import MAX_LINE_BYTES, SEQ_MAX, encode_frame
+from eskin.skin import PAPER_SKIN, AnySkin, Skin, skin_from_dict
 
 MAX_EXTENSION_MM = 40.0
 MAX_NEWTONS = 50.0
@@ -33,7 +34,8 @@ FIRMWARE = f"sim-{__version__}"
 # neighbouring nodes (saturating), three on one row at full stretch (the CAV424 clipped to
 # its supply), and a new trial's stream for each. 100 frames, 2000 readings: a shift of a
 # hundredth of an ADC count in every reading moves about twenty of them. HELLO is left
-# out: its line carries the identity itself.
+# out: its line carries the identity itself. Written for the paper's 10 × 10 skin; on
+# another, a press beyond its last row or column lands on that row or column (probe()).
 PROBE = (
     "STRETCH 0", "SIM TRIAL 1", "SAMPLE 16",
     "SIM TRIAL 2", "SIM PRESS 6 6 5.2136", "SAMPLE 16",
@@ -48,16 +50,31 @@ PROBE = (
 PROBE_FRAME_PERIOD_MS = 12  # fixed: the link's timing (sim_board) is not the skin's
 
 
-def simulator_identity(params: SkinParams, rest_length_mm: float) -> str:
+def probe(skin: Skin) -> tuple[str, ...]:
+    """:data:`PROBE` on ``skin``: each press's row and column at most the skin's last."""
+    def on_skin(command: str) -> str:
+        if not command.startswith("SIM PRESS "):
+            return command
+        x, y, newtons = command.split()[2:]
+        return f"SIM PRESS {min(int(x), skin.rows)} {min(int(y), skin.columns)} {newtons}"
+
+    return tuple(on_skin(command) for command in PROBE)
+
+
+def simulator_identity(params: SkinParams, rest_length_mm: float,
+                       skin: AnySkin = PAPER_SKIN) -> str:
     """A device id that changes whenever the simulated skin would read differently.
 
-    It hashes the settings (every parameter, the seed, the rig's rest length) with what
-    a fresh board built from them answers to :data:`PROBE`, byte for byte: so a change
-    in the simulator's behaviour re-keys, and redraws, every simulated dataset, while a
-    comment, a docstring or a refactor that reads the same keeps them. Computed once per
-    settings in a process (a board is built again after every injected reset).
+    It hashes the settings (every parameter, the seed, the rig's rest length, the skin's
+    size when it is not the paper's) with what a fresh board built from them answers to
+    :func:`probe`, byte for byte: so a change in the simulator's behaviour re-keys, and
+    redraws, every simulated dataset, while a comment, a docstring or a refactor that
+    reads the same keeps them. Computed once per settings in a process (a board is built
+    again after every injected reset).
     """
     settings = {**params.as_dict(), "rest_length_mm": float(rest_length_mm)}
+    if skin != PAPER_SKIN:  # the paper's skin keeps the ids its datasets were keyed by
+        settings["skin"] = skin.as_dict()
     return _identity(json.dumps(settings, sort_keys=True))
 
 
@@ -66,16 +83,18 @@ def _identity(settings: str) -> str:
     """Keyed on the settings' canonical text, so that 3 and 3.0 are not confused."""
     values = json.loads(settings)
     rest_length_mm = values.pop("rest_length_mm")
+    skin = skin_from_dict(values.pop("skin", None))
     digest = hashlib.sha256(settings.encode() + b"\n")
-    digest.update(probe_answers(SkinParams(**values), rest_length_mm))
+    digest.update(probe_answers(SkinParams(**values), rest_length_mm, skin))
     return f"sim-{digest.hexdigest()[:12]}"
 
 
-def probe_answers(params: SkinParams, rest_length_mm: float) -> bytes:
-    """What a fresh board with these settings answers to :data:`PROBE`."""
-    board = SimulatedBoard(params, rest_length_mm=rest_length_mm,
+def probe_answers(params: SkinParams, rest_length_mm: float,
+                  skin: AnySkin = PAPER_SKIN) -> bytes:
+    """What a fresh board with these settings answers to :func:`probe`."""
+    board = SimulatedBoard(params, skin=skin, rest_length_mm=rest_length_mm,
                            frame_period_ms=PROBE_FRAME_PERIOD_MS)
-    return b"".join(board.handle(command.encode()) for command in PROBE)
+    return b"".join(board.handle(command.encode()) for command in probe(board.skin))
 
 
 class SimulatedBoard:
@@ -85,22 +104,27 @@ class SimulatedBoard:
     ----------
     params
         The skin's physics and read-out parameters.
+    skin
+        Its rows and columns: a frame carries ``skin.terminals`` readings, and ``SIM
+        PRESS`` takes nodes on it only.
     rest_length_mm
         Unstretched length between the clamps; ``STRETCH <mm>`` gives λ = 1 + mm / this.
     corrupt_fraction
         Share of frames damaged on the wire (a flipped byte or a truncated
         line), drawn from their own seeded stream, to exercise integrity checks.
     frame_period_ms
-        Board time between frames (multiplexing 20 terminals and converting).
+        Board time between frames (multiplexing the terminals and converting).
     """
 
-    def __init__(self, params: SkinParams, *, rest_length_mm: float = 101.0,
-                 corrupt_fraction: float = 0.0, frame_period_ms: int = 12) -> None:
+    def __init__(self, params: SkinParams, *, skin: AnySkin = PAPER_SKIN,
+                 rest_length_mm: float = 101.0, corrupt_fraction: float = 0.0,
+                 frame_period_ms: int = 12) -> None:
         if not 0.0 <= corrupt_fraction < 1.0:
             raise ValueError(f"corrupt_fraction must be in [0, 1), got {corrupt_fraction}")
         if rest_length_mm <= 0:
             raise ValueError(f"rest_length_mm must be positive, got {rest_length_mm}")
-        self.model = SkinModel(params)
+        self.model = SkinModel(params, skin)
+        self.skin = skin
         self.rest_length_mm = rest_length_mm
         self.corrupt_fraction = corrupt_fraction
         self.frame_period_ms = frame_period_ms
@@ -116,12 +140,12 @@ class SimulatedBoard:
     @functools.cached_property
     def device_id(self) -> str:
         """Worked out at the first HELLO: the probe's own board never asks for it."""
-        return simulator_identity(self.model.params, self.rest_length_mm)
+        return simulator_identity(self.model.params, self.rest_length_mm, self.skin)
 
     # ------------------------------------------------------------ output
 
     def hello(self) -> bytes:
-        return (f"#HELLO eskin {FIRMWARE} terminals={SKIN.terminals} "
+        return (f"#HELLO eskin {FIRMWARE} terminals={self.skin.terminals} "
                 f"adc_bits={self.model.params.adc_bits} id={self.device_id}\n").encode()
 
     def frames(self, n: int) -> bytes:
@@ -189,8 +213,8 @@ class SimulatedBoard:
             self._trial = Trial(self.model, [n])
             return f"#OK SIM TRIAL {n}\n".encode()
         if sub == "PRESS" and len(args) == 3:
-            x = _number(args[0], int, 1, SKIN.rows)
-            y = _number(args[1], int, 1, SKIN.columns)
+            x = _number(args[0], int, 1, self.skin.rows)  # a node of this skin only
+            y = _number(args[1], int, 1, self.skin.columns)
             newtons = _number(args[2], float, 0.0, MAX_NEWTONS)
             self._indenters.append(self._trial.place(x, y, newtons))
             return f"#OK SIM PRESS {x} {y} {args[2]}\n".encode()

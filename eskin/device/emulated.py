@@ -1,9 +1,10 @@
 """The board's own firmware under emulation, with the skin model as the rig around it.
 
-``firmware/emulator/eskin_emulator`` (C, against simavr) runs the compiled firmware
-``firmware/eskin/build/eskin.elf`` with its UART on a pseudo-terminal, follows the
-multiplexer and stepper pins, and at the start of every scan of the 20 terminals asks
-this process for the voltages the CAV424 puts out (``FRAME <steps>`` → ``VOLTS ...``).
+``firmware/emulator/build/<R>x<C>/eskin_emulator`` (C, against simavr) runs the firmware
+compiled for the skin's R rows and C columns, ``firmware/eskin/build/<R>x<C>/eskin.elf``,
+with its UART on a pseudo-terminal, follows the multiplexer and stepper pins, and at the
+start of every scan of the R + C terminals asks this process for the voltages the CAV424
+puts out (``FRAME <steps>`` → ``VOLTS ...``).
 :class:`EmulatedRig` answers from the same :class:`~eskin.device.physics.SkinModel`
 and :class:`~eskin.device.physics.Trial` as the Python board, at the stretch the
 firmware drove the clamp to (its step count). The host talks to the pty exactly as to a
@@ -26,6 +27,7 @@ from __future__ import annotations
 
 import contextlib
 import subprocess
+import sys
 import tempfile
 import threading
 from collections.abc import Iterator, Mapping, Sequence
@@ -33,16 +35,17 @@ from pathlib import Path
 
 import numpy as np
 
+from eskin.device.firmware import build_name
 from eskin.device.link import LinkError
 from eskin.device.physics import Indenter, SkinModel, SkinParams, Trial
 from eskin.device.process import child_board
 from eskin.errors import EskinError
+from eskin.skin import AnySkin
 
 FIRMWARE_DIR = Path(__file__).resolve().parents[2] / "firmware"
-FIRMWARE_ELF = FIRMWARE_DIR / "eskin" / "build" / "eskin.elf"
-HARNESS = FIRMWARE_DIR / "emulator" / "build" / "eskin_emulator"
-# What the two are built from: the acquire stage lists these (a test checks), so editing
-# the firmware reacquires an emulated scene, and emulated_board rebuilds before it runs.
+# What the two are built from (with eskin/device/firmware.py, which writes the skin's
+# header): the acquire stage lists these (a test checks), so editing the firmware
+# reacquires an emulated scene, and emulated_board rebuilds before it runs.
 FIRMWARE_SOURCES = tuple(Path("firmware") / name for name in (
     "eskin/eskin.ino", "eskin/board.h", "eskin/Makefile",
     "emulator/eskin_emulator.c", "emulator/Makefile"))
@@ -51,6 +54,16 @@ FAULTS = ("reset", "vanish")
 EMULATED_ID = "emulated"  # the id acquisition gives the emulated board
 STEPS_PER_MM = 2560        # firmware/eskin/board.h
 UNITS = 65535              # the harness's full scale (the supply): simavr keeps 16 bits
+
+
+def firmware_elf(skin: AnySkin) -> Path:
+    """The firmware built for ``skin`` (``make ROWS=R COLUMNS=C`` in firmware/eskin)."""
+    return FIRMWARE_DIR / "eskin" / "build" / build_name(skin) / "eskin.elf"
+
+
+def harness(skin: AnySkin) -> Path:
+    """The emulation harness built for ``skin``'s firmware."""
+    return FIRMWARE_DIR / "emulator" / "build" / build_name(skin) / "eskin_emulator"
 
 
 def cav424_volts(model: SkinModel, capacitance_pf: np.ndarray) -> np.ndarray:
@@ -74,8 +87,9 @@ class EmulatedRig:
     pty, the board reset as an Uno is when its port is opened).
     """
 
-    def __init__(self, params: SkinParams, *, rest_length_mm: float, samples: int,
-                 faults: Mapping[int, str] | None = None, vanish_s: float = 0.5) -> None:
+    def __init__(self, params: SkinParams, *, skin: AnySkin, rest_length_mm: float,
+                 samples: int, faults: Mapping[int, str] | None = None,
+                 vanish_s: float = 0.5) -> None:
         if samples < 1:
             raise ValueError(f"samples must be ≥ 1, got {samples}")
         self.faults = dict(faults or {})
@@ -84,7 +98,7 @@ class EmulatedRig:
             raise ValueError(f"emulated faults must be {' or '.join(FAULTS)}, got {unknown}")
         self.vanish_ms = round(vanish_s * 1000)
         self.failure: str | None = None  # why the rig stopped answering, if it did
-        self.model = SkinModel(params)
+        self.model = SkinModel(params, skin)
         self.rest_length_mm = rest_length_mm
         self.samples = samples
         self._scans = 0
@@ -106,7 +120,8 @@ class EmulatedRig:
     # ------------------------------------------------------------ the harness's questions
 
     def volts(self, steps: int) -> list[int]:
-        """One scan's 20 voltages in the harness's units, the clamp ``steps`` from rest."""
+        """One scan's voltages (one per terminal) in the harness's units, the clamp
+        ``steps`` from rest."""
         with self._lock:
             if not self._block:
                 stretch = 1.0 + steps / STEPS_PER_MM / self.rest_length_mm
@@ -142,13 +157,17 @@ class EmulatedRig:
                     process.stdin.close()
 
 
-def build_firmware(timeout_s: float = BUILD_TIMEOUT_S) -> None:
-    """Bring the firmware and the harness up to date with their sources (make; a no-op
-    when they are), so what is emulated is what the sources say."""
+def build_firmware(skin: AnySkin, timeout_s: float = BUILD_TIMEOUT_S) -> None:
+    """Bring the firmware for ``skin`` and its harness up to date with their sources (make;
+    a no-op when they are), so what is emulated is what the sources say."""
+    size = build_name(skin)  # a skin the firmware cannot read fails here, in one line
+    rows, columns = size.split("x")
     for directory in (FIRMWARE_DIR / "eskin", FIRMWARE_DIR / "emulator"):
+        command = ["make", "-s", "-C", str(directory), f"ROWS={rows}", f"COLUMNS={columns}",
+                   f"PYTHON={sys.executable}"]
         try:
-            done = subprocess.run(["make", "-s", "-C", str(directory)], capture_output=True,
-                                  text=True, timeout=timeout_s, check=False)
+            done = subprocess.run(command, capture_output=True, text=True, timeout=timeout_s,
+                                  check=False)
         except FileNotFoundError:
             raise LinkError("building the firmware needs make (`make avr` installs the AVR "
                             "toolchain and simavr)") from None
@@ -156,21 +175,22 @@ def build_firmware(timeout_s: float = BUILD_TIMEOUT_S) -> None:
             raise LinkError(f"building {directory} took over {timeout_s:g} s") from None
         if done.returncode != 0:
             said = (done.stderr or done.stdout).strip().splitlines()[-1:] or ["(no output)"]
-            raise LinkError(f"building {directory} failed (`make avr` installs the AVR "
-                            f"toolchain and simavr): {said[0]}")
+            raise LinkError(f"building {directory} for the {size} skin failed (`make avr` "
+                            f"installs the AVR toolchain and simavr): {said[0]}")
 
 
 @contextlib.contextmanager
-def emulated_board(params: SkinParams, *, rest_length_mm: float, samples: int,
-                   faults: Mapping[int, str] | None = None, vanish_s: float = 0.5,
-                   start_timeout_s: float = 30.0) -> Iterator[tuple[str, EmulatedRig]]:
-    """Build and run the firmware under simavr; yield its port (a link that follows its
-    pty) and the rig that places the weights."""
-    rig = EmulatedRig(params, rest_length_mm=rest_length_mm, samples=samples, faults=faults,
-                      vanish_s=vanish_s)
-    build_firmware()
+def emulated_board(params: SkinParams, *, skin: AnySkin, rest_length_mm: float,
+                   samples: int, faults: Mapping[int, str] | None = None,
+                   vanish_s: float = 0.5, start_timeout_s: float = 30.0
+                   ) -> Iterator[tuple[str, EmulatedRig]]:
+    """Build the firmware for ``skin`` and run it under simavr; yield its port (a link that
+    follows its pty) and the rig that places the weights."""
+    rig = EmulatedRig(params, skin=skin, rest_length_mm=rest_length_mm, samples=samples,
+                      faults=faults, vanish_s=vanish_s)
+    build_firmware(skin)
     with tempfile.TemporaryDirectory(prefix="eskin-emulator-") as scratch, child_board(
-            [str(HARNESS), str(FIRMWARE_ELF), str(Path(scratch) / "tty")],
+            [str(harness(skin)), str(firmware_elf(skin)), str(Path(scratch) / "tty")],
             name="the emulated board", workdir=Path(scratch), stdin=subprocess.PIPE,
             start_timeout_s=start_timeout_s) as child:
         words = child.first_line.split()

@@ -120,7 +120,8 @@ class FaultyLine:
             if not line.startswith(b"D,"):
                 chunks.append(line)
                 continue
-            if not isinstance(parse_line(line.rstrip(b"\n")), Frame):
+            if not isinstance(parse_line(line.rstrip(b"\n"), self.board.skin.terminals),
+                              Frame):
                 self._note("corrupt", ascii(line[:24]))
             draw = self._rng.random()
             kind = int(np.searchsorted(self._cuts, draw, side="right"))

@@ -23,7 +23,9 @@ The accounting of frames to requests lives here and only here:
   sends after it is stray until the next request;
 * a ``#HELLO`` from the board the session began with is :class:`Restarted`
   (it forgot its state); from any other board it is :class:`OtherBoard`, and
-  nothing that board sends is ever credited to a request;
+  nothing that board sends is ever credited to a request; from a board of other
+  terminals than the skin the host reads (``terminals``) it is :class:`OtherSkin`,
+  at the greeting too, and its frames fail the parser;
 * the n sequence numbers of a ``SAMPLE n``'s answer are that request's, however
   it ended (an ``#OK`` before the n-th frame, a violation): its answer begins
   after the last frame seen before it, or, when none was (after a connect or a
@@ -125,6 +127,14 @@ class OtherBoard:
 
 
 @dataclass(frozen=True)
+class OtherSkin:
+    """A ``#HELLO`` of a board whose terminals are not the ``expected`` of the skin read."""
+
+    hello: Hello
+    expected: int
+
+
+@dataclass(frozen=True)
 class Stray:
     """A frame outside any ``SAMPLE`` request: counted, never stored."""
 
@@ -154,7 +164,7 @@ class Junk:
 
 
 HostEvent = (Greeted | Answered | Refused | SampleFrame | SampleComplete | Violation
-             | Restarted | OtherBoard | Stray | StreamFrame | StreamGap | Junk)
+             | Restarted | OtherBoard | OtherSkin | Stray | StreamFrame | StreamGap | Junk)
 
 
 @dataclass
@@ -182,16 +192,21 @@ class HostProtocol:
     device_id
         The board the session began with. Once known (given here, or from
         the first greeting), a ``#HELLO`` with another id is :class:`OtherBoard`.
+    terminals
+        The readings per frame of the skin the host reads (its rows + columns): a
+        ``#HELLO`` with another count is :class:`OtherSkin`. None (a caller with no skin,
+        giving a board its id, say): whatever the board's ``#HELLO`` says.
     """
 
-    def __init__(self, device_id: str | None = None) -> None:
+    def __init__(self, device_id: str | None = None, terminals: int | None = None) -> None:
         self.device_id = device_id
+        self.terminals = terminals
         self.hello: Hello | None = None
         self.needs_fence = False
         self.streaming = False  # the board answered STREAM ON, and nothing stopped it since
         self.stray_frames = 0
         self.junk_lines = 0
-        self._parser = FrameParser()
+        self._parser = FrameParser(terminals)
         self._open: _Request | None = None
         self._requests = 0
         self._greet_hello: Hello | None = None
@@ -249,7 +264,7 @@ class HostProtocol:
 
     def reset_link(self) -> None:
         """A new connection: partial lines and the sequence are forgotten."""
-        self._parser = FrameParser()
+        self._parser = FrameParser(self.terminals)
         self._open = None
         self._forget_sequence()
         self.streaming = False
@@ -341,6 +356,11 @@ class HostProtocol:
             self._open = None
             self.needs_fence = True
             events.append(OtherBoard(hello, known))
+            return
+        if self.terminals is not None and hello.terminals != self.terminals:
+            self._open = None
+            self.needs_fence = True
+            events.append(OtherSkin(hello, self.terminals))
             return
         if request is not None and request.kind == "greet":
             self._greet_hello = hello

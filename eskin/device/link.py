@@ -30,6 +30,7 @@ from eskin.device.host import (
     HostProtocol,
     Junk,
     OtherBoard,
+    OtherSkin,
     Refused,
     Restarted,
     SampleComplete,
@@ -70,6 +71,15 @@ class BoardReset(LinkError):
 
 class DeviceChanged(LinkError):
     """Another board answered: a session never mixes two devices."""
+
+
+class SkinMismatch(DeviceChanged):
+    """The board's ``#HELLO`` says another number of terminals than the skin read has."""
+
+    def __init__(self, message: str, hello: Hello, expected: int) -> None:
+        super().__init__(message)
+        self.hello = hello
+        self.expected = expected
 
 
 class ProtocolViolation(LinkError):
@@ -121,13 +131,18 @@ class SerialLink:
     timeout_s
         Longest wait for a request's next sign of progress: a frame it is owed
         or its reply. Junk and frames nobody asked for do not count as progress.
+    terminals
+        The readings per frame of the skin read (``skin.terminals``): a board that
+        greets with another count is :class:`SkinMismatch`. None only where no skin is
+        read (giving a board its id): the board's own count.
     """
 
-    def __init__(self, port: str, *, baud: int = BAUD, timeout_s: float = 5.0) -> None:
+    def __init__(self, port: str, *, terminals: int | None = None, baud: int = BAUD,
+                 timeout_s: float = 5.0) -> None:
         self.port = port
         self.baud = baud
         self.timeout_s = timeout_s
-        self.protocol = HostProtocol()
+        self.protocol = HostProtocol(terminals=terminals)
         self._pending: deque[HostEvent] = deque()
         # Stream events that arrive while a command is answered, for stream() to yield;
         # bounded: the oldest go first, counted, and stream() reports them (StreamOverflow).
@@ -295,6 +310,12 @@ class SerialLink:
                                 f"{timeout:.2g} s{junk.says(self.protocol)}")
 
     def _raise_for_board(self, event: HostEvent, during: str) -> None:
+        if isinstance(event, OtherSkin):
+            count = event.hello.terminals
+            raise SkinMismatch(
+                f"the board on {self.port} has {count} terminals (its #HELLO says "
+                f"terminals={count}), not the {event.expected} of the skin read",
+                event.hello, event.expected)
         if isinstance(event, OtherBoard):
             raise DeviceChanged(
                 f"another board answered on {self.port} {during} (id {event.hello.device_id}, "
@@ -319,7 +340,7 @@ class SerialLink:
         greeted: list[Hello] = []
 
         def on_event(event: HostEvent) -> bool | None:
-            if isinstance(event, OtherBoard):
+            if isinstance(event, OtherSkin | OtherBoard):
                 self._raise_for_board(event, "after reconnecting")
             if isinstance(event, Greeted):
                 greeted.append(event.hello)
@@ -394,7 +415,7 @@ class SerialLink:
                 self._read()
             while self._pending:
                 event = self._pending.popleft()
-                if isinstance(event, OtherBoard | Restarted) and arrived:
+                if isinstance(event, OtherBoard | OtherSkin | Restarted) and arrived:
                     # Our board's frames that came in the same read as another board's
                     # #HELLO (or our own restart) are handed over first; the next pass
                     # raises.

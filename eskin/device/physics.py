@@ -1,6 +1,8 @@
-"""A physics model of the 10×10 capacitive e-skin and its read-out chain.
+"""A physics model of a row/column capacitive e-skin and its read-out chain.
 
-Every number comes from :class:`SkinParams` (``sim:`` in params.yaml).
+Every number comes from :class:`SkinParams` (``sim:`` in params.yaml); the skin's rows
+and columns from the :class:`~eskin.skin.Skin` it is built for (the scene's; the paper's
+10 × 10 by default).
 
 * **Stretch.** An incompressible dielectric stretched by λ along the skin
   grows its electrode area by √λ and thins by 1/√λ, so C ∝ λ: capacitance
@@ -19,7 +21,7 @@ Every number comes from :class:`SkinParams` (``sim:`` in params.yaml).
   precisely (the paper's Fig. 6). The strain spreads over neighbouring nodes
   with a compact kernel that reaches ``reach_nodes`` nodes
   each way and no further. A node's capacitance grows as 1/(1 − ε); a
-  terminal strip sums its ten nodes.
+  terminal strip sums its nodes.
 * **A hand-made skin.** The four 0.5 mm Ecoflex layers are cast, and the
   carbon-grease terminals brushed through a stencil, by hand: each node's
   dielectric thickness and overlap differ, so each node compresses by its own
@@ -42,11 +44,7 @@ from typing import Any
 
 import numpy as np
 
-from eskin.skin import PAPER_SKIN
-
-SKIN = PAPER_SKIN
-X_NODES = np.arange(1, SKIN.rows + 1, dtype=float)     # node positions, in pitches
-Y_NODES = np.arange(1, SKIN.columns + 1, dtype=float)
+from eskin.skin import PAPER_SKIN, AnySkin, Skin
 
 
 @dataclass(frozen=True)
@@ -118,8 +116,9 @@ def skin_params(sim: Any) -> SkinParams:
 
 @dataclass(frozen=True)
 class Indenter:
-    """A weight on node (x, y), both 1..10; ``offset`` is its placement error in node pitches,
-    ``seating`` the factor its tilt puts on the load that seats it fully."""
+    """A weight on node (x, y), x in 1..rows and y in 1..columns; ``offset`` is its placement
+    error in node pitches, ``seating`` the factor its tilt puts on the load that seats it
+    fully."""
 
     x: int
     y: int
@@ -143,14 +142,21 @@ class SkinModel:
     """The skin: terminal capacitances from stretch and indenters, then ADC counts.
 
     Per-terminal properties (baselines, sensitivities, gains) are drawn once
-    from ``params.seed``: they are this particular skin.
+    from ``params.seed``: they are this particular skin. ``skin`` is its rows and
+    columns (the paper's 10 × 10 draws exactly what it always drew).
     """
 
-    def __init__(self, params: SkinParams) -> None:
+    def __init__(self, params: SkinParams, skin: AnySkin = PAPER_SKIN) -> None:
         params.validate()
+        if not isinstance(skin, Skin):
+            raise ValueError(f"the simulated skin is a row/column skin; {skin.describe()} is "
+                             "recorded by another instrument (source: import)")
         self.params = params
+        self.skin = skin
+        self.x_nodes = np.arange(1, skin.rows + 1, dtype=float)  # node positions, in pitches
+        self.y_nodes = np.arange(1, skin.columns + 1, dtype=float)
         rng = np.random.default_rng([params.seed, 0])
-        n = SKIN.terminals
+        n = skin.terminals
         spread = params.baseline_spread * rng.standard_normal(n)
         self.baseline_pf = params.baseline_pf * (1 + spread)
         self.stretch_sensitivity = 1 + params.stretch_sensitivity_spread * rng.standard_normal(n)
@@ -158,7 +164,7 @@ class SkinModel:
             1 + params.cav424_gain_spread * rng.standard_normal(n))
         # Drawn after the others, so that adding it left this skin's other draws alone.
         self.node_sensitivity = np.exp(
-            params.node_sensitivity_spread * rng.standard_normal((SKIN.rows, SKIN.columns)))
+            params.node_sensitivity_spread * rng.standard_normal((skin.rows, skin.columns)))
 
     # ----------------------------------------------------------- physics
 
@@ -178,19 +184,19 @@ class SkinModel:
     def strain_field(self, indenters: Sequence[Indenter], stretch: float) -> np.ndarray:
         """Strain at each node, shape (rows, columns) indexed [x-1, y-1]."""
         p = self.params
-        field = np.zeros((SKIN.rows, SKIN.columns))
+        field = np.zeros((self.skin.rows, self.skin.columns))
         for ind in indenters:
             peak = self.peak_strain(ind.newtons, stretch, ind.seating)
             if peak == 0.0:
                 continue
-            wx = spread_kernel(X_NODES - (ind.x + ind.offset[0]), p.reach_nodes)
-            wy = spread_kernel(Y_NODES - (ind.y + ind.offset[1]), p.reach_nodes)
+            wx = spread_kernel(self.x_nodes - (ind.x + ind.offset[0]), p.reach_nodes)
+            wy = spread_kernel(self.y_nodes - (ind.y + ind.offset[1]), p.reach_nodes)
             field += peak * np.outer(wx, wy)
         # Two indenters cannot squeeze the dielectric past what one can.
         return np.minimum(field * self.node_sensitivity, p.strain_max)
 
     def capacitance(self, stretch: float, indenters: Sequence[Indenter] = ()) -> np.ndarray:
-        """Noise-free terminal capacitances in pF: x1..x10 then y1..y10."""
+        """Noise-free terminal capacitances in pF: x1..xR then y1..yC."""
         gap_gain = 1.0 / (1.0 - self.strain_field(indenters, stretch)) - 1.0
         indentation = np.concatenate([gap_gain.mean(axis=1), gap_gain.mean(axis=0)])
         stretched = self.baseline_pf * (1 + self.stretch_sensitivity * (stretch - 1))
@@ -225,7 +231,7 @@ class Trial:
         self.model = model
         self.rng = np.random.default_rng([model.params.seed, 1, *seed_words])
         p = model.params
-        self._drift = p.drift_offset_pf * self.rng.standard_normal(SKIN.terminals)
+        self._drift = p.drift_offset_pf * self.rng.standard_normal(model.skin.terminals)
 
     def place(self, x: int, y: int, newtons: float) -> Indenter:
         """The indenter as it lands: off-centre, and more or less squarely seated."""
@@ -234,13 +240,14 @@ class Trial:
         return Indenter(x, y, newtons, offset, seating)
 
     def sample_pf(self, n: int, stretch: float, indenters: Sequence[Indenter]) -> np.ndarray:
-        """n noisy capacitance readings in pF, shape (n, 20)."""
+        """n noisy capacitance readings in pF, shape (n, terminals)."""
         p = self.model.params
+        terminals = self.model.skin.terminals
         clean = self.model.capacitance(stretch, indenters)
         walk = self._drift + np.cumsum(
-            p.drift_step_pf * self.rng.standard_normal((n, SKIN.terminals)), axis=0)
+            p.drift_step_pf * self.rng.standard_normal((n, terminals)), axis=0)
         self._drift = walk[-1] if n else self._drift
-        noise = p.noise_pf * self.rng.standard_normal((n, SKIN.terminals))
+        noise = p.noise_pf * self.rng.standard_normal((n, terminals))
         return clean + walk + noise
 
     def sample_counts(self, n: int, stretch: float, indenters: Sequence[Indenter]) -> np.ndarray:

@@ -8,8 +8,11 @@ CRCs and broken sequences come out as :class:`ParseError` and
 
 Frame line (board → host)::
 
-    D,<seq>,<t_ms>,<a1>,...,<a20>*<CC>\\n
+    D,<seq>,<t_ms>,<a1>,...,<aN>*<CC>\\n
 
+N is the board's terminals (its ``#HELLO`` says ``terminals=N``: rows then columns of a
+row/column skin, 20 on the paper's 10 × 10). The parser checks a frame against the N the
+host expects, the skin it reads; without one, against the N of the board's ``#HELLO``.
 ``CC`` is the CRC-8 (polynomial 0x07, init 0x00) of every byte before ``*``
 in two upper-case hex digits. ``\\r\\n`` endings (Arduino ``println``) are
 accepted.
@@ -21,14 +24,19 @@ import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
-from eskin.skin import PAPER_SKIN
-
-N_TERMINALS = PAPER_SKIN.terminals  # protocol v1 carries N; this host reads the paper's skin
 ADC_MAX = 1023
 SEQ_MAX = 2**32 - 1
-# Longest valid frame: "D," + 2 × 10-digit counters + 20 × 4 digits + commas + "*CC".
-# Anything much longer without a newline is garbage; drop it rather than buffer forever.
+MAX_TERMINALS = 64  # a 32 × 32 row/column skin, the largest (eskin.skin.Skin)
+# Longest command line, and longest line of a board of up to 46 terminals: anything much
+# longer without a newline is garbage; drop it rather than buffer forever.
 MAX_LINE_BYTES = 256
+
+
+def max_line_bytes(terminals: int) -> int:
+    """The longest line a board of ``terminals`` sends, newline aside: its longest frame
+    ("D," + 2 × 10-digit counters and a comma + N × (comma + 4 digits) + "*CC"), or
+    :data:`MAX_LINE_BYTES` if that is longer."""
+    return max(MAX_LINE_BYTES, 2 + 10 + 1 + 10 + 5 * terminals + 3)
 # What a board whose lines end in CR alone (``\r``, no ``\n``) is told: the parser never
 # sees a line end, so all it would say otherwise is that nothing came, or junk.
 CR_ONLY_HINT = "its lines end in CR only: protocol v1 ends each line with LF (\\n)"
@@ -60,9 +68,7 @@ def crc8(data: bytes) -> int:
 
 
 def encode_frame(seq: int, t_ms: int, counts: Sequence[int]) -> bytes:
-    """Encode one frame line, newline included."""
-    if len(counts) != N_TERMINALS:
-        raise ValueError(f"a frame has {N_TERMINALS} readings, got {len(counts)}")
+    """Encode one frame line (one reading per terminal), newline included."""
     body = b"D,%d,%d," % (seq, t_ms) + b",".join(b"%d" % c for c in counts)
     return body + b"*%02X\n" % crc8(body)
 
@@ -88,7 +94,7 @@ UNSET_ID = "unset"
 
 @dataclass(frozen=True)
 class Hello:
-    """``#HELLO eskin <fw> terminals=20 adc_bits=10 id=<device-id>``."""
+    """``#HELLO eskin <fw> terminals=<N> adc_bits=10 id=<device-id>``."""
 
     firmware: str
     terminals: int
@@ -131,12 +137,13 @@ _HELLO = re.compile(
 )
 
 
-def parse_line(line: bytes) -> Frame | Hello | Reply | ParseError:
-    """Parse one line (without its newline) into an event. Never raises."""
+def parse_line(line: bytes, terminals: int | None = None) -> Frame | Hello | Reply | ParseError:
+    """Parse one line (without its newline) into an event. Never raises. A frame must carry
+    ``terminals`` readings; None takes a frame of any width (one line out of context)."""
     if line.endswith(b"\r"):
         line = line[:-1]
     if line.startswith(b"D,"):
-        return _parse_frame(line)
+        return _parse_frame(line, terminals)
     if line.startswith(b"#"):
         return _parse_message(line)
     if not line:
@@ -144,7 +151,7 @@ def parse_line(line: bytes) -> Frame | Hello | Reply | ParseError:
     return ParseError("line is neither a frame (D,...) nor a message (#...)", line)
 
 
-def _parse_frame(line: bytes) -> Frame | ParseError:
+def _parse_frame(line: bytes, terminals: int | None) -> Frame | ParseError:
     body, star, crc_text = line.rpartition(b"*")
     if not star:
         return ParseError("frame has no '*<CRC>' trailer (truncated?)", line)
@@ -154,8 +161,11 @@ def _parse_frame(line: bytes) -> Frame | ParseError:
         return ParseError(f"CRC mismatch: line says {crc_text.decode()}, bytes give "
                           f"{crc8(body):02X}", line)
     fields = body.split(b",")[1:]
-    if len(fields) != 2 + N_TERMINALS:
-        return ParseError(f"frame has {len(fields)} fields, expected {2 + N_TERMINALS}", line)
+    if terminals is not None and len(fields) != 2 + terminals:
+        return ParseError(f"frame has {len(fields)} fields, expected {2 + terminals} "
+                          f"(seq, t_ms and {terminals} readings)", line)
+    if len(fields) < 3:
+        return ParseError(f"frame has {len(fields)} fields: seq, t_ms and no reading", line)
     if not all(_DIGITS.match(f) for f in fields):
         return ParseError("frame field is not an unsigned decimal integer", line)
     seq, t_ms, *counts = (int(f) for f in fields)
@@ -175,6 +185,9 @@ def _parse_message(line: bytes) -> Hello | Reply | ParseError:
         match = _HELLO.match(line)
         if not match:
             return ParseError("malformed #HELLO", line)
+        if not 1 <= int(match["t"]) <= MAX_TERMINALS:
+            return ParseError(f"#HELLO says terminals={int(match['t'])}: protocol v1 carries "
+                              f"1..{MAX_TERMINALS}", line)
         return Hello(match["fw"].decode(), int(match["t"]), int(match["b"]),
                      match["id"].decode(), line)
     for prefix, ok in (("#OK ", True), ("#ERR ", False)):
@@ -191,9 +204,17 @@ class FrameParser:
     Keeps the partial last line between calls and the last sequence number,
     so it can report lost frames. A ``#HELLO`` (board start or reset) resets
     the sequence expectation, since the counter restarts at power-up.
+
+    ``terminals``: the readings a frame must carry, the skin the host expects (a board
+    that says otherwise is the host's to refuse: its frames fail here). None: as many
+    as the last ``#HELLO`` said (before one, a frame of any width, in a line of at most
+    :data:`MAX_LINE_BYTES`).
     """
 
-    def __init__(self) -> None:
+    def __init__(self, terminals: int | None = None) -> None:
+        self.terminals = terminals
+        self._expects = terminals is not None
+        self._max_line = MAX_LINE_BYTES if terminals is None else max_line_bytes(terminals)
         self._buffer = bytearray()
         self._last_seq: int | None = None
         self._cr_since_lf = False  # a CR came since the last LF: CR-only line endings?
@@ -218,14 +239,14 @@ class FrameParser:
             line = bytes(self._buffer[:end])
             del self._buffer[: end + 1]
             self._cr_since_lf = False
-            if len(line) > MAX_LINE_BYTES:
-                events.append(ParseError(f"line longer than {MAX_LINE_BYTES} bytes", line))
+            if len(line) > self._max_line:
+                events.append(ParseError(f"line longer than {self._max_line} bytes", line))
                 continue
-            self._handle(parse_line(line), events)
+            self._handle(parse_line(line, self.terminals), events)
         self._cr_since_lf = self._cr_since_lf or b"\r" in self._buffer
-        if len(self._buffer) > MAX_LINE_BYTES:
+        if len(self._buffer) > self._max_line:
             hint = f" ({CR_ONLY_HINT})" if self._cr_since_lf else ""
-            events.append(ParseError(f"no newline within {MAX_LINE_BYTES} bytes{hint}",
+            events.append(ParseError(f"no newline within {self._max_line} bytes{hint}",
                                      bytes(self._buffer)))
             self._buffer.clear()
         return events
@@ -233,6 +254,9 @@ class FrameParser:
     def _handle(self, event: Frame | Hello | Reply | ParseError, events: list[Event]) -> None:
         if isinstance(event, Hello):
             self._last_seq = None
+            if not self._expects:
+                self.terminals = event.terminals
+                self._max_line = max_line_bytes(event.terminals)
         elif isinstance(event, Frame):
             last = self._last_seq
             if last is not None and event.seq <= last:

@@ -203,16 +203,19 @@ def announce_stdout(port: str) -> None:
 
 def serve_config(config: dict, *, socket_port: int | None = None,
                  link: Path | None = None) -> None:
-    """Serve the simulated board ``config`` describes (``sim``, ``rest_length_mm``,
+    """Serve the simulated board ``config`` describes (``sim``, ``skin``, ``rest_length_mm``,
     ``corrupt_fraction``, ``frame_period_ms``, ``faults``) on a pty, or on a loopback
-    socket, announcing the port on stdout; until the parent process is gone."""
+    socket, announcing the port on stdout; until the parent process is gone. ``skin`` is
+    as params.yaml declares one (``{rows, columns}``); none is the paper's."""
     from eskin.device.faults import LinkFaults
     from eskin.device.physics import SkinParams
+    from eskin.skin import skin_from_dict
 
     sim = SkinParams.from_mapping(config["sim"])
+    skin = skin_from_dict(config.get("skin"))
 
     def power_on() -> SimulatedBoard:  # again after every injected reset
-        return SimulatedBoard(sim, rest_length_mm=config["rest_length_mm"],
+        return SimulatedBoard(sim, skin=skin, rest_length_mm=config["rest_length_mm"],
                               corrupt_fraction=config["corrupt_fraction"],
                               frame_period_ms=config["frame_period_ms"])
 

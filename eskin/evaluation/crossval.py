@@ -21,10 +21,10 @@ from joblib import Parallel, delayed, parallel_config
 from sklearn.base import BaseEstimator, clone
 from tqdm import tqdm
 
-from eskin.data.schema import CHANNELS
 from eskin.evaluation import metrics
 from eskin.evaluation.folds import FoldSplit, fold_splitter
 from eskin.learning.tasks import Task
+from eskin.skin import AnySkin
 
 
 @dataclass
@@ -33,8 +33,8 @@ class CVResult:
 
     scheme: str
     predictions: pd.DataFrame              # the task's rows: labels, fold, <target>_pred
-    per_fold: dict[str, list[dict[str, float]]]   # target → one dict per fold
-    summary: dict[str, dict[str, float]]   # target → mean and std of each score
+    per_fold: dict[str, list[dict[str, float]]]   # target (or position) → one dict per fold
+    summary: dict[str, dict[str, float]]   # target (or position) → mean and std of each score
     confusion: dict[str, dict[str, list]] = field(default_factory=dict)
     fit_seconds: float = 0.0               # summed over folds
     predict_seconds: float = 0.0
@@ -115,35 +115,48 @@ def decision_scores(model: BaseEstimator, X: np.ndarray) -> np.ndarray | None:
     return None
 
 
-def _fit_predict_fold(estimator: BaseEstimator, X: np.ndarray, targets: pd.DataFrame,
-                      splitter: FoldSplit, k: int,
+def channel_frame(X: np.ndarray, channels: list[str]) -> pd.DataFrame:
+    """Rows of readings as a frame of the skin's channels, by name (a model that reads the
+    terminals by name needs them: :func:`eskin.learning.estimators.row_column_skin`). It
+    wraps ``X`` without a copy, so a model computes on the very array, in its memory
+    order, and on the same numbers as from ``X`` itself."""
+    return pd.DataFrame(X, columns=channels, copy=False)
+
+
+def _fit_predict_fold(estimator: BaseEstimator, X: np.ndarray, channels: list[str],
+                      targets: pd.DataFrame, splitter: FoldSplit, k: int,
                       binary: bool) -> tuple[dict, float, float, set, dict]:
     train, test = splitter.fold(k)
+    X_train, X_test = channel_frame(X[train], channels), channel_frame(X[test], channels)
     predictions, fit_s, predict_s, notes, scores = {}, 0.0, 0.0, set(), {}
     for name in targets.columns:
         y = targets[name].to_numpy()
         model = clone(estimator)
         start = time.perf_counter()
-        model.fit(X[train], y[train])
+        model.fit(X_train, y[train])
         fit_s += time.perf_counter() - start
         start = time.perf_counter()
-        predictions[name] = np.asarray(model.predict(X[test]))
+        predictions[name] = np.asarray(model.predict(X_test))
         predict_s += time.perf_counter() - start
         if binary:
-            scores[name] = decision_scores(model, X[test])
+            scores[name] = decision_scores(model, X_test)
         notes.update(f"{name}: {note}" for note in getattr(model, "convergence_warnings_", []))
     return predictions, fit_s, predict_s, notes, scores
 
 
 def cross_validate(task: Task, frame: pd.DataFrame, folds: np.ndarray, estimator: BaseEstimator,
-                   scheme: str, *, n_jobs: int = 1, progress: str | None = None) -> CVResult:
-    """Score ``estimator`` on ``task`` over the given fold assignment of ``frame``'s rows.
+                   scheme: str, skin: AnySkin, *, n_jobs: int = 1,
+                   progress: str | None = None) -> CVResult:
+    """Score ``estimator`` on ``task`` over the given fold assignment of ``frame``'s rows,
+    readings of ``skin``; where the skin places its nodes in mm, each contact's position
+    error in mm too.
 
     ``progress``: a label, and a progress bar of the folds on stderr (as they finish)."""
     rows = task.rows(frame)
     data = frame[rows].reset_index(drop=True)
     fold_of = np.asarray(folds)[rows]
-    X = data[CHANNELS].to_numpy(dtype=np.float64)
+    channels = skin.channels
+    X = data[channels].to_numpy(dtype=np.float64)
     targets = task.target_values(data)
     splitter = fold_splitter(fold_of)
     splits = list(splitter.split(X))
@@ -157,13 +170,14 @@ def cross_validate(task: Task, frame: pd.DataFrame, folds: np.ndarray, estimator
                file=sys.stderr, leave=False) as bar):
         outcomes = []
         for outcome in Parallel(n_jobs=n_jobs, return_as="generator")(
-                delayed(_fit_predict_fold)(estimator, X, target_frame, splitter, k, binary)
+                delayed(_fit_predict_fold)(estimator, X, channels, target_frame, splitter, k,
+                                           binary)
                 for k in range(len(splits))):
             outcomes.append(outcome)
             bar.update()
 
     score: Callable = metrics.SCORERS[task.scorer]
-    predictions = data.drop(columns=CHANNELS).assign(fold=fold_of)
+    predictions = data.drop(columns=channels).assign(fold=fold_of)
     per_fold: dict[str, list[dict[str, float]]] = {name: [] for name in targets}
     for (_, test), (predicted, _, _, _, scores) in zip(splits, outcomes, strict=True):
         for name, values in predicted.items():
@@ -176,6 +190,11 @@ def cross_validate(task: Task, frame: pd.DataFrame, folds: np.ndarray, estimator
                                                     dtype=_dtype(column_values))
                 predictions.loc[test, column] = column_values
             per_fold[name].append(score(targets[name][test], values, scores.get(name)))
+        if skin.x_mm is not None and skin.y_mm is not None:
+            for position, (x, y) in task.positions.items():
+                per_fold.setdefault(position, []).append(metrics.position_error_mm(
+                    targets[x][test], targets[y][test], predicted[x], predicted[y],
+                    skin.x_mm, skin.y_mm))
     for name, values in targets.items():
         predictions[f"{name}_true"] = values
     confusion = {}
@@ -196,13 +215,14 @@ def _dtype(values: np.ndarray) -> str:
     return "Int64" if np.issubdtype(values.dtype, np.integer) else "Float64"
 
 
-def fit_final(task: Task, frame: pd.DataFrame,
-              estimator: BaseEstimator) -> dict[str, BaseEstimator]:
-    """The task's models refit on all its rows: target name → fitted estimator.
+def fit_final(task: Task, frame: pd.DataFrame, estimator: BaseEstimator,
+              skin: AnySkin) -> dict[str, BaseEstimator]:
+    """The task's models refit on all its rows (readings of ``skin``): target name →
+    fitted estimator.
 
     Fitted on named columns, so that a deployed model refuses channels in the
     wrong order instead of predicting from them.
     """
     data = frame[task.rows(frame)]
-    X = data[CHANNELS].astype(np.float64)
+    X = data[skin.channels].astype(np.float64)
     return {name: clone(estimator).fit(X, y) for name, y in task.target_values(data).items()}

@@ -32,23 +32,23 @@ from sklearn.model_selection import (
 from sklearn.utils.validation import _num_samples
 
 from eskin.catalog import SCHEMES
-from eskin.data.schema import SKIN
 from eskin.kinds import get_kind
+from eskin.skin import AnySkin
 
 
-def strata(frame: pd.DataFrame, kind: str) -> np.ndarray:
-    """The stratum of each row: its node (0 for none), or its pair of nodes."""
-    return get_kind(kind).strata(frame, SKIN)
+def strata(frame: pd.DataFrame, kind: str, skin: AnySkin) -> np.ndarray:
+    """The stratum of each row: its node of ``skin`` (0 for none), or its pair of nodes."""
+    return get_kind(kind).strata(frame, skin)
 
 
 def assign_folds(frame: pd.DataFrame, kind: str, scheme: str, n_splits: int,
-                 seed: int) -> np.ndarray:
-    """Fold number (0..n_splits-1) of every row, where it is a test sample."""
+                 seed: int, *, skin: AnySkin) -> np.ndarray:
+    """Fold number (0..n_splits-1) of every row (on ``skin``), where it is a test sample."""
     if scheme not in SCHEMES:
         raise ValueError(f"cv scheme must be one of {SCHEMES}, got {scheme!r}")
     if n_splits < 2:
         raise ValueError(f"cv.folds must be at least 2, got {n_splits}")
-    labels = strata(frame, kind)
+    labels = strata(frame, kind, skin)
     groups = frame["trial"].to_numpy()
     n_groups = len(np.unique(groups))
     if scheme == "grouped" and n_groups < n_splits:

@@ -53,6 +53,19 @@ def localisation(y_true: np.ndarray, y_pred: np.ndarray, score=None) -> dict[str
             "within_one": float(np.mean(np.abs(y_true.astype(float) - y_pred) <= 1))}
 
 
+def position_error_mm(x_true: np.ndarray, y_true: np.ndarray, x_pred: np.ndarray,
+                      y_pred: np.ndarray, x_mm, y_mm) -> dict[str, float]:
+    """The mean Euclidean distance in mm between true and predicted positions, node
+    numbers (1-based) placed by the skin's ``x_mm``/``y_mm``."""
+    x_mm, y_mm = np.asarray(x_mm, dtype=float), np.asarray(y_mm, dtype=float)
+    nodes = [np.asarray(v, dtype=np.int64) for v in (x_true, y_true, x_pred, y_pred)]
+    if any((v < 1).any() for v in nodes):
+        raise ValueError("a position error needs a node (1 and above) on both sides")
+    x_true, y_true, x_pred, y_pred = nodes
+    distance = np.hypot(x_mm[x_true - 1] - x_mm[x_pred - 1], y_mm[y_true - 1] - y_mm[y_pred - 1])
+    return {"error_mm": float(distance.mean())}
+
+
 SCORERS = {"regression": regression, "detection": detection, "localisation": localisation}
 
 

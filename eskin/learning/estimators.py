@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Callable, Mapping
+from functools import partial
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -46,7 +47,7 @@ from eskin.learning.gp import (
     rbf_gp_kernel,
     subsample_rows,
 )
-from eskin.skin import PAPER_SKIN
+from eskin.skin import AnySkin, Skin, skin_of_columns
 
 if TYPE_CHECKING:
     from eskin.config import TaskModels
@@ -105,6 +106,24 @@ class SubsampledGaussianProcess(RegressorMixin, BaseEstimator):
         return self.model_.predict(X)
 
 
+def row_column_skin(transformer: BaseEstimator) -> Skin:
+    """The row/column skin a fitted transformer reads, from the names of the channels it
+    was fitted on: x terminals ``cx1..cxR``, then y terminals ``cy1..cyC``. By name, not
+    by a parameter, so that the paper's models pickle as they always have; and a frame
+    whose channels are another skin's, or out of order, is refused instead of read."""
+    names = [str(name) for name in getattr(transformer, "feature_names_in_", [])]
+    try:
+        skin = skin_of_columns(names)
+    except ValueError:
+        skin = None
+    if skin is None or skin.channels != names:
+        shown = ", ".join(names[:4]) + (", …" if len(names) > 4 else "") or "unnamed columns"
+        raise ValueError(f"{type(transformer).__name__} reads a row/column skin's terminals "
+                         f"by name (cx1..cxR, then cy1..cyC), got {shown}: fit it on a "
+                         "DataFrame of those channels (a channel array takes generic models)")
+    return skin
+
+
 class ActiveTerminals(TransformerMixin, BaseEstimator):
     """The read-out's own view of two contacts: which terminals are pressed, and how hard.
 
@@ -117,16 +136,16 @@ class ActiveTerminals(TransformerMixin, BaseEstimator):
     in sign (the pairing the amplitudes vote for), after the changes themselves.
 
     The rest reading is each channel's ``rest_quantile`` over the training rows: in a
-    two-contact scene a terminal is unpressed in most of them.
+    two-contact scene a terminal is unpressed in most of them. The axes are told apart by
+    the channels' names (:func:`row_column_skin`): fit it on a DataFrame.
     """
-
-    ROWS = PAPER_SKIN.rows  # the x terminals, which come first; then the y terminals
 
     def __init__(self, rest_quantile: float = 0.05) -> None:
         self.rest_quantile = rest_quantile
 
     def fit(self, X, y=None):  # noqa: N803 - scikit-learn's name
         X = validate_data(self, X, dtype=np.float64)
+        row_column_skin(self)
         self.rest_ = np.quantile(X, self.rest_quantile, axis=0)
         # One unit for every channel, so that amplitudes compare across terminals, and
         # the units cancel (counts or farads).
@@ -140,9 +159,9 @@ class ActiveTerminals(TransformerMixin, BaseEstimator):
         # rounded as _scaled does: ADC steps tie neighbours exactly, and a tie must break
         # the same way in counts as in farads
         change = np.round((X - self.rest_) / self.unit_, 6)
-        half = self.ROWS
+        x_terminals = row_column_skin(self).rows  # they come first, then the y terminals
         columns, ratios = [change], []
-        for axis in (change[:, :half], change[:, half:]):
+        for axis in (change[:, :x_terminals], change[:, x_terminals:]):
             padded = np.pad(axis, ((0, 0), (1, 1)), constant_values=-np.inf)
             peak = (axis >= padded[:, :-2]) & (axis >= padded[:, 2:])
             ranked = np.argsort(np.where(peak, axis, -np.inf), axis=1, kind="stable")
@@ -167,24 +186,30 @@ class ForceProfile(TransformerMixin, BaseEstimator):
     that rest reading; and per axis the largest change, the sum of the positive changes,
     the sum over the largest and its two neighbours, and where the largest is. A press
     raises the capacitance, so a model may be made monotone in the peaks and sums
-    (:attr:`MONOTONE`); a stretched skin is stiffer, which the stretch estimate carries.
-    Per-channel units and offsets cancel (counts, volts, farads).
+    (:meth:`monotone`); a stretched skin is stiffer, which the stretch estimate carries.
+    Per-channel units and offsets cancel (counts, volts, farads). The axes, of any R × C
+    skin, are told apart by the channels' names (:func:`row_column_skin`): fit it on a
+    DataFrame.
     """
-
-    CHANNELS = PAPER_SKIN.terminals
-    ROWS = PAPER_SKIN.rows  # the x terminals, which come first; then the y terminals
-    # +1: force rises with it; 0: no constraint. Order as transform's columns.
-    MONOTONE = [0] * CHANNELS + [0] + [1, 1, 1, 0] * 2
 
     def __init__(self, quiet: int = 3) -> None:
         self.quiet = quiet
 
+    @staticmethod
+    def monotone(skin: Skin) -> list[int]:
+        """Per column of :meth:`transform` on ``skin``: +1 where force rises with it, 0 for
+        no constraint."""
+        return [0] * skin.terminals + [0] + [1, 1, 1, 0] * 2
+
     def fit(self, X, y=None):  # noqa: N803 - scikit-learn's name
         X = validate_data(self, X, dtype=np.float64)
-        if X.shape[1] != self.CHANNELS:
-            raise ValueError(f"ForceProfile expects {self.CHANNELS} channels, got {X.shape[1]}")
+        skin = row_column_skin(self)
+        if not 1 <= self.quiet <= min(skin.rows, skin.columns):
+            raise ValueError(f"ForceProfile's quiet terminals per axis must be 1 to "
+                             f"{min(skin.rows, skin.columns)} on a {skin.describe()}, got "
+                             f"{self.quiet}: set train.force.physics_profile.quiet")
         rest = X if y is None else X[np.asarray(y, dtype=float) == 0]
-        if len(rest) < 2 * self.CHANNELS:  # too few contact-free rows: every row is rest
+        if len(rest) < 2 * X.shape[1]:  # too few contact-free rows: every row is rest
             rest = X
         self.rest_mean_ = rest.mean(axis=0)
         spread = rest.std(axis=0)
@@ -196,13 +221,13 @@ class ForceProfile(TransformerMixin, BaseEstimator):
         X = validate_data(self, X, dtype=np.float64, reset=False)
         # rounded as _scaled does, so that units and offsets leave no last-bit differences
         level = np.round((X - self.rest_mean_) / self.rest_sd_, 6)
-        half = self.ROWS
-        axes = (level[:, :half], level[:, half:])
+        x_terminals = row_column_skin(self).rows  # they come first, then the y terminals
+        axes = (level[:, :x_terminals], level[:, x_terminals:])
         stretch = np.mean([np.sort(a, axis=1)[:, :self.quiet].mean(axis=1) for a in axes],
                           axis=0)
         change = level - stretch[:, None]
         columns = [change, stretch[:, None]]
-        for axis in (change[:, :half], change[:, half:]):
+        for axis in (change[:, :x_terminals], change[:, x_terminals:]):
             top = np.argmax(axis, axis=1)
             padded = np.pad(axis, ((0, 0), (1, 1)))
             rows = np.arange(len(axis))
@@ -236,6 +261,15 @@ def _on_active_terminals(booster: BaseEstimator) -> Pipeline:
                          FunctionTransformer(np.round, kw_args={"decimals": 6}), booster)
 
 
+def _physics_profile(skin: Skin, max_iter: int = 200, learning_rate: float = 0.1,
+                     quiet: int = 3, monotone: bool = True, seed: int = 0) -> Pipeline:
+    """ForceProfile, then gradient boosting monotone in the press: one constraint per
+    feature, so built for the skin's terminals."""
+    return make_pipeline(ForceProfile(quiet), HistGradientBoostingRegressor(
+        max_iter=max_iter, learning_rate=learning_rate, random_state=seed,
+        monotonic_cst=ForceProfile.monotone(skin) if monotone else None))
+
+
 Factory = Callable[..., BaseEstimator]
 
 REGISTRY: dict[str, dict[str, Factory]] = {
@@ -259,11 +293,7 @@ REGISTRY: dict[str, dict[str, Factory]] = {
         "exact_gp": lambda hyper_subsample=2000, ard=False, seed=0:
             FixedKernelGaussianProcess(hyper_subsample, ard, seed),
         # The reading as the physics composes it (ForceProfile), force monotone in the press.
-        "physics_profile": lambda max_iter=200, learning_rate=0.1, quiet=3, monotone=True,
-            seed=0: make_pipeline(
-                ForceProfile(quiet), HistGradientBoostingRegressor(
-                    max_iter=max_iter, learning_rate=learning_rate, random_state=seed,
-                    monotonic_cst=ForceProfile.MONOTONE if monotone else None)),
+        "physics_profile": _physics_profile,
         # Two contacts: each pressed terminal's place and amplitude (ActiveTerminals), so
         # that one model serves every pair of nodes; large leaves, as a new trial's
         # placement and seating are unlike any one trial seen.
@@ -306,6 +336,14 @@ REGISTRY: dict[str, dict[str, Factory]] = {
 }
 
 
+# Models that read a row/column skin's x and y terminals (ForceProfile, ActiveTerminals),
+# each with the generic model a channel array trains instead: the same gradient boosting
+# on the channels themselves (docs/learning.md).
+ROW_COLUMN_MODELS: dict[str, str] = {"physics_profile": "hist_gradient_boosting",
+                                     "active_terminals": "hist_gradient_boosting"}
+# Models built for the skin (their factory takes it first): one constraint per feature.
+BUILT_FOR_SKIN = ("physics_profile",)
+
 CONFIGURATIONS = ("tuned", "paper")
 
 
@@ -331,20 +369,48 @@ def model_settings(task_params: TaskModels, configuration: str = "tuned",
                            f"(it has {', '.join(map(str, chosen))})")
         chosen = chosen[kind]
     name = "paper" if configuration == "paper" else str(chosen)
+    return name, hyperparameters(task_params, name)
+
+
+def hyperparameters(task_params: TaskModels, name: str) -> dict[str, Any]:
+    """The hyperparameters of model ``name`` in a ``train.<task>`` section (none: {})."""
     hyper = (task_params.model_extra or {}).get(name) or {}
     if not isinstance(hyper, Mapping):
         raise ValueError(f"hyperparameters of {name!r} must be a mapping, got {hyper!r}")
-    return name, dict(hyper)
+    return dict(hyper)
 
 
-def build_model(role: str, name: str, hyper: Mapping[str, Any] | None = None) -> BaseEstimator:
-    """A fresh, unfitted estimator; errors name the role, the model and what is known."""
+def model_for_skin(task_params: TaskModels, name: str, hyper: dict[str, Any],
+                   skin: AnySkin) -> tuple[str, dict[str, Any], str]:
+    """(model, hyperparameters, note) that train on ``skin``: ``name`` as it is, or, for a
+    model that reads row/column terminals on a channel array, its generic model
+    (:data:`ROW_COLUMN_MODELS`) with its hyperparameters, and a note saying so."""
+    generic = ROW_COLUMN_MODELS.get(name)
+    if skin.row_column or generic is None:
+        return name, hyper, ""
+    return generic, hyperparameters(task_params, generic), (
+        f"{name} reads a row/column skin's x and y terminals and this scene is an "
+        f"{skin.describe()}: trained {generic} instead")
+
+
+def build_model(role: str, name: str, hyper: Mapping[str, Any] | None = None,
+                skin: AnySkin | None = None) -> BaseEstimator:
+    """A fresh, unfitted estimator; errors name the role, the model and what is known.
+    ``skin``: the skin it will read, which a model built for the skin
+    (:data:`BUILT_FOR_SKIN`) needs, and a row/column model requires to be row/column."""
     if role not in REGISTRY:
         raise ValueError(f"unknown task role {role!r}; known: {sorted(REGISTRY)}")
     models = REGISTRY[role]
     if name not in models:
         raise ValueError(f"no {role} model named {name!r}; known: {sorted(models)}")
+    if name in ROW_COLUMN_MODELS and skin is not None and not skin.row_column:
+        raise ValueError(f"the {role} model {name!r} reads a row/column skin's terminals; "
+                         f"an {skin.describe()} has none: use {ROW_COLUMN_MODELS[name]!r}")
+    if name in BUILT_FOR_SKIN and skin is None:
+        raise ValueError(f"the {role} model {name!r} is built for a skin's terminals: "
+                         "give build_model the skin it will read")
+    factory = partial(models[name], skin) if name in BUILT_FOR_SKIN else models[name]
     try:
-        return clone(models[name](**dict(hyper or {})))
+        return clone(factory(**dict(hyper or {})))
     except TypeError as error:
         raise ValueError(f"bad hyperparameters for {role} model {name!r}: {error}") from None

@@ -1,4 +1,4 @@
-"""Features from the 20 channels: the paper's raw readings, or a fitted transform.
+"""Features from the skin's channels: the paper's raw readings, or a fitted transform.
 
 ``featurize.method`` chooses:
 
@@ -28,13 +28,14 @@ from sklearn.utils.validation import check_is_fitted, validate_data
 
 from eskin.config import Featurize
 from eskin.data.schema import (
-    CHANNELS,
     contact_mask,
+    dataset_skin,
     md5_file,
     read_dataset,
     read_metadata,
     write_dataset,
 )
+from eskin.skin import AnySkin
 
 METHODS = ("raw", "standardise", "baseline")
 
@@ -78,10 +79,12 @@ def baseline_rows(frame: pd.DataFrame) -> np.ndarray:
     return (rest.to_numpy() & ~contact_mask(frame))
 
 
-def fit_featurizer(method: str, frame: pd.DataFrame, kind: str) -> TransformerMixin:
-    """The transform of ``method`` fitted on ``frame`` (baseline: on its rest samples)."""
+def fit_featurizer(method: str, frame: pd.DataFrame, kind: str,
+                   skin: AnySkin) -> TransformerMixin:
+    """The transform of ``method`` fitted on ``frame``'s channels of ``skin`` (baseline: on
+    its rest samples)."""
     featurizer = make_featurizer(method)
-    channels = frame[CHANNELS]
+    channels = frame[skin.channels]
     if method == "baseline":
         rows = baseline_rows(frame)
         if not rows.any():
@@ -92,15 +95,13 @@ def fit_featurizer(method: str, frame: pd.DataFrame, kind: str) -> TransformerMi
     return featurizer.fit(channels)
 
 
-def featurize(frame: pd.DataFrame, featurizer: TransformerMixin) -> pd.DataFrame:
-    """``frame`` with its channels replaced by features (same names), labels kept."""
-    features = np.asarray(featurizer.transform(frame[CHANNELS]), dtype=np.float64)
+def featurize(frame: pd.DataFrame, featurizer: TransformerMixin, skin: AnySkin) -> pd.DataFrame:
+    """``frame`` with its channels of ``skin`` replaced by features (same names), labels
+    kept."""
+    features = np.asarray(featurizer.transform(frame[skin.channels]), dtype=np.float64)
     out = frame.copy()
-    out[CHANNELS] = features
+    out[skin.channels] = features
     return out
-
-
-_featurize = featurize  # featurize_scene's keyword `featurize` is the params section
 
 
 @dataclass(frozen=True)
@@ -116,20 +117,22 @@ class Featurized:
 
 
 def featurize_scene(scene: str, processed_dir: Path, features_dir: Path, models_dir: Path, *,
-                    featurize: Featurize) -> Featurized:
+                    settings: Featurize) -> Featurized:
     """``<processed>/<scene>.parquet`` → ``<features>/<scene>.parquet`` + the fitted
-    transform, with the ``featurize`` section."""
+    transform, with the ``featurize`` section (``settings``), on the skin the dataset was
+    taken on."""
     source = Path(processed_dir) / f"{scene}.parquet"
     if not source.exists():
         raise FileNotFoundError(f"{source}: no dataset; run `dvc repro ingest@{scene}` first")
     meta = read_metadata(source)
     frame = read_dataset(source)
-    method = featurize.method
-    featurizer = fit_featurizer(method, frame, meta["kind"])
+    skin = dataset_skin(source)
+    method = settings.method
+    featurizer = fit_featurizer(method, frame, meta["kind"], skin)
     out = Path(features_dir) / f"{scene}.parquet"
     meta.update(featurize={"method": method},
                 dataset={"path": source.as_posix(), "md5": md5_file(source), "rows": len(frame)})
-    write_dataset(_featurize(frame, featurizer), meta["kind"], out, meta)
+    write_dataset(featurize(frame, featurizer, skin), meta["kind"], out, meta, skin=skin)
     transform = Path(models_dir) / scene / "featurizer.joblib"
     transform.parent.mkdir(parents=True, exist_ok=True)
     joblib.dump(featurizer, transform)

@@ -8,7 +8,8 @@ Single force (the paper's section III-D):
   a node-0 sample names a weight that was not on the skin;
 * ``detect`` — contact (force > 0 and node > 0) against none, every sample;
 * ``localise`` — x and y of the pressed node, contact samples only (the
-  paper's localisation "assumes that there is pressure on the sensor").
+  paper's localisation "assumes that there is pressure on the sensor"); on a
+  skin that places its positions in mm, also each contact's position error in mm.
 
 Two forces (section III-E): ``force`` (force1 and force2, one model each) and
 ``localise`` (x1, y1, x2, y2), every sample; ``stretch`` where the scene has two
@@ -23,7 +24,7 @@ not by a list of which scene runs what.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
@@ -59,6 +60,9 @@ class Task:
     targets: dict[str, Callable[[pd.DataFrame], np.ndarray]]
     rows: Callable[[pd.DataFrame], np.ndarray] = _all_rows
     row_note: str = "every sample"
+    # Each contact's position (``position``, or ``position1``…) → its (x, y) targets:
+    # scored as a distance in mm where the skin places its nodes in mm.
+    positions: dict[str, tuple[str, str]] = field(default_factory=dict)
 
     def target_values(self, frame: pd.DataFrame) -> dict[str, np.ndarray]:
         return {name: get(frame) for name, get in self.targets.items()}
@@ -101,7 +105,9 @@ def _tasks(kind: Kind) -> dict[str, Task]:
                        for force in kind.force_columns}),
         "detect": Task("detect", "detect", "detection", {"contact": contact_mask}),
         "localise": Task("localise", "localise", "localisation",
-                         {name: _column(name) for name in kind.node_columns}, **localise_rows),
+                         {name: _column(name) for name in kind.node_columns}, **localise_rows,
+                         positions={"position" + force.removeprefix("force"): (x, y)
+                                    for force, x, y in kind.contact_columns}),
     }
 
 

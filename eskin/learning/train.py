@@ -20,11 +20,17 @@ import pandas as pd
 
 from eskin.catalog import HEADLINE_SCHEME, PAIRS_HEADLINE
 from eskin.config import CV, Params, TaskModels
-from eskin.data.schema import describe_source, md5_file, read_dataset, read_metadata
+from eskin.data.schema import (
+    dataset_skin,
+    describe_source,
+    md5_file,
+    read_dataset,
+    read_metadata,
+)
 from eskin.evaluation.crossval import cross_validate, fit_final, parallel_backend
 from eskin.evaluation.folds import assign_folds
 from eskin.kinds import KINDS
-from eskin.learning.estimators import build_model, model_settings
+from eskin.learning.estimators import build_model, model_for_skin, model_settings
 from eskin.learning.saved import save_models
 from eskin.learning.tasks import Task, get_task
 
@@ -53,7 +59,9 @@ def train(scene: str, task_name: str, *, task_params: TaskModels, configuration:
           log: Callable[[str], None] = lambda message: print(message, file=sys.stderr,
                                                                flush=True)) -> Trained:
     """Cross-validate one task under each CV scheme (a progress bar per scheme), refit,
-    save, and log to MLflow.
+    save, and log to MLflow, on the skin the features were taken on. A model that reads a
+    row/column skin's terminals is replaced, on a channel array, by its generic model
+    (:func:`~eskin.learning.estimators.model_for_skin`), and the summary says so.
 
     ``task_params`` is the task's ``train.<task>`` section, ``configuration``
     ``train.configuration``, ``cv`` the ``cv`` section; ``pipeline_params`` (the whole
@@ -69,13 +77,17 @@ def train(scene: str, task_name: str, *, task_params: TaskModels, configuration:
         raise FileNotFoundError(f"{source}: no features; run `dvc repro featurize@{scene}` first")
     meta = read_metadata(source)
     frame = read_dataset(source)
+    skin = dataset_skin(source)
     kind = meta["kind"]
     task = get_task(kind, task_name)
-    model_name, hyper = model_settings(task_params, configuration, kind)
-    estimator = build_model(task.role, model_name, hyper)
+    model_name, hyper, model_note = model_for_skin(
+        task_params, *model_settings(task_params, configuration, kind), skin)
+    estimator = build_model(task.role, model_name, hyper, skin)
     header = {"scene": scene, "kind": kind, "task": task_name, "model": model_name,
               "dataset_md5": meta["dataset"]["md5"], "dataset_rows": meta["dataset"]["rows"],
               "source": describe_source(meta)}
+    if model_note:  # only where a model was replaced: the paper's scores keep their bytes
+        header["model_note"] = model_note
 
     reason = task.unsupported(frame)
     if reason is not None:
@@ -92,14 +104,15 @@ def train(scene: str, task_name: str, *, task_params: TaskModels, configuration:
     with parallel_backend(cv.backend):
         for scheme in cv.schemes:
             try:
-                folds = assign_folds(frame, kind, scheme, int(cv.folds), int(cv.seed))
+                folds = assign_folds(frame, kind, scheme, int(cv.folds), int(cv.seed),
+                                     skin=skin)
             except ValueError as err:  # before any fold runs: name the scene
                 raise ValueError(f"scenes.{scene} ({source}): {err}") from None
             results.append(cross_validate(
-                task, frame, folds, estimator, scheme, n_jobs=int(cv.n_jobs),
+                task, frame, folds, estimator, scheme, skin, n_jobs=int(cv.n_jobs),
                 progress=f"{scene}/{task_name} [{model_name}] {scheme} CV"))
     log(f"{scene}/{task_name} [{model_name}]: refitting on all {len(frame):,} rows …")
-    models = fit_final(task, frame, estimator)
+    models = fit_final(task, frame, estimator, skin)
     save_models(models, model_path)
     # The model file's md5 (as in dvc.lock) links scores, DVC and the MLflow run.
     header["model_md5"] = md5_file(model_path)
@@ -110,8 +123,8 @@ def train(scene: str, task_name: str, *, task_params: TaskModels, configuration:
         scores_doc["confusion"] = confusion
     write_json(scores_doc, scores_path)
     name = task.headline_metric
-    write_json(headline_metrics({r.scheme: {target: {name: scores[name]}
-                                            for target, scores in r.summary.items()}
+    write_json(headline_metrics({r.scheme: {target: {name: r.summary[target][name]}
+                                            for target in task.targets}
                                  for r in results}), metrics_path)
     if lineage_path is not None:
         write_json({**header, "status": "trained", "features_md5": md5_file(source)},
@@ -127,6 +140,7 @@ def train(scene: str, task_name: str, *, task_params: TaskModels, configuration:
             params={"model": model_name, model_name: hyper, "cv": cv.model_dump()},
             pipeline_params=pipeline_params, results=results, models=models,
             dataset=frame.drop(columns=["session", "trial", "seq", "t_ms"]),
+            channels=skin.channels,
             dataset_digest=meta["dataset"]["md5"], dataset_source=meta["dataset"]["path"],
             started=started,
             extra_tags={"eskin.model_md5": header["model_md5"], "eskin.model": model_name,
@@ -139,6 +153,8 @@ def train(scene: str, task_name: str, *, task_params: TaskModels, configuration:
     headline = ", ".join(f"{r.scheme} {_headline(task, r.summary)}" for r in results)
     notes = "".join(f"\n  note ({r.scheme}, {n} of {len(r.per_fold[next(iter(r.per_fold))])} "
                     f"folds): {text}" for r in results for text, n in sorted(r.notes.items()))
+    if model_note:
+        notes = f"\n  note: {model_note}" + notes
     return Trained(scene, task_name, model_name, "trained",
                    f"{scene}/{task_name} [{model_name}]: {headline}{run_note}{notes}",
                    results=results, run_id=tracked.run_id if tracked else "",
@@ -154,9 +170,13 @@ def headline_metrics(by_scheme: dict[str, dict]) -> dict[str, dict]:
 
 
 def _headline(task: Task, summary: dict[str, dict[str, float]]) -> str:
+    """Each target's headline score, then each position's error in mm where there is one."""
     name = task.headline_metric
-    return " ".join(f"{target} {name} {scores[name]:.3f}±{scores[name + '_std']:.3f}"
-                    for target, scores in summary.items())
+    return " ".join([f"{target} {name} {summary[target][name]:.3f}±"
+                     f"{summary[target][name + '_std']:.3f}" for target in task.targets]
+                    + [f"{position} error {summary[position]['error_mm']:.2f}±"
+                       f"{summary[position]['error_mm_std']:.2f} mm"
+                       for position in task.positions if position in summary])
 
 
 def write_json(document: dict, path: Path) -> None:

@@ -201,12 +201,17 @@ def _share(share: float) -> str:
     return f"{share:.1%}"
 
 
+# The most classes whose confusion cells still fit their count and share (16 × 12 skins'
+# 16 x terminals do, 32 do not).
+WRITTEN_LABELS = 16
+
+
 def _confusion_panel(ax, true: np.ndarray, predicted: np.ndarray, name: str,
                      tick_names: dict | None = None):
     """One confusion matrix: colour the share of the samples with the same true value
     (so that a rare class's row reads as well as a common one's), every non-zero cell's
-    count and share written in, whatever the matrix's size. Returns the image, for a
-    colour bar.
+    count and share written in, up to :data:`WRITTEN_LABELS` classes (beyond, a cell is
+    too small to write in: the colour tells). Returns the image, for a colour bar.
 
     ConfusionMatrixDisplay draws the image, ticks and labels; it writes the values it
     colours, and these cells show a count beside the share they are coloured by, so the
@@ -220,7 +225,8 @@ def _confusion_panel(ax, true: np.ndarray, predicted: np.ndarray, name: str,
     display.plot(ax=ax, cmap="Blues", colorbar=False, include_values=False,
                  im_kw={"vmin": 0, "vmax": 1})
     small = len(labels) > 6
-    for (i, j), count in np.ndenumerate(counts):
+    written = counts if len(labels) <= WRITTEN_LABELS else np.zeros_like(counts)
+    for (i, j), count in np.ndenumerate(written):
         if count:
             ax.text(j, i, f"{count:,}\n{_share(share[i, j])}", ha="center", va="center",
                     fontsize=5 if small else 8, linespacing=1.1,

@@ -13,9 +13,10 @@ from dataclasses import dataclass, field
 
 from eskin.catalog import SCHEMES
 from eskin.kinds import Headline, get_kind
+from eskin.skin import PAPER_SKIN, AnySkin
 
-# (scene, kind, {task: scores document}) for each scene of params.yaml, in its order.
-Scenes = list[tuple[str, str, Mapping[str, Mapping]]]
+# (scene, kind, skin, {task: scores document}) for each scene of params.yaml, in its order.
+Scenes = list[tuple[str, str, AnySkin, Mapping[str, Mapping]]]
 
 
 # What each CV scheme holds out, as the page and the figures say it.
@@ -47,7 +48,20 @@ def headline_rows(kind: str, scores: Mapping[str, Mapping]) -> list[list[str]]:
     """[metric, stratified, grouped, paper] per headline of a ``kind`` scene whose scores
     documents are ``scores`` (by task), as display strings."""
     return [[_label(scores, row), *(score_text(scores, row, s) for s in SCHEMES), row.paper]
-            for row in get_kind(kind).headlines]
+            for row in get_kind(kind).headlines if not row.optional or _scored(scores, row)]
+
+
+def _scored(scores: Mapping[str, Mapping], row: Headline) -> bool:
+    """Whether any scheme of the row's scores document has its metric."""
+    document = scores.get(row.task) or {}
+    return any(row.metric in (document.get(scheme) or {}).get(row.target, {})
+               for scheme in SCHEMES)
+
+
+def skin_note(skin: AnySkin) -> str:
+    """The skin a scene is on, as the page and the results say it: nothing for the paper's
+    (every scene's, unless params.yaml says otherwise, and so its pages keep their bytes)."""
+    return "" if skin == PAPER_SKIN else skin.describe()
 
 
 def _label(scores: Mapping[str, Mapping], row: Headline) -> str:
@@ -88,10 +102,12 @@ def results_markdown(scenes: Scenes) -> str:
              "Written by the report stage from the scores of this commit "
              "(`reports/scores/`; `dvc metrics show` has the grouped-CV headline, and "
              "the figures and the model hashes are in `reports/index.html`)."]
-    for scene, kind, scores in scenes:
+    for scene, kind, skin, scores in scenes:
         data = dataset(scores)
         about = (f"{data[1]} rows, {data[2]}, DVC md5 `{data[0]}`" if data
                  else "no trained task")
+        if skin_note(skin):
+            about += f"; skin: {skin_note(skin)}"
         skips = "".join(f"\n- {scene}/{task} skipped: {reason}"
                         for task, reason in skipped(scores))
         parts.append(f"## {scene} ({get_kind(kind).label})\n\n{about}.\n\n"
@@ -164,7 +180,7 @@ class Provenance:
 def models(scenes: Scenes) -> list[list[str]]:
     """(scene/task, model, model md5) of each trained task: the key to its MLflow run."""
     return [[f"{scene}/{task}", str(document.get("model", "?")), document["model_md5"]]
-            for scene, _, scores in scenes for task, document in scores.items()
+            for scene, _, _, scores in scenes for task, document in scores.items()
             if "model_md5" in document]
 
 
@@ -173,7 +189,7 @@ def model_variants(scenes: Scenes) -> list[tuple[str, str]]:
     its scores files say (what an experiment changes)."""
     return [(scene, ", ".join(f"{task} {document['model']}" for task, document in
                               scores.items() if "model_md5" in document and "model" in document))
-            for scene, _, scores in scenes]
+            for scene, _, _, scores in scenes]
 
 
 def render_page(scenes: Scenes, figures: Mapping[str, list[FigureRow]],
@@ -188,7 +204,7 @@ def render_page(scenes: Scenes, figures: Mapping[str, list[FigureRow]],
         loader=jinja2.PackageLoader("eskin.reporting", "templates"),
         autoescape=True, undefined=jinja2.StrictUndefined)
     context = [{
-        "name": scene, "kind": get_kind(kind).label,
+        "name": scene, "kind": get_kind(kind).label, "skin": skin_note(skin),
         "dataset": dict(zip(("md5", "rows", "source"), data, strict=True)) if (
             data := dataset(scores)) else None,
         "headline": headline_rows(kind, scores), "skipped": skipped(scores),
@@ -199,7 +215,7 @@ def render_page(scenes: Scenes, figures: Mapping[str, list[FigureRow]],
                                   "png": base64.b64encode(png).decode()}
                                  for scheme, heading, png in row.schemes]}
                     for row in figures.get(scene, [])],
-    } for scene, kind, scores in scenes]
+    } for scene, kind, skin, scores in scenes]
     return environment.get_template("page.html.j2").render(
         css=CSS, scenes=context, models=models(scenes), run=run or Provenance(),
         variants=model_variants(scenes))

@@ -1,9 +1,10 @@
 """Pipeline step of reporting: figures, DVC plot data, the report page, the results page.
 
 Reads only the training stages' predictions and scores, the scene list
-(``scenes:``, names and kinds) and its own params (``report:``), so a change
+(``scenes:``, names, kinds and skins) and its own params (``report:``), so a change
 of figure style reruns only this step. Every scene gets its own figures,
-plot data and section; what a figure shows follows the scene's kind.
+plot data and section; what a figure shows follows the scene's kind, and its skin: a
+row/column skin's nodes are terminals, a channel array's press positions.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import matplotlib.pyplot as plt
 import pandas as pd
 
 from eskin.catalog import SCORED_TASKS
-from eskin.config import Report, Scene
+from eskin.config import Report, Scene, scene_skin
 from eskin.data.schema import force_columns, node_columns
 from eskin.kinds import Figure, Headline, get_kind
 from eskin.reporting import figures as fig
@@ -32,18 +33,28 @@ from eskin.reporting.page import (
     results_markdown,
     score_text,
 )
+from eskin.skin import AnySkin
 
 
-def draw(figure: Figure, oof: pd.DataFrame):
-    """One of a kind's figures (eskin/kinds.py) from its task's out-of-fold predictions."""
+def node_word(skin: AnySkin) -> str:
+    """What a node along an axis is on ``skin``: a row/column skin's terminal, or a channel
+    array's press position."""
+    return "terminal" if skin.row_column else "position"
+
+
+def draw(figure: Figure, oof: pd.DataFrame, skin: AnySkin):
+    """One of a kind's figures (eskin/kinds.py) from its task's out-of-fold predictions on
+    ``skin``."""
     build = getattr(fig, figure.draw)
     if figure.targets:
-        return build(oof, list(figure.targets), list(figure.axis_labels), title=figure.title)
+        return build(oof, list(figure.targets),
+                     [f"{axis} {node_word(skin)}" for axis in figure.axis_labels],
+                     title=figure.title)
     return build(oof)
 
 
 METRIC_LABELS = {"r2": "R²", "mse": "MSE", "rmse": "RMSE", "accuracy": "accuracy",
-                 "balanced_accuracy": "balanced accuracy"}
+                 "balanced_accuracy": "balanced accuracy", "error_mm": "error (mm)"}
 # Errors of a force are in newtons (force, force1, force2); the other scores have no unit.
 IN_NEWTONS = ("rmse", "mae")
 
@@ -126,12 +137,18 @@ def _task_files(directory: Path, scene: str, suffix: str, reader) -> dict[str, A
     return found
 
 
-# What a `dvc plots` panel shows, by target (its title, with the scene's name).
+# What a `dvc plots` panel shows, by target (its title, with the scene's name); a node
+# target's is :func:`panel_label`'s.
 PANEL_LABEL = {"stretch": "stretch λ", "force": "force (N)", "force1": "force of contact 1 (N)",
-               "force2": "force of contact 2 (N)", "contact": "contact",
-               "x": "x terminal", "y": "y terminal", "x1": "x terminal of contact 1",
-               "y1": "y terminal of contact 1", "x2": "x terminal of contact 2",
-               "y2": "y terminal of contact 2"}
+               "force2": "force of contact 2 (N)", "contact": "contact"}
+
+
+def panel_label(target: str, skin: AnySkin) -> str:
+    """A `dvc plots` panel's title: ``x terminal``, ``y position of contact 2``, …"""
+    if target in PANEL_LABEL:
+        return PANEL_LABEL[target]
+    axis, contact = target[0], target[1:]
+    return f"{axis} {node_word(skin)}" + (f" of contact {contact}" if contact else "")
 
 
 # Parity points a `dvc plots` panel draws at most (every k-th prediction beyond): with
@@ -139,7 +156,7 @@ PANEL_LABEL = {"stretch": "stretch λ", "force": "force (N)", "force1": "force o
 PLOT_POINTS = 4000
 
 
-def plot_data(scene: str, kind: str, predictions: dict[str, pd.DataFrame]
+def plot_data(scene: str, kind: str, skin: AnySkin, predictions: dict[str, pd.DataFrame]
               ) -> list[tuple[str, str, pd.DataFrame]]:
     """(template, file stem, frame) behind `dvc plots` for one scene: parity data of every
     regression target (at most ``PLOT_POINTS``, evenly through the predictions), confusion
@@ -165,7 +182,7 @@ def plot_data(scene: str, kind: str, predictions: dict[str, pd.DataFrame]
                     classes = classes.apply(lambda c: c.map({True: "contact", False: "none"}))
                 out.append(("confusion", target, classes.value_counts().rename("count")
                             .reset_index().sort_values(["actual", "predicted"])))
-    return [(template, stem, frame.assign(panel=f"{scene}: {PANEL_LABEL[stem]}"))
+    return [(template, stem, frame.assign(panel=f"{scene}: {panel_label(stem, skin)}"))
             for template, stem, frame in out]
 
 
@@ -191,6 +208,7 @@ def report(*, report: Report, scenes: Mapping[str, Scene], scores_dir: Path,
     which commit and experiment the page says it shows (:func:`provenance`)."""
     settings = report
     kinds = {name: scene.kind for name, scene in scenes.items()}
+    skins = {name: scene_skin(scene) for name, scene in scenes.items()}
     scores = {scene: _task_files(scores_dir, scene, ".json", lambda p: json.loads(p.read_text()))
               for scene in kinds}
     if not any(scores.values()):
@@ -217,7 +235,7 @@ def report(*, report: Report, scenes: Mapping[str, Scene], scores_dir: Path,
             for scheme in settings.schemes:
                 oof = frame[frame["scheme"] == scheme]
                 about = identity(scene, spec, scheme, oof, scores[scene].get(spec.task))
-                figure = draw(spec, oof)
+                figure = draw(spec, oof, skins[scene])
                 fig.identify(figure, about.heading)
                 name = f"{spec.id}_{scheme}"
                 (figures_dir / scene).mkdir(parents=True, exist_ok=True)
@@ -232,11 +250,11 @@ def report(*, report: Report, scenes: Mapping[str, Scene], scores_dir: Path,
             page_figures[scene].append(row)
         chosen = {task: frame[frame["scheme"] == settings.plots_scheme]
                   for task, frame in predictions[scene].items() if not frame.empty}
-        for template, stem, frame in plot_data(scene, kind, chosen):
+        for template, stem, frame in plot_data(scene, kind, skins[scene], chosen):
             (plots_dir / template).mkdir(parents=True, exist_ok=True)
             frame.to_csv(plots_dir / template / f"{scene}_{stem}.csv", index=False)
 
-    scenes = [(scene, kinds[scene], scores[scene]) for scene in kinds]
+    scenes = [(scene, kinds[scene], skins[scene], scores[scene]) for scene in kinds]
     href = Path(os.path.relpath(figures_dir, Path(page_path).parent)).as_posix()
     Path(page_path).write_text(render_page(scenes, page_figures, run or Provenance(), href))
     Path(results_path).write_text(results_markdown(scenes))

@@ -19,7 +19,7 @@ import numpy as np
 import pandas as pd
 
 from eskin.catalog import TASK_NAMES, features_path, model_path, processed_path
-from eskin.data.schema import md5_file, read_dataset, read_metadata
+from eskin.data.schema import dataset_skin, md5_file, read_dataset, read_metadata
 from eskin.deploy.stack import SkinStack, StackError, featurizer_for, rest_reading
 from eskin.evaluation.crossval import cross_validate
 from eskin.evaluation.folds import assign_folds
@@ -74,7 +74,7 @@ def reproduce(name: str, version: str | None = None, *, root: Path = Path("."),
     run = client.get_run(entry.run_id)
     path = versioned_file(root, features_path(scene),
                           tags["eskin.features_md5"], f"features of {scene}")
-    frame, kind = read_dataset(path), read_metadata(path)["kind"]
+    frame, kind, skin = read_dataset(path), read_metadata(path)["kind"], dataset_skin(path)
     task = get_task(kind, task_name)
     # The model is the DVC-tracked file whose md5 the run recorded (eskin.model_md5, as in
     # dvc.lock), unpickled only after that md5 is checked: a pickle runs code when loaded.
@@ -90,8 +90,10 @@ def reproduce(name: str, version: str | None = None, *, root: Path = Path("."),
     for scheme in schemes:
         log(f"{name} v{entry.version}: {scheme} cross-validation, {params['cv.folds']} folds, "
             f"{len(frame)} rows …")
-        folds = assign_folds(frame, kind, scheme, int(params["cv.folds"]), int(params["cv.seed"]))
-        redone = cross_validate(task, frame, folds, model, scheme, n_jobs=n_jobs).predictions
+        folds = assign_folds(frame, kind, scheme, int(params["cv.folds"]), int(params["cv.seed"]),
+                             skin=skin)
+        redone = cross_validate(task, frame, folds, model, scheme, skin,
+                                n_jobs=n_jobs).predictions
         logged = pd.read_parquet(mlflow.artifacts.download_artifacts(
             run_id=entry.run_id, artifact_path=f"predictions/oof_{scheme}.parquet"))
         column = f"{target}_pred"
@@ -141,6 +143,7 @@ def stack_from_registry(scene: str, alias: str, root: Path = Path(".")) -> SkinS
     features = versioned_file(root, features_path(scene), features_md5.pop(),
                               f"features of {scene}")
     meta = read_metadata(features)
+    skin = dataset_skin(features)
     models, skipped = {}, {}
     for task in TASK_NAMES:
         version = by_task.get(task)
@@ -152,5 +155,6 @@ def stack_from_registry(scene: str, alias: str, root: Path = Path(".")) -> SkinS
                                                   f"{version.name} v{version.version}"), md5)
     processed = versioned_file(root, processed_path(scene), meta["dataset"]["md5"],
                                f"dataset of {scene}")
-    return SkinStack(scene, meta["kind"], featurizer_for(scene, meta, features, root),
-                     models, skipped, meta.get("device"), rest_reading(pd.read_parquet(processed)))
+    return SkinStack(scene, meta["kind"], skin, featurizer_for(scene, meta, features, skin, root),
+                     models, skipped, meta.get("device"),
+                     rest_reading(pd.read_parquet(processed), skin))

@@ -46,7 +46,6 @@ from mlflow.entities import Param  # noqa: E402
 from mlflow.models import infer_signature  # noqa: E402
 from mlflow.tracking import MlflowClient  # noqa: E402
 
-from eskin.data.schema import CHANNELS  # noqa: E402
 from eskin.errors import EskinError  # noqa: E402
 
 EXPERIMENT = "eskin"
@@ -254,24 +253,26 @@ def _extend_parent(client: MlflowClient, parent: str) -> None:
 def log_task_run(*, scene: str, task: str, params: Mapping[str, Any],
                  pipeline_params: Any | None,
                  results: list, models: Mapping[str, Any], dataset: pd.DataFrame,
-                 dataset_digest: str, dataset_source: str, started: float | None = None,
+                 channels: list[str], dataset_digest: str, dataset_source: str,
+                 started: float | None = None,
                  extra_tags: Mapping[str, str] | None = None) -> TrackedRun:
     """Log one task execution and register its models; returns the run id and versions.
 
     ``results`` are :class:`~eskin.evaluation.crossval.CVResult` per scheme;
     ``models`` maps target name → fitted final model; ``dataset`` is the
     frame that trained them (features and labels), logged as an MLflow input
-    whose digest is the DVC md5 of the dataset's Parquet file; ``started``, the
+    whose digest is the DVC md5 of the dataset's Parquet file, and ``channels`` its skin's
+    channels (the models' input example); ``started``, the
     step's ``time.perf_counter()`` at its start, gives the metric ``wall_seconds``;
     ``pipeline_params``, the whole :class:`eskin.config.Params`, goes to the pipeline run.
     """
     with _naming_the_store(f"logging {scene}/{task}"):
         return _log_task_run(scene, task, params, pipeline_params, results, models, dataset,
-                             dataset_digest, dataset_source, started, extra_tags)
+                             channels, dataset_digest, dataset_source, started, extra_tags)
 
 
-def _log_task_run(scene, task, params, pipeline_params, results, models, dataset, dataset_digest,
-                  dataset_source, started, extra_tags) -> TrackedRun:
+def _log_task_run(scene, task, params, pipeline_params, results, models, dataset, channels,
+                  dataset_digest, dataset_source, started, extra_tags) -> TrackedRun:
     experiment_id, parent, key, tags = _pipeline(scene, pipeline_params, _epoch_ms(started))
     run_tags = {**tags, **(extra_tags or {}), **process_tags(), "eskin.task": task,
                 "eskin.kind": "task",
@@ -284,8 +285,8 @@ def _log_task_run(scene, task, params, pipeline_params, results, models, dataset
         warnings.filterwarnings("ignore", message="The specified dataset source can be")
         warnings.filterwarnings("ignore", message="Hint: Inferred schema contains integer")
         tracked = _log_run(experiment_id, parent, scene, task, run_tags, params, results,
-                           models, dataset, dataset_digest, dataset_source, started,
-                           variant_name(key))
+                           models, dataset, channels, dataset_digest, dataset_source,
+                           started, variant_name(key))
         _extend_parent(MlflowClient(), parent)
         return tracked
 
@@ -309,7 +310,7 @@ class _quiet:
 
 
 def _log_run(experiment_id, parent, scene, task, run_tags, params, results, models, dataset,
-             dataset_digest, dataset_source, started, variant) -> TrackedRun:
+             channels, dataset_digest, dataset_source, started, variant) -> TrackedRun:
     # Created with the step's start, so that the UI's duration is the training's; named
     # so that Compare tells variants and models apart.
     created = MlflowClient().create_run(
@@ -336,7 +337,7 @@ def _log_run(experiment_id, parent, scene, task, run_tags, params, results, mode
                 mlflow.log_artifact(str(path), artifact_path="predictions")
                 if result.confusion:
                     mlflow.log_dict(result.confusion, f"confusion/{result.scheme}.json")
-        example = dataset[CHANNELS].head(5)
+        example = dataset[channels].head(5)
         client = MlflowClient()
         lineage = {k: v for k, v in run_tags.items()
                    if k.startswith("eskin.") and k not in ("eskin.kind", "eskin.cv_scheme")}

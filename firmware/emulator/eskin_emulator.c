@@ -5,15 +5,17 @@
 //
 // <link> is a symlink that follows the firmware's pty, as udev's /dev/serial/by-id/ names
 // follow a board that is unplugged and plugged back.
-// It watches the pins of board.h: the multiplexers' select and enable lines (which terminal
-// reaches the CAV424) and the stepper's STEP and DIR (where the clamp is). Each ADC
+// It is built for one skin size, against the firmware's board.h and generated skin.h (the
+// Makefile: build/<R>x<C>/), and watches the pins board.h names: the multiplexers' select
+// and enable lines (which terminal reaches the CAV424, by skin.h's TERMINAL_MAP) and the
+// stepper's STEP and DIR (where the clamp is). Each ADC
 // conversion is answered with the voltage of the selected terminal. The voltages come
 // from the skin model, which lives in the Python process that started this one, over
 // stdin/stdout, one line each way:
 //
 //   → PTY <link>                the firmware's serial port, once, at start
 //   → FRAME <steps>             a scan begins (x1 selected); the clamp's position in steps
-//   ← VOLTS <v1> ... <v20>      that scan's 20 voltages, in units of 5 V / 65535
+//   ← VOLTS <v1> ... <vN>       that scan's TERMINALS voltages, in units of 5 V / 65535
 //   ← RESET                     (instead of VOLTS) reset the board
 //   ← VANISH <ms>               (instead of VOLTS) the USB link drops: the pty closes (the
 //                               host's open port hangs up) and <link> is gone; <ms> later
@@ -26,6 +28,7 @@
 // not depend on the Python side's speed. Diagnostics go to stderr.
 #include <errno.h>
 #include <pty.h>
+#include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -38,22 +41,27 @@
 #include <simavr/sim_avr.h>
 #include <simavr/sim_elf.h>
 
-#define TERMINALS 20
-// board.h's pins, by port and bit
-#define STEP_BIT 2   // PD2
-#define DIR_BIT 3    // PD3
-#define S0_BIT 4     // PD4..PD7: the select lines
-#define X_EN_BIT 0   // PB0
-#define Y_EN_BIT 1   // PB1
+#include "board.h"
+
+// An Arduino Uno pin number's port and bit: D0..D7 are PD0..PD7, D8..D13 PB0..PB5.
+#define PORT_OF(pin) ((pin) < 8 ? 'D' : 'B')
+#define BIT_OF(pin) ((pin) < 8 ? (pin) : (pin) - 8)
+#define MULTIPLEXERS 4  // board.h's MUX_ENABLE_PINS
+#define CHANNELS 16     // a 74HC4067's
 // Units of the voltages simavr's ADC is given: it keeps them in 16 bits, so 5 V (the
 // supply, AVcc) is 65535 units of 76.3 µV.
 #define SUPPLY 65535
+#define TEXT_(value) #value
+#define TEXT(value) TEXT_(value)
 
 static avr_t *avr;
 static FILE *python;           // the protocol's output (stdout before it was redirected)
+static const int mux_enable[MULTIPLEXERS] = MUX_ENABLE_PINS;
+static const int select_pins[4] = {PIN_MUX_S0, PIN_MUX_S1, PIN_MUX_S2, PIN_MUX_S3};
+static int terminal_at[MULTIPLEXERS][CHANNELS];  // by skin.h's TERMINAL_MAP; -1: none
 static uint32_t volts[TERMINALS];
 static int terminal = -1;      // the terminal that reaches the CAV424, -1 for none
-static int select_bits = 0, x_enabled = 0, y_enabled = 0, extending = 0;
+static int select_bits = 0, enabled[MULTIPLEXERS] = {0}, extending = 0;
 static long position_steps = 0;
 static int reset_asked = 0;
 static long vanish_ms = -1;    // VANISH asked: the milliseconds the link stays away
@@ -69,7 +77,7 @@ static void fail(const char *what) {
 
 // Ask the skin for the next scan's voltages.
 static void next_frame(void) {
-  char line[512];
+  char line[16 + 6 * TERMINALS];
   fprintf(python, "FRAME %ld\n", position_steps);
   fflush(python);
   if (!fgets(line, sizeof line, stdin)) exit(0);  // the Python side is gone: so are we
@@ -85,44 +93,57 @@ static void next_frame(void) {
     return;
   }
   char *at = line;
-  if (strncmp(at, "VOLTS ", 6) != 0) fail("expected VOLTS <20 numbers>");
+  if (strncmp(at, "VOLTS ", 6) != 0) fail("expected VOLTS <" TEXT(TERMINALS) " numbers>");
   at += 6;
   for (int i = 0; i < TERMINALS; i++) {
     char *end;
     unsigned long v = strtoul(at, &end, 10);
-    if (end == at || v > SUPPLY) fail("VOLTS needs 20 numbers in 0..65535 (5 V / 65535)");
+    if (end == at || v > SUPPLY)
+      fail("VOLTS needs " TEXT(TERMINALS) " numbers in 0..65535 (5 V / 65535)");
     volts[i] = (uint32_t)v;
     at = end;
   }
 }
 
+// The terminal the one enabled multiplexer passes on; none when no or several are enabled.
 static void update_terminal(void) {
-  int now = -1;
-  if (x_enabled && !y_enabled && select_bits < 10) now = select_bits;
-  if (y_enabled && !x_enabled && select_bits < 10) now = 10 + select_bits;
+  int now = -1, count = 0;
+  for (int mux = 0; mux < MULTIPLEXERS; mux++) {
+    if (enabled[mux]) {
+      count++;
+      now = terminal_at[mux][select_bits];
+    }
+  }
+  if (count != 1) now = -1;
   if (now == 0 && terminal != 0) frame_due = 1;
   terminal = now;
 }
 
-static void port_d(struct avr_irq_t *irq, uint32_t value, void *param) {
-  (void)param;
-  const int bit = (int)irq->irq;
-  if (bit == STEP_BIT) {
+static void pin_changed(struct avr_irq_t *irq, uint32_t value, void *param) {
+  (void)irq;
+  const int pin = (int)(intptr_t)param;
+  if (pin == PIN_STEP) {
     if (value) position_steps += extending ? 1 : -1;  // a rising edge is a step
-  } else if (bit == DIR_BIT) {
-    extending = value != 0;
-  } else if (bit >= S0_BIT && bit < S0_BIT + 4) {
-    const int mask = 1 << (bit - S0_BIT);
-    select_bits = value ? (select_bits | mask) : (select_bits & ~mask);
-    update_terminal();
+    return;
   }
+  if (pin == PIN_DIR) {
+    extending = value != 0;
+    return;
+  }
+  for (int i = 0; i < 4; i++) {
+    if (pin == select_pins[i]) {
+      select_bits = value ? (select_bits | 1 << i) : (select_bits & ~(1 << i));
+    }
+  }
+  for (int mux = 0; mux < MULTIPLEXERS; mux++) {
+    if (pin == mux_enable[mux]) enabled[mux] = value == 0;  // enables are active low
+  }
+  update_terminal();
 }
 
-static void port_b(struct avr_irq_t *irq, uint32_t value, void *param) {
-  (void)param;
-  if (irq->irq == X_EN_BIT) x_enabled = value == 0;  // enables are active low
-  if (irq->irq == Y_EN_BIT) y_enabled = value == 0;
-  update_terminal();
+static void watch(int pin) {
+  avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(PORT_OF(pin)), BIT_OF(pin)),
+                          pin_changed, (void *)(intptr_t)pin);
 }
 
 static void conversion(struct avr_irq_t *irq, uint32_t value, void *param) {
@@ -186,10 +207,15 @@ int main(int argc, char **argv) {
   avr->frequency = 16000000;
   avr->vcc = avr->avcc = avr->aref = SUPPLY;
 
-  for (int bit = STEP_BIT; bit <= S0_BIT + 3; bit++)
-    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), bit), port_d, NULL);
-  for (int bit = X_EN_BIT; bit <= Y_EN_BIT; bit++)
-    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('B'), bit), port_b, NULL);
+  memset(terminal_at, -1, sizeof terminal_at);
+  static const uint8_t terminal_map[TERMINALS] = TERMINAL_MAP;
+  for (int t = 0; t < TERMINALS; t++) terminal_at[terminal_map[t] >> 4][terminal_map[t] & 0x0F] = t;
+  watch(PIN_STEP);
+  watch(PIN_DIR);
+  for (int i = 0; i < 4; i++) watch(select_pins[i]);
+  for (int mux = 0; mux < MULTIPLEXERS; mux++) {
+    if (MULTIPLEXERS_USED & (1 << mux)) watch(mux_enable[mux]);
+  }
   avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_OUT_TRIGGER),
                           conversion, NULL);
 
@@ -215,7 +241,8 @@ int main(int argc, char **argv) {
       avr_reset(avr);
       terminal = -1;
       frame_due = 0;
-      select_bits = x_enabled = y_enabled = 0;
+      select_bits = 0;
+      memset(enabled, 0, sizeof enabled);
       // The clamp stays where it is; the firmware counts from 0 again (board.h: no home).
     }
   }

@@ -1,7 +1,8 @@
 // eskin board firmware: wire protocol v1 (docs/protocol.md) on an Arduino Uno.
 //
-// Board → host: #HELLO at start and on HELLO; D,<seq>,<t_ms>,<x1..x10>,<y1..y10>*<CC>
+// Board → host: #HELLO at start and on HELLO; D,<seq>,<t_ms>,<x1..xR>,<y1..yC>*<CC>
 // frames (CC: CRC-8, polynomial 0x07, init 0x00, of every byte before '*'); #OK / #ERR.
+// R and C are the skin it is built for (board.h, skin.h).
 // Host → board: HELLO, STRETCH <mm>, SAMPLE <n>, STREAM ON|OFF. SIM commands belong to
 // the simulated board: here indenters are placed by hand, so they are an #ERR. ID <id>
 // writes the device id to EEPROM once (provisioning; not part of protocol v1).
@@ -11,8 +12,15 @@
 // answered between frames. Pin map, timing and limits: board.h.
 
 #include <avr/eeprom.h>
+#include <avr/pgmspace.h>
 
 #include "board.h"
+
+#define TEXT_(value) #value
+#define TEXT(value) TEXT_(value)
+
+static const uint8_t mux_enable[] = MUX_ENABLE_PINS;
+static const uint8_t terminal_map[TERMINALS] PROGMEM = TERMINAL_MAP;
 
 static uint32_t seq = 0;            // frame counter: never repeats within a power cycle
 static uint32_t owed = 0;           // frames of the SAMPLE being answered
@@ -35,9 +43,9 @@ static char device_id[ID_MAX + 1];
 
 // ---------------------------------------------------------------- output
 
-static uint8_t crc8(const char *data, uint8_t length) {
+static uint8_t crc8(const char *data, uint16_t length) {
   uint8_t crc = 0;
-  for (uint8_t i = 0; i < length; i++) {
+  for (uint16_t i = 0; i < length; i++) {
     crc ^= (uint8_t)data[i];
     for (uint8_t bit = 0; bit < 8; bit++) {
       crc = (crc & 0x80) ? (uint8_t)((crc << 1) ^ 0x07) : (uint8_t)(crc << 1);
@@ -55,20 +63,27 @@ static void send_line(const char *a, const char *b = "", const char *c = "",
 }
 
 static void hello() {
-  send_line("#HELLO eskin " ESKIN_FIRMWARE " terminals=20 adc_bits=10 id=", device_id);
+  send_line("#HELLO eskin " ESKIN_FIRMWARE SKIN_TAG " terminals=" TEXT(TERMINALS)
+            " adc_bits=10 id=", device_id);
 }
 
 // ---------------------------------------------------------------- the read-out
 
-static void select_terminal(uint8_t terminal) {  // 0..9: x1..x10, 10..19: y1..y10
-  const uint8_t channel = terminal % 10;
-  digitalWrite(PIN_MUX_X_EN, HIGH);  // both off while the select lines change
-  digitalWrite(PIN_MUX_Y_EN, HIGH);
+static void disable_multiplexers() {
+  for (uint8_t mux = 0; mux < sizeof mux_enable; mux++) {
+    if (MULTIPLEXERS_USED & (1 << mux)) digitalWrite(mux_enable[mux], HIGH);
+  }
+}
+
+static void select_terminal(uint8_t terminal) {  // 0..ROWS-1: x1.., then y1..
+  const uint8_t entry = pgm_read_byte(&terminal_map[terminal]);
+  const uint8_t channel = entry & 0x0F;
+  disable_multiplexers();  // all off while the select lines change
   digitalWrite(PIN_MUX_S0, channel & 1 ? HIGH : LOW);
   digitalWrite(PIN_MUX_S1, channel & 2 ? HIGH : LOW);
   digitalWrite(PIN_MUX_S2, channel & 4 ? HIGH : LOW);
   digitalWrite(PIN_MUX_S3, channel & 8 ? HIGH : LOW);
-  digitalWrite(terminal < 10 ? PIN_MUX_X_EN : PIN_MUX_Y_EN, LOW);
+  digitalWrite(mux_enable[entry >> 4], LOW);
 }
 
 static uint16_t read_terminal(uint8_t terminal) {
@@ -79,8 +94,7 @@ static uint16_t read_terminal(uint8_t terminal) {
 }
 
 static void send_frame() {
-  // "D," + 2 × 10 digits + 20 × 4 digits + 22 commas + "*CC\n" + NUL < 128
-  char frame[128];
+  char frame[FRAME_BYTES];
   char *end = frame;
   const uint32_t t_ms = millis();
   *end++ = 'D';
@@ -96,7 +110,7 @@ static void send_frame() {
     end += strlen(end);
   }
   static const char hex[] = "0123456789ABCDEF";
-  const uint8_t crc = crc8(frame, (uint8_t)(end - frame));
+  const uint8_t crc = crc8(frame, (uint16_t)(end - frame));
   *end++ = '*';
   *end++ = hex[crc >> 4];
   *end++ = hex[crc & 0x0F];
@@ -275,11 +289,11 @@ void setup() {
   pinMode(PIN_MUX_S2, OUTPUT);
   pinMode(PIN_MUX_S3, OUTPUT);
   // High before they become outputs: no multiplexer or driver is enabled for an instant.
-  digitalWrite(PIN_MUX_X_EN, HIGH);
-  digitalWrite(PIN_MUX_Y_EN, HIGH);
+  disable_multiplexers();
   digitalWrite(PIN_STEPPER_EN, HIGH);
-  pinMode(PIN_MUX_X_EN, OUTPUT);
-  pinMode(PIN_MUX_Y_EN, OUTPUT);
+  for (uint8_t mux = 0; mux < sizeof mux_enable; mux++) {
+    if (MULTIPLEXERS_USED & (1 << mux)) pinMode(mux_enable[mux], OUTPUT);
+  }
   pinMode(PIN_STEPPER_EN, OUTPUT);
   pinMode(PIN_STEP, OUTPUT);
   pinMode(PIN_DIR, OUTPUT);

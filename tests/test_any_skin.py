@@ -1,0 +1,326 @@
+"""Any skin after ingest (issue 37): features, models, folds, scores, the report, the ONNX
+stack and the live view follow the skin a dataset was taken on — a row/column R × C skin,
+or a channel array (named channels, press positions on a grid, in mm)."""
+
+import json
+from types import SimpleNamespace
+
+import numpy as np
+import onnx
+import pandas as pd
+import pytest
+import yaml
+from conftest import typed
+from sklearn.base import clone
+
+from eskin.catalog import (
+    TASK_NAMES,
+    export_report_path,
+    features_path,
+    featurizer_path,
+    model_path,
+    processed_path,
+    stack_path,
+    task_outputs,
+)
+from eskin.config import ChannelArraySkin, Report, RowColumnSkin, TaskModels
+from eskin.data.schema import dataset_skin, md5_file, write_dataset
+from eskin.deploy.export import export_scene
+from eskin.deploy.stack import ExportedStack, SkinStack
+from eskin.deploy.view import LiveView
+from eskin.evaluation.folds import strata
+from eskin.evaluation.metrics import position_error_mm
+from eskin.learning import train
+from eskin.learning.estimators import (
+    ActiveTerminals,
+    ForceProfile,
+    build_model,
+    model_for_skin,
+)
+from eskin.learning.features import featurize_scene
+from eskin.reporting import figures, report
+from eskin.skin import ChannelArray, Skin, skin_from_dict
+
+SAMPLES = 4
+# 15 channels, 5 magnetometers × xyz, pressed on a 3 × 3 grid placed in mm: a public
+# magnetic skin's recording, as the importer writes it.
+MAGNETIC = {"channels": [f"m{i}{axis}" for i in range(1, 6) for axis in "xyz"],
+            "x_mm": [0.0, 12.5, 25.0], "y_mm": [0.0, 10.0, 20.0]}
+
+
+def provenance(frame: pd.DataFrame, trial: int) -> pd.DataFrame:
+    return frame.assign(session="s1", trial=f"t{trial:04d}", sample=np.arange(len(frame)),
+                        seq=np.arange(len(frame)) + 1000 * trial, t_ms=np.arange(len(frame)))
+
+
+def row_column_dataset(skin: Skin, nodes_x, nodes_y, seed: int = 0) -> pd.DataFrame:
+    """Single-force samples of a row/column skin: each terminal's own baseline, scaled by
+    the stretch; a press lifts the terminals around its node on each axis, more with
+    force; rest trials at node 0."""
+    rng = np.random.default_rng(seed)
+    base = rng.uniform(480, 520, skin.terminals)
+    blocks = []
+    conditions = [(stretch, 0, 0, 0.0) for stretch in (1.0, 1.1) for _ in range(3)]
+    conditions += [(stretch, x, y, force) for stretch in (1.0, 1.1) for x in nodes_x
+                   for y in nodes_y for force in (1.5, 4.0)]
+    for trial, (stretch, x, y, force) in enumerate(conditions):
+        press = np.zeros(skin.terminals)
+        if x:
+            for start, at, width in ((0, x, skin.rows), (skin.rows, y, skin.columns)):
+                terminal = np.arange(1, width + 1)
+                press[start:start + width] = 10 * force * np.exp(-0.5 * (terminal - at) ** 2)
+        counts = base * stretch + press + rng.normal(0, 0.8, (SAMPLES, skin.terminals))
+        frame = pd.DataFrame(counts, columns=skin.channels).assign(
+            force=force, x=x, y=y, stretch=stretch)
+        blocks.append(provenance(frame, trial))
+    return pd.concat(blocks, ignore_index=True)
+
+
+def magnetic_dataset(skin: ChannelArray, seed: int = 0) -> pd.DataFrame:
+    """A magnetic skin's single-force recording: each press position bends the field at
+    the magnetometers near it, in proportion to a continuous force; untouched frames are
+    node 0 at 0 N; one stretch (an import has none)."""
+    rng = np.random.default_rng(seed)
+    sensors = rng.uniform(0, 25, (5, 2))
+    rest = rng.normal(0, 50, skin.terminals)
+    blocks = []
+    positions = [(0, 0)] * 6 + [(x, y) for x in range(1, 4) for y in range(1, 4)] * 3
+    for trial, (x, y) in enumerate(positions):
+        force = 0.0 if x == 0 else rng.uniform(0.5, 6.0) * rng.uniform(0.8, 1.0, SAMPLES)
+        field = np.zeros(skin.terminals)
+        if x:
+            at = np.array([skin.x_mm[x - 1], skin.y_mm[y - 1]])
+            for i, sensor in enumerate(sensors):
+                offset = at - sensor
+                weight = np.exp(-np.sum(offset ** 2) / 150)
+                field[3 * i:3 * i + 3] = 30 * weight * np.array([*offset / 10, 1.0])
+        counts = rest + np.outer(np.ones(SAMPLES) * (force if x else 0.0), field) \
+            + rng.normal(0, 0.5, (SAMPLES, skin.terminals))
+        frame = pd.DataFrame(counts, columns=skin.channels).assign(
+            force=force, x=x, y=y, stretch=1.0)
+        blocks.append(provenance(frame, trial))
+    return pd.concat(blocks, ignore_index=True)
+
+
+@pytest.fixture(scope="module")
+def params(repo_params):
+    """The repo's training sections, lighter, on three folds run in this process."""
+    import copy
+
+    params = copy.deepcopy(repo_params)
+    params["cv"].update(folds=3, n_jobs=1, backend="sequential")
+    params["train"]["force"]["physics_profile"]["max_iter"] = 30
+    params["train"]["force"]["hist_gradient_boosting"]["max_iter"] = 30
+    params["train"]["detect"]["hist_gradient_boosting"]["max_iter"] = 30
+    return typed(params)
+
+
+def run_pipeline(root, scene: str, frame: pd.DataFrame, skin, spec, params) -> dict:
+    """The steps after ingest, as their stages run them: featurize, train every task,
+    export the stack (checked against scikit-learn's), report."""
+    write_dataset(frame, "single_force", root / processed_path(scene),
+                  {"kind": "single_force", "scene": scene,
+                   "source": {"kind": "import", "path": "lab.csv", "sha256": "0" * 64}},
+                  skin=skin)
+    featurize_scene(scene, root / "data/processed", root / "data/features", root / "models",
+                    settings=params.featurize)
+    trained = {}
+    for task in TASK_NAMES:
+        trained[task] = train.train(
+            scene, task, task_params=getattr(params.train, task),
+            configuration=params.train.configuration, cv=params.cv,
+            features_dir=root / "data/features", track=False,
+            **{name: root / path for name, path in task_outputs(scene, task).items()})
+    # dvc.lock as DVC records the outputs the stack is loaded from (their md5s)
+    outs = [featurizer_path(scene), *(model_path(scene, task) for task in TASK_NAMES)]
+    (root / "dvc.lock").write_text(yaml.safe_dump({"stages": {"train": {"outs": [
+        {"path": path.as_posix(), "md5": md5_file(root / path)} for path in outs]}}}))
+    exported = export_scene(scene, root)
+    reported = report.report(
+        report=Report(schemes=["stratified", "grouped"], plots_scheme="stratified", dpi=40,
+                      page_dpi=30),
+        scenes={scene: SimpleNamespace(kind="single_force", skin=spec)},
+        scores_dir=root / "reports/scores", predictions_dir=root / "reports/predictions",
+        figures_dir=root / "reports/figures", plots_dir=root / "reports/plots",
+        page_path=root / "reports/index.html", results_path=root / "reports/results.md")
+    scores = {task: json.loads((root / task_outputs(scene, task)["scores_path"]).read_text())
+              for task in TASK_NAMES}
+    return {"trained": trained, "exported": exported, "reported": reported, "scores": scores}
+
+
+@pytest.mark.parametrize("rows, columns, nodes_x, nodes_y",
+                         [(8, 8, [1, 3, 6, 8], [1, 4, 8]), (16, 12, [1, 6, 11, 16], [1, 6, 12])],
+                         ids=["8x8", "16x12"])
+def test_a_row_column_skin_of_any_size_goes_from_features_to_the_stack(
+        rows, columns, nodes_x, nodes_y, params, tmp_path):
+    skin = Skin(rows, columns)
+    spec = RowColumnSkin(rows=rows, columns=columns)
+    done = run_pipeline(tmp_path, "lab", row_column_dataset(skin, nodes_x, nodes_y), skin,
+                        spec, params)
+    assert dataset_skin(tmp_path / features_path("lab")) == skin
+    scores = done["scores"]
+    assert scores["force"]["model"] == "physics_profile"  # per axis, on any R × C
+    assert "model_note" not in scores["force"]
+    assert all(scores[task]["status"] == "trained" for task in TASK_NAMES)
+    assert scores["force"]["grouped"]["force"]["r2"] > 0.8
+    assert min(scores["localise"]["grouped"][t]["accuracy"] for t in ("x", "y")) > 0.8
+    assert "position" not in scores["localise"]["grouped"]  # no mm on a row/column skin
+    # the stack reads the skin's terminals, and says which skin it is for
+    stack = ExportedStack.from_file(tmp_path / stack_path("lab"))
+    assert stack.skin == skin
+    dims = onnx.load(tmp_path / stack_path("lab")).graph.input[0].type.tensor_type.shape.dim
+    assert dims[1].dim_value == rows + columns
+    check = json.loads((tmp_path / export_report_path("lab")).read_text())
+    assert all(e["differing_alone"] == 0 for e in check["estimates"].values()), check
+    # the report names the skin, and its nodes are terminals
+    results = (tmp_path / "reports/results.md").read_text()
+    assert f"skin: {rows} × {columns} row/column skin ({rows + columns} terminals)" in results
+    panels = pd.read_csv(tmp_path / "reports/plots/confusion/lab_x.csv")["panel"]
+    assert set(panels) == {"lab: x terminal"}
+    assert (tmp_path / "reports/figures/lab/localisation_confusion_grouped.png").exists()
+
+
+def test_a_magnetic_channel_array_trains_generic_models_and_scores_in_mm(params, tmp_path):
+    """15 magnetometer channels on a 3 × 3 grid in mm, continuous force, node 0 untouched:
+    featurize → every single-force task → report → export."""
+    spec = ChannelArraySkin.model_validate(MAGNETIC)
+    skin = skin_from_dict(MAGNETIC)
+    done = run_pipeline(tmp_path, "magnetic", magnetic_dataset(skin), skin, spec, params)
+    assert dataset_skin(tmp_path / features_path("magnetic")) == skin
+    scores, trained = done["scores"], done["trained"]
+    # the physics model reads row/column terminals: the generic booster, said in one line
+    assert scores["force"]["model"] == "hist_gradient_boosting"
+    assert "physics_profile reads a row/column skin" in scores["force"]["model_note"]
+    note = [line for line in trained["force"].summary.splitlines() if "physics_profile" in line]
+    assert len(note) == 1 and "trained hist_gradient_boosting instead" in note[0]
+    assert scores["stretch"]["status"] == "skipped"  # one stretch: the reason, as ever
+    assert "two or more stretch levels" in scores["stretch"]["reason"]
+    assert scores["force"]["grouped"]["force"]["r2"] > 0.5
+    assert scores["detect"]["grouped"]["contact"]["accuracy"] > 0.8
+    # the localisation error in mm, beside accuracy: the mean distance per fold
+    oof = pd.read_parquet(tmp_path / task_outputs("magnetic", "localise")["predictions_path"])
+    for scheme in ("stratified", "grouped"):
+        rows = oof[oof["scheme"] == scheme]
+        x_mm, y_mm = np.array(skin.x_mm), np.array(skin.y_mm)
+        per_fold = [np.hypot(x_mm[f["x_true"] - 1] - x_mm[f["x_pred"] - 1],
+                             y_mm[f["y_true"] - 1] - y_mm[f["y_pred"] - 1]).mean()
+                    for _, f in rows.groupby("fold")]
+        position = scores["localise"][scheme]["position"]
+        assert position["error_mm"] == pytest.approx(np.mean(per_fold), rel=1e-9)
+        assert position["error_mm_std"] == pytest.approx(np.std(per_fold), rel=1e-9)
+        assert "accuracy" in scores["localise"][scheme]["x"]
+    assert "position error" in trained["localise"].summary
+    # the report names the skin, shows the error in mm; a node is a press position
+    results = (tmp_path / "reports/results.md").read_text()
+    assert "skin: array of 15 channels, 3 × 3 press positions" in results
+    assert "| localisation error (mm) [logistic] |" in results
+    page = (tmp_path / "reports/index.html").read_text()
+    assert "Skin: array of 15 channels, 3 × 3 press positions." in page
+    panels = pd.read_csv(tmp_path / "reports/plots/confusion/magnetic_y.csv")["panel"]
+    assert set(panels) == {"magnetic: y position"}
+    # the stack: 15 channels in, the skin in its metadata, its estimates scikit-learn's
+    path = tmp_path / stack_path("magnetic")
+    exported = ExportedStack.from_file(path)
+    assert exported.skin == skin
+    props = {p.key: p.value for p in onnx.load(path).metadata_props}
+    assert json.loads(props["eskin.skin"]) == skin.as_dict()
+    workspace = SkinStack.from_workspace("magnetic", tmp_path)
+    frames = pd.read_parquet(tmp_path / processed_path("magnetic"))[skin.channels].to_numpy()
+    pd.testing.assert_frame_equal(exported.predict(frames[:50]), workspace.predict(frames[:50]),
+                                  rtol=1e-9)
+
+
+def test_the_physics_features_read_each_axis_of_a_rectangular_skin():
+    """A press at x 3, y 10 of an 8 × 12 skin: the peak of the x terminals is the 3rd, of
+    the y terminals the 10th (read as two halves of 10, both would be wrong)."""
+    skin = Skin(8, 12)
+    rng = np.random.default_rng(1)
+    X = pd.DataFrame(rng.normal(500, 1, (60, 20)), columns=skin.channels)
+    pressed = X.copy()
+    pressed[["cx3", "cy10"]] += 40
+    y = np.r_[np.zeros(60), np.full(60, 3.0)]
+    both = pd.concat([X, pressed], ignore_index=True)
+    features = ForceProfile().fit(both, y).transform(pressed)
+    n = skin.terminals
+    x_top, y_top = features[:, n + 4], features[:, n + 8]
+    assert (x_top == 2).all() and (y_top == 9).all()
+    peaks = ActiveTerminals().fit(both).transform(pressed)
+    # the two strongest peaks of each axis (lower terminal first): the press among them
+    assert (peaks[:, n:n + 2] == 2).any(axis=1).all()
+    assert (peaks[:, n + 5:n + 7] == 9).any(axis=1).all()
+
+
+def test_the_physics_models_are_scikit_learn_estimators_built_for_the_skin():
+    skin = Skin(16, 12)
+    model = build_model("force", "physics_profile", {"quiet": 2}, skin)
+    assert len(model[-1].monotonic_cst) == skin.terminals + 9
+    copy = clone(model)
+    assert copy.get_params()["forceprofile__quiet"] == 2
+    assert copy[-1].monotonic_cst == model[-1].monotonic_cst
+
+
+def test_a_model_that_reads_terminals_refuses_what_has_none():
+    array = skin_from_dict(MAGNETIC)
+    X = np.random.default_rng(2).normal(size=(40, 15))
+    with pytest.raises(ValueError, match=r"reads a row/column skin's terminals by name"):
+        ForceProfile().fit(X)                                     # no names
+    with pytest.raises(ValueError, match=r"got m1x, m1y, m1z, m2x, …"):
+        ActiveTerminals().fit(pd.DataFrame(X, columns=array.channels))
+    with pytest.raises(ValueError, match=r"has none: use 'hist_gradient_boosting'"):
+        build_model("force", "physics_profile", {}, array)
+    with pytest.raises(ValueError, match="give build_model the skin"):
+        build_model("force", "physics_profile")
+    with pytest.raises(ValueError, match=r"quiet terminals per axis must be 1 to 2 .*"
+                                         r"train\.force\.physics_profile\.quiet"):
+        ForceProfile(quiet=3).fit(pd.DataFrame(X[:, :5], columns=Skin(2, 3).channels))
+
+
+def test_a_channel_array_trains_the_generic_model_of_a_row_column_one():
+    section = TaskModels.model_validate({"model": "physics_profile",
+                                         "physics_profile": {"max_iter": 5},
+                                         "hist_gradient_boosting": {"max_iter": 7}})
+    array = skin_from_dict(MAGNETIC)
+    assert model_for_skin(section, "physics_profile", {"max_iter": 5}, Skin(8, 8)) == (
+        "physics_profile", {"max_iter": 5}, "")
+    name, hyper, note = model_for_skin(section, "physics_profile", {"max_iter": 5}, array)
+    assert (name, hyper) == ("hist_gradient_boosting", {"max_iter": 7})
+    assert note.startswith("physics_profile reads a row/column skin's x and y terminals")
+    assert model_for_skin(section, "logistic", {}, array) == ("logistic", {}, "")
+
+
+def test_strata_number_the_nodes_of_the_datasets_skin():
+    """On a 16 × 12 skin, (1, 11) and (2, 1) are two nodes (on the paper's 10 columns
+    they would share a number)."""
+    frame = pd.DataFrame({"x": [1, 2, 16, 0], "y": [11, 1, 12, 0]})
+    assert strata(frame, "single_force", Skin(16, 12)).tolist() == [11, 13, 192, 0]
+
+
+def test_the_position_error_is_the_mean_distance_in_mm():
+    error = position_error_mm([1, 2, 3], [1, 1, 2], [1, 3, 3], [2, 1, 2],
+                              (0.0, 3.0, 7.0), (0.0, 4.0))
+    assert error == {"error_mm": pytest.approx((4.0 + 4.0 + 0.0) / 3)}
+    with pytest.raises(ValueError, match="a node"):
+        position_error_mm([0], [1], [1], [1], (0.0,), (0.0,))
+
+
+def test_a_large_confusion_grid_is_coloured_not_written_in():
+    rng = np.random.default_rng(3)
+    true = rng.integers(1, 33, 500)
+    oof = pd.DataFrame({"x_true": true, "x_pred": true, "y_true": true % 12 + 1,
+                        "y_pred": true % 12 + 1})
+    grid = figures.confusion_grid(oof, ["x", "y"], ["x terminal", "y terminal"])
+    x_panel, y_panel = grid.axes[:2]
+    assert not x_panel.texts and len(y_panel.texts) == 12  # 32 classes, 12 classes
+
+
+@pytest.mark.parametrize("skin", [Skin(16, 12), skin_from_dict(MAGNETIC)],
+                         ids=["16x12", "channel_array"])
+def test_the_live_view_draws_the_skins_map_and_channels(skin):
+    with LiveView(scene="lab", kind="single_force", device="sim", skin=skin) as view:
+        page = view.page.decode()
+    assert f"repeat({skin.size_x}, 2.6em)" in page and f"y <= {skin.size_y}" not in page
+    assert f"for (let y = {skin.size_y}; y >= 1; y--)" in page
+    assert f"repeat({skin.terminals}, 30px)" in page
+    names = json.loads(page.split("const names = ")[1].split(";")[0])
+    assert len(names) == skin.terminals
+    assert names[0] == ("x1" if skin.row_column else "m1x")
