@@ -1,8 +1,9 @@
 """Any skin, the whole pipeline (issue 37): `dvc repro` in a scratch project whose scenes
-are a simulated 8 × 8 row/column skin (one contact) and a simulated 16 × 12 one (two
-contacts), both acquired over the pty, and a magnetic skin's recording (a channel array
-of 15 magnetometer channels, one CSV per press position, F/T force negative in
-compression with an offset, dropped and stale frames) imported through a column map.
+are a simulated 8 × 8 row/column skin (one contact), acquired over the pty from the
+firmware built for 8 × 8 under simavr, a simulated 16 × 12 one (two contacts), acquired
+over the pty from the Python board, and a magnetic skin's recording (a channel array of
+15 magnetometer channels, one CSV per press position, F/T force negative in compression
+with an offset, dropped and stale frames) imported through a column map.
 
 The magnetic scene's force model is scored against a plain scikit-learn baseline on the
 same folds (the out-of-fold predictions' own fold column): the two must agree within the
@@ -18,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import onnx
 import pandas as pd
+import pyarrow.parquet as pq
 import pytest
 from conftest import run_checked, scratch_project
 from foreign_tactile import CHANNELS, GRID_MM, write_recording
@@ -29,7 +31,7 @@ FROM_NAME = r"x(?P<x_mm>[-\d.]+)_y(?P<y_mm>[-\d.]+)\.csv"
 
 def scenes(recording: Path) -> dict:
     return {
-        "lab8": {"kind": "single_force", "source": "simulated",
+        "lab8": {"kind": "single_force", "source": "emulated",
                  "skin": {"rows": 8, "columns": 8}, "stretches": [1.0, 1.07921],
                  "forces": [0.0, 3.2536], "samples": 5},
         "lab16x12": {"kind": "two_force", "source": "simulated",
@@ -76,6 +78,11 @@ def test_a_simulated_row_column_skin_of_its_size_goes_through_every_stage(projec
     frame = pd.read_parquet(root / "data/processed" / f"{scene}.parquet")
     channels = [f"cx{i}" for i in range(1, rows + 1)] + [f"cy{i}" for i in range(1, columns + 1)]
     assert [c for c in frame.columns if c.startswith("c")] == channels
+    device = json.loads(pq.read_schema(root / "data/processed" / f"{scene}.parquet")
+                        .metadata[b"eskin.device"])
+    assert device["terminals"] == rows + columns
+    if scene == "lab8":  # the firmware, built for 8 × 8, names its size
+        assert device["firmware"].endswith("+8x8"), device
     localise = scores(root, scene, "localise")
     assert localise["status"] == "trained"
     targets = ("x", "y") if scene == "lab8" else ("x1", "y1", "x2", "y2")
