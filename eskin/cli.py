@@ -65,7 +65,7 @@ def _live(args: argparse.Namespace) -> int:
 
     from eskin.acquisition.session import simulated_board
     from eskin.catalog import raw_dir, stack_path
-    from eskin.config import get_scene, load_params, scene_skin
+    from eskin.config import get_scene, load_params, scene_kind, scene_skin
     from eskin.deploy.live import (
         LineBroadcast,
         LiveRecorder,
@@ -98,7 +98,7 @@ def _live(args: argparse.Namespace) -> int:
     if args.record and scene_params.source == "import":
         raise ValueError(f"--record keeps a board's frames in the raw log of a scene acquired "
                          f"from a board; {args.scene} is imported from a file")
-    declared = scene_params.kind
+    declared = scene_kind(scene_params).name
     if declared != stack.kind:
         raise ValueError(f"scenes.{args.scene} is a {declared} scene in {args.params}, but its "
                          f"trained stack is {stack.kind}: run `dvc repro` to train it again")

@@ -37,7 +37,7 @@ from pydantic import (
 
 from eskin.catalog import SCHEMES, SOURCES, TASK_NAMES
 from eskin.errors import EskinError
-from eskin.kinds import KIND_NAMES, KINDS
+from eskin.kinds import KIND_NAMES, KINDS, Kind
 from eskin.skin import PAPER_SKIN, AnySkin, skin_from_dict
 
 DEFAULT_PARAMS = Path("params.yaml")
@@ -373,7 +373,7 @@ class ImportedScene(Scene):
             raise ValueError(f"import.columns.{others[0]} is not a label of a {kind.name} "
                              f"scene ({', '.join(kind.labels)})")
         given = [force for force in kind.force_columns if getattr(columns, force) is not None]
-        total = kind.contacts > 1 and columns.force is not None
+        total = import_kind(self.kind, spec).total_force
         if total and given:
             raise ValueError(f"import.columns: force (the total) and {', '.join(given)} (per "
                              "contact) both given; keep one")
@@ -416,6 +416,23 @@ def scene_skin(scene: Scene) -> AnySkin:
     if spec is None:
         return PAPER_SKIN
     return skin_from_dict(untraced(spec).model_dump(exclude_none=True))
+
+
+def import_kind(kind: str, spec: Import | None) -> Kind:
+    """The kind of the labels an import of a ``kind`` scene makes (eskin.kinds): the
+    kind's own, or, where its column map gives several contacts' total force only
+    (``import.columns.force``), the kind's total-force variant."""
+    declared = KINDS[kind]
+    columns = spec.columns if spec is not None else None
+    if declared.contacts > 1 and columns is not None and columns.force is not None:
+        return declared.with_total_force()
+    return declared
+
+
+def scene_kind(scene: Scene) -> Kind:
+    """The kind of scene ``scene``'s dataset: its ``kind``, or that kind's total-force
+    variant where its import gives only the total (:func:`import_kind`)."""
+    return import_kind(scene.kind, scene.import_ if isinstance(scene, ImportedScene) else None)
 
 
 class Ingest(_Section):

@@ -6,6 +6,12 @@ its :class:`Kind`, so the rest of eskin asks the kind instead of testing its nam
 
 * the label columns (``force, x, y`` for one contact; ``force1, x1, y1, force2, x2, y2``
   for two), then ``stretch``;
+* whether the labels give each contact's force or only their total: a recording whose
+  one force sensor sums two contacts (an import mapping ``force``) is of the kind's
+  total-force variant (:meth:`Kind.with_total_force`), which trains that total and the
+  positions and says it cannot give per-contact forces (:data:`TOTAL_FORCE_ONLY`). A
+  dataset's kind is its scene's, read with its ``eskin.labels`` metadata
+  (:func:`kind_of_labels`); the variant's name is what its scores and stack record;
 * the file widths an import accepts (the paper's two-contact files have no stretch);
 * the strata of cross-validation (the node, or the pair of nodes);
 * whether the localise task trains on contacts only (one contact: the detector decides
@@ -15,7 +21,7 @@ its :class:`Kind`, so the rest of eskin asks the kind instead of testing its nam
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -68,9 +74,15 @@ class Figure:
             raise ValueError(f"figure id {self.id!r} is not one of {', '.join(FIGURE_IDS)}")
 
 
+# Why a recording of several contacts' total force has no per-contact force scores.
+TOTAL_FORCE_ONLY = "the recording gives the total force only: no per-contact forces"
+
+
 @dataclass(frozen=True)
 class Kind:
-    """A kind of scene: ``contacts`` indenters per condition."""
+    """A kind of scene: ``contacts`` indenters per condition; ``total_force``: its labels
+    give only the contacts' total force (a variant of the kind ``scene_kind``, which
+    params.yaml names)."""
 
     name: str
     contacts: int
@@ -78,17 +90,42 @@ class Kind:
     stretch_column_optional: bool
     headlines: tuple[Headline, ...] = ()
     figures: tuple[Figure, ...] = ()
-    label: str = field(init=False)
+    total_force: bool = False
+    scene_kind: str = ""   # default: the name
+    label: str = ""        # default: the name in words
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "label", self.name.replace("_", " "))
+        object.__setattr__(self, "scene_kind", self.scene_kind or self.name)
+        object.__setattr__(self, "label", self.label or self.name.replace("_", " "))
 
     def _suffixes(self) -> list[str]:
         return [""] if self.contacts == 1 else [str(i) for i in range(1, self.contacts + 1)]
 
+    def with_total_force(self) -> Kind:
+        """This kind labelled with its contacts' total force only."""
+        if self.name not in TOTAL_FORCE_KINDS:
+            raise ValueError(f"a {self.name} scene has no total-force variant: its force "
+                             "is already its one contact's")
+        return TOTAL_FORCE_KINDS[self.name]
+
     @property
     def force_columns(self) -> list[str]:
+        """Each contact's force, or ``force``: one contact's, or the total of several."""
+        if self.total_force:
+            return ["force"]
         return [f"force{s}" for s in self._suffixes()]
+
+    @property
+    def weighed_contacts(self) -> dict[str, list[str]]:
+        """Each force column → the x columns of the contacts it weighs (node 0: none)."""
+        if self.total_force:
+            return {"force": [f"x{s}" for s in self._suffixes()]}
+        return {f"force{s}": [f"x{s}"] for s in self._suffixes()}
+
+    @property
+    def positions(self) -> dict[str, tuple[str, str]]:
+        """Each contact's position (``position``, or ``position1``…) → its (x, y) columns."""
+        return {f"position{s}": (f"x{s}", f"y{s}") for s in self._suffixes()}
 
     @property
     def node_columns(self) -> list[str]:
@@ -97,13 +134,16 @@ class Kind:
 
     @property
     def contact_columns(self) -> list[tuple[str, str, str]]:
-        """(force, x, y) column names of each contact, in label order."""
+        """(force, x, y) column names of each contact, in label order, where the labels give
+        each contact's force (an acquisition's)."""
         return [(f"force{s}", f"x{s}", f"y{s}") for s in self._suffixes()]
 
     @property
     def labels(self) -> list[str]:
-        """The label columns of a dataset, in file order: each contact's force, x, y, then
-        stretch."""
+        """The label columns of a dataset, in file order: each contact's force, x, y (or
+        the total force, then each contact's x, y), then stretch."""
+        if self.total_force:
+            return [*self.force_columns, *self.node_columns, "stretch"]
         return [name for contact in self.contact_columns for name in contact] + ["stretch"]
 
     def file_widths(self, skin: AnySkin) -> tuple[int, ...]:
@@ -125,7 +165,7 @@ class Kind:
     def strata(self, frame, skin: AnySkin) -> np.ndarray:
         """The stratum of each row for CV: its node, or its combination of nodes."""
         out = np.zeros(len(frame), dtype=np.int64)
-        for _, x, y in self.contact_columns:
+        for x, y in self.positions.values():
             node = skin.node_id(frame[x], frame[y])
             out = out * (skin.n_nodes + 1) + node
         return out
@@ -177,6 +217,17 @@ ONE_CONTACT = Kind(
     ),
 )
 
+TWO_CONTACTS_STRETCH = Figure(
+    STRETCH_PARITY, "stretch", "Stretch: predicted against true λ, every prediction and the "
+    "mean ± std per level", "stretch_parity", (("stretch", "r2"), ("stretch", "mse")),
+    title="stretch parity")
+TWO_CONTACTS_LOCALISATION = Figure(
+    LOCALISATION_CONFUSION, "localise", "Localisation of two contacts: x and y terminal of "
+    "contact 1 (top) and contact 2 (bottom), counts and the share of the samples with that "
+    "true terminal (paper Fig. 8)", "confusion_grid",
+    (("x1", "accuracy"), ("y1", "accuracy"), ("x2", "accuracy"), ("y2", "accuracy")),
+    ("x1", "y1", "x2", "y2"), ("x1", "y1", "x2", "y2"), "localisation, two contacts")
+
 TWO_CONTACTS = Kind(
     "two_force", contacts=2, stretch_column_optional=True,
     headlines=(
@@ -197,16 +248,8 @@ TWO_CONTACTS = Kind(
         Headline("two forces: force R², order-free", "pairs", None, "force_r2"),
     ),
     figures=(
-        Figure(STRETCH_PARITY, "stretch", "Stretch: predicted against true λ, every prediction "
-               "and the mean ± std per level", "stretch_parity",
-               (("stretch", "r2"), ("stretch", "mse")), title="stretch parity"),
-        Figure(LOCALISATION_CONFUSION, "localise", "Localisation of two contacts: x and y "
-               "terminal of contact 1 (top) and contact 2 (bottom), counts and the share of "
-               "the samples with that true terminal (paper Fig. 8)", "confusion_grid",
-               (("x1", "accuracy"), ("y1", "accuracy"), ("x2", "accuracy"),
-                ("y2", "accuracy")), ("x1", "y1", "x2", "y2"),
-               ("x1", "y1", "x2", "y2"),
-               "localisation, two contacts"),
+        TWO_CONTACTS_STRETCH,
+        TWO_CONTACTS_LOCALISATION,
         Figure(FORCE_PARITY, "force", "Force of contact 1 and contact 2: predicted against "
                "true force, mean ± std per level, the std in newtons written beside each "
                "level (paper Fig. 9)", "two_force_parity",
@@ -214,13 +257,65 @@ TWO_CONTACTS = Kind(
     ),
 )
 
+# Two contacts under one force sensor: the total force and the pair of positions. No
+# paper column: the paper weighed each contact.
+TWO_CONTACTS_TOTAL_FORCE = Kind(
+    "two_force_total", contacts=2, stretch_column_optional=True, total_force=True,
+    scene_kind=TWO_CONTACTS.name, label="two force, total force only",
+    headlines=(
+        Headline("two contacts: stretch R²", "stretch", "stretch", "r2"),
+        Headline("two contacts: total force R²", "force", "force", "r2"),
+        Headline("two contacts: total force RMSE (N)", "force", "force", "rmse"),
+        *(Headline(f"two contacts: {t} accuracy", "localise", t, "accuracy")
+          for t in ("x1", "y1", "x2", "y2")),
+        *(Headline(f"two contacts: contact {i} localisation error (mm)", "localise",
+                   f"position{i}", "error_mm", optional=True) for i in (1, 2)),
+        Headline("two contacts: pair accuracy, order-free", "pairs", None, "pair_accuracy"),
+        Headline("two contacts: pair accuracy, in label order", "pairs", None,
+                 "pair_accuracy_ordered"),
+        Headline("two contacts: contact accuracy, order-free", "pairs", None,
+                 "contact_accuracy"),
+        Headline("two contacts: ghost pairs (the other pairing of the same rows and "
+                 "columns)", "pairs", None, "ghost_share"),
+    ),
+    figures=(
+        TWO_CONTACTS_STRETCH,
+        TWO_CONTACTS_LOCALISATION,
+        Figure(FORCE_PARITY, "force", "Total force of the two contacts: predicted against "
+               "true, every prediction (the recording gives no force per contact)",
+               "total_force_parity", (("force", "r2"), ("force", "rmse")),
+               title="total force parity, two contacts"),
+    ),
+)
+
 KINDS: dict[str, Kind] = {kind.name: kind for kind in (ONE_CONTACT, TWO_CONTACTS)}
 KIND_NAMES: tuple[str, ...] = tuple(KINDS)
+# A scene kind's variant whose labels give the contacts' total force only.
+TOTAL_FORCE_KINDS: dict[str, Kind] = {TWO_CONTACTS.name: TWO_CONTACTS_TOTAL_FORCE}
+# Every kind a dataset can have: the scene kinds and their variants.
+DATASET_KINDS: dict[str, Kind] = {**KINDS, **{kind.name: kind
+                                              for kind in TOTAL_FORCE_KINDS.values()}}
 
 
 def get_kind(name: str) -> Kind:
-    """The kind called ``name``; an error listing the known ones."""
+    """The kind called ``name`` (a scene kind or a variant); an error listing the scene
+    kinds."""
     try:
-        return KINDS[name]
+        return DATASET_KINDS[name]
     except KeyError:
         raise ValueError(f"unknown scene kind {name!r}; known: {', '.join(KINDS)}") from None
+
+
+def kind_of_labels(name: str, labels: list[str] | None) -> Kind:
+    """The kind of a dataset of a ``name`` scene whose label columns are ``labels`` (its
+    ``eskin.labels`` metadata; None: the scene kind's own)."""
+    declared = get_kind(name)
+    if labels is None:
+        return declared
+    for kind in DATASET_KINDS.values():
+        if kind.scene_kind == declared.scene_kind and kind.labels == list(labels):
+            return kind
+    known = " or ".join(", ".join(kind.labels) for kind in DATASET_KINDS.values()
+                        if kind.scene_kind == declared.scene_kind)
+    raise ValueError(f"labels {', '.join(labels)} are not those of a {name} dataset "
+                     f"({known})")

@@ -308,14 +308,14 @@ def bench(scene: str, task_name: str, features_path: Path, bound_path: Path, out
     A task the scene's data cannot support is written as skipped, with the reason."""
     import json
 
-    from eskin.data.schema import dataset_skin, read_dataset, read_metadata
+    from eskin.data.schema import dataset_kind, dataset_skin, read_dataset, read_metadata
 
     settings = bench
     meta = read_metadata(features_path)
     frame = read_dataset(features_path)
-    skin = dataset_skin(features_path)
-    task = get_task(meta["kind"], task_name)
-    header = {"scene": scene, "kind": meta["kind"], "task": task_name,
+    skin, kind = dataset_skin(features_path), dataset_kind(features_path).name
+    task = get_task(kind, task_name)
+    header = {"scene": scene, "kind": kind, "task": task_name,
               "dataset_md5": meta["dataset"]["md5"]}
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -327,7 +327,7 @@ def bench(scene: str, task_name: str, features_path: Path, bound_path: Path, out
         return f"{scene}/{task_name}: skipped — {reason}"
     oracle, no_bound = read_bound(bound_path, frame)
     with parallel_backend(settings.backend):
-        doc = benchmark_task(task, frame, meta["kind"], settings.tasks[task_name], skin=skin,
+        doc = benchmark_task(task, frame, kind, settings.tasks[task_name], skin=skin,
                              schemes=list(settings.schemes), folds=int(cv.folds),
                              seed=int(cv.seed), evaluate_folds=int(settings.evaluate_folds),
                              oracle=oracle, n_jobs=int(settings.n_jobs), log=log)
@@ -362,7 +362,7 @@ def summarise(scene: str, bench_dir: Path, features_path: Path, *, bench: Bench,
     import json
 
     from eskin.catalog import TASK_NAMES
-    from eskin.data.schema import dataset_skin, read_dataset, read_metadata
+    from eskin.data.schema import dataset_kind, dataset_skin, read_dataset, read_metadata
 
     settings = bench
     bench_dir = Path(bench_dir)
@@ -387,7 +387,7 @@ def summarise(scene: str, bench_dir: Path, features_path: Path, *, bench: Bench,
         figure.savefig(figures / f"{task_name}.png", dpi=150, metadata={"Software": None})
     if "force" in summary["defaults"]:
         # Cost on doubling: the default force model refitted at ½, 1 and 2× the data.
-        task = get_task(meta["kind"], "force")
+        task = get_task(dataset_kind(features_path).name, "force")
         frame = read_dataset(features_path)
         default = summary["defaults"]["force"]
         skin = dataset_skin(features_path)

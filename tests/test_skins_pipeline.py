@@ -81,9 +81,11 @@ def test_a_simulated_row_column_skin_of_its_size_goes_through_every_stage(projec
     device = json.loads(pq.read_schema(root / "data/processed" / f"{scene}.parquet")
                         .metadata[b"eskin.device"])
     assert device["terminals"] == rows + columns
+    localise = scores(root, scene, "localise")
     if scene == "lab8":  # the firmware, built for 8 × 8, names its size
         assert device["firmware"].endswith("+8x8"), device
-    localise = scores(root, scene, "localise")
+        assert localise["source"].startswith(f"emulated firmware {device['firmware']} "
+                                             "under simavr (seed ")
     assert localise["status"] == "trained"
     targets = ("x", "y") if scene == "lab8" else ("x1", "y1", "x2", "y2")
     for target in targets:  # far above chance (1 in 8 to 1 in 16 terminals)

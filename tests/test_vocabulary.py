@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from eskin.kinds import KINDS, get_kind
+from eskin.kinds import DATASET_KINDS, get_kind
 from eskin.skin import PAPER_SKIN, Skin
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -29,7 +29,7 @@ def test_no_kind_name_is_written_outside_the_catalog():
         if path in ALLOWED:
             continue
         for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
-            if isinstance(node, ast.Constant) and node.value in KINDS:
+            if isinstance(node, ast.Constant) and node.value in DATASET_KINDS:
                 found.append(f"{path.relative_to(ROOT)}:{node.lineno}: {node.value!r}")
     assert not found, "kind names outside eskin/kinds.py:\n" + "\n".join(found)
 

@@ -48,7 +48,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from eskin.config import FORCE_UNITS, Import, ImportedScene, scene_skin
+from eskin.config import FORCE_UNITS, Import, ImportedScene, import_kind, scene_skin
 from eskin.data.ingest import Ingested, check_policy
 from eskin.data.schema import (
     LABELS,
@@ -58,6 +58,7 @@ from eskin.data.schema import (
     columns,
     contact_mask,
     first_reason,
+    labels_metadata,
     node_columns,
     row_problems,
     sha256_file,
@@ -605,22 +606,6 @@ class _Judged:
         return ",".join("" if pd.isna(v) else str(v) for v in self.cells.iloc[i].tolist())
 
 
-def label_columns(kind: str, spec: Import) -> list[str]:
-    """The label columns a dataset of this import holds: the kind's, except that a
-    two-contact recording with only a total force holds ``force`` (the total) for the
-    per-contact forces."""
-    labels = get_kind(kind).labels
-    if not total_force_only(kind, spec):
-        return labels
-    return ["force", *(c for c in labels if c not in get_kind(kind).force_columns)]
-
-
-def total_force_only(kind: str, spec: Import) -> bool:
-    """A recording of several contacts that gives only their total force."""
-    return (get_kind(kind).contacts > 1 and spec.columns is not None
-            and spec.columns.force is not None)
-
-
 def rest_offset(force: np.ndarray, contact_n: float) -> float:
     """What a file's force sensor reads at rest: the median of the rows within half the
     contact threshold of the file's 10th percentile. Presses only push the force up, so
@@ -757,10 +742,8 @@ def _judge_file(path: Path, spec: Import, kind: str, skin: AnySkin) -> _Judged:
     labels, at_rest, offset, rule = _labels_of(numeric, mapped, spec, kind, skin, reasons)
     reasons = np.where(reasons == "", rule, reasons)
     checks = labels.assign(**{c: numeric[c] for c in skin.channels})
-    if total_force_only(kind, spec):  # the schema knows the kind's labels, not a total
-        checks = checks.assign(**{f: labels["force"] for f in get_kind(kind).force_columns})
-    more = row_problems(checks, kind, skin).str.replace(r"^force\d ", "force ", regex=True)
-    more = np.where(at_rest, "", more.to_numpy())
+    more = np.where(at_rest, "", row_problems(checks, import_kind(kind, spec).name,
+                                               skin).to_numpy())
     reasons = np.where(reasons == "", more, reasons)
     if "time" in numeric:
         t_ms = numeric["time"].to_numpy() * 1000.0
@@ -833,7 +816,7 @@ def _labels_of(numeric: pd.DataFrame, mapped: _Map, spec: Import, kind: str,
             if a in out:
                 out[a], out[b] = np.where(swap, out[b], out[a]), np.where(swap, out[a], out[b])
     out["stretch"] = numeric["stretch"].to_numpy() if "stretch" in numeric else np.ones(n)
-    labels = pd.DataFrame({c: out[c] for c in label_columns(kind, spec)})
+    labels = pd.DataFrame({c: out[c] for c in import_kind(kind, spec).labels})
     return labels, at_rest, offset, problems
 
 
@@ -920,13 +903,9 @@ def import_recording(files: list[Path], spec: Import, kind: str, skin: AnySkin, 
     metadata = _recording_metadata(scene, kind, spec, skin, files[0].parent, digest)
     metadata["source"].update(files=per_file, contact_share=float(contacts.mean()), **counts)
     # Pass 2: write.
-    labels = label_columns(kind, spec)
-    base = arrow_schema(kind, skin)
-    fields = [base.field(c) for c in skin.channels]
-    fields += [pa.field(c, pa.int64() if c in node_columns(kind) else pa.float64(),
-                        nullable=False) for c in labels]
-    fields += [base.field(c) for c in PROVENANCE]
-    schema = with_metadata(pa.schema(fields), metadata)
+    labelled = import_kind(kind, spec)
+    labels = labelled.labels
+    schema = with_metadata(arrow_schema(labelled.name, skin), metadata)
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     partial = out.with_suffix(out.suffix + ".partial")
@@ -1016,7 +995,6 @@ def _copies_across(hashes: list[np.ndarray], where: list[np.ndarray]
 def _recording_metadata(scene: str | None, kind: str, spec: Import, skin: AnySkin,
                         folder: Path, digest: str) -> dict:
     columns = spec.columns
-    stored = label_columns(kind, spec)
     return {"scene": scene or kind, "kind": kind, "plan": None, "device": None,
             "simulator": None,
             "source": {"kind": "import", "path": str(folder), "sha256": digest,
@@ -1025,5 +1003,4 @@ def _recording_metadata(scene: str | None, kind: str, spec: Import, skin: AnySki
                                  "contact_n": spec.contact_n},
                        "trials": ("column" if columns.trial is not None else spec.trials),
                        "trial_s": spec.trial_s},
-            **({"labels": stored} if stored != get_kind(kind).labels else {}),
-            **skin_metadata(skin)}
+            **labels_metadata(import_kind(kind, spec)), **skin_metadata(skin)}

@@ -7,7 +7,9 @@ One row per sample (docs/data.md):
   counts for acquired data; whatever unit an import carries);
 * single force: ``force`` (N), ``x``, ``y`` (0 = no contact, else the node along each
   axis), ``stretch`` (λ);
-* two forces: ``force1, x1, y1, force2, x2, y2, stretch``;
+* two forces: ``force1, x1, y1, force2, x2, y2, stretch``; a recording of their total
+  force only: ``force, x1, y1, x2, y2, stretch``, listed in its ``eskin.labels``
+  metadata (the kind's total-force variant, eskin.kinds);
 * provenance: ``session``, ``trial`` (one condition), ``sample`` (index in
   the trial), ``seq``, ``t_ms`` (board counters; null for imports).
 
@@ -30,10 +32,10 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from eskin.errors import EskinError
-from eskin.kinds import KINDS, get_kind
+from eskin.kinds import DATASET_KINDS, Kind, get_kind, kind_of_labels
 from eskin.skin import PAPER_SKIN, AnySkin, skin_from_dict, skin_of_columns
 
-LABELS = {name: kind.labels for name, kind in KINDS.items()}
+LABELS = {name: kind.labels for name, kind in DATASET_KINDS.items()}
 PROVENANCE = ["session", "trial", "sample", "seq", "t_ms"]
 SCHEMA_VERSION = "1"
 
@@ -113,9 +115,12 @@ def validate(frame: pd.DataFrame, kind: str, where: str = "dataset",
 
 def contact_mask(frame: pd.DataFrame) -> np.ndarray:
     """True where an indenter presses the skin (force > 0 and node > 0): either one,
-    in a two-force scene."""
-    if "force" in frame:
+    in a two-force scene (the total force and either node, where only the total is
+    labelled)."""
+    if "x" in frame:
         return ((frame["force"] > 0) & (frame["x"] > 0)).to_numpy()
+    if "force" in frame:
+        return ((frame["force"] > 0) & ((frame["x1"] > 0) | (frame["x2"] > 0))).to_numpy()
     touching = [(frame[f"force{i}"] > 0) & (frame[f"x{i}"] > 0) for i in (1, 2)]
     return (touching[0] | touching[1]).to_numpy()
 
@@ -151,12 +156,20 @@ def skin_metadata(skin: AnySkin) -> dict:
     return {} if skin == PAPER_SKIN else {"skin": skin.as_dict()}
 
 
+def labels_metadata(kind: Kind) -> dict:
+    """The ``eskin.labels`` entry a dataset of ``kind`` carries: none where the labels are
+    its scene kind's (so the paper's datasets keep their bytes), the label columns where
+    they are a variant's (the total force of several contacts)."""
+    return {} if kind.labels == get_kind(kind.scene_kind).labels else {"labels": kind.labels}
+
+
 def write_dataset(frame: pd.DataFrame, kind: str, path: Path, metadata: dict,
                   skin: AnySkin = PAPER_SKIN) -> None:
-    """Validate, then write Parquet with ``eskin.*`` metadata (the skin's among them),
-    atomically."""
+    """Validate, then write Parquet with ``eskin.*`` metadata (the skin's and the labels'
+    among them), atomically. ``kind``: the dataset's kind (:func:`dataset_kind`)."""
     validate(frame, kind, where=str(path), skin=skin)
-    metadata = {**{k: v for k, v in metadata.items() if k != "skin"}, **skin_metadata(skin)}
+    metadata = {**{k: v for k, v in metadata.items() if k not in ("skin", "labels")},
+                **skin_metadata(skin), **labels_metadata(get_kind(kind))}
     table = pa.Table.from_pandas(frame[columns(kind, skin)], schema=arrow_schema(kind, skin),
                                  preserve_index=False)
     table = table.replace_schema_metadata(with_metadata(table.schema, metadata).metadata)
@@ -187,6 +200,16 @@ def dataset_skin(path: Path) -> AnySkin:
     return skin_of_columns(pq.read_schema(path).names)
 
 
+def dataset_kind(path: Path) -> Kind:
+    """The kind of a dataset: its scene's (``eskin.kind``), or that kind's variant its
+    ``eskin.labels`` name (the total force of several contacts)."""
+    meta = read_metadata(path)
+    try:
+        return kind_of_labels(meta["kind"], meta.get("labels"))
+    except ValueError as error:
+        raise DatasetError(f"{path}: {error}") from None
+
+
 def write_quarantine(rows: list[dict], path: Path) -> None:
     """Rows that could not be trusted, with where they came from and why (header if none)."""
     path = Path(path)
@@ -203,6 +226,11 @@ def describe_source(meta: dict) -> str:
     if kind == "simulated":
         seed = (meta.get("simulator") or {}).get("seed")
         return f"simulated (seed {seed})" if seed is not None else "simulated"
+    if kind == "emulated":  # the firmware under simavr, reading the simulated skin
+        firmware = (meta.get("device") or {}).get("firmware", "?")
+        seed = (meta.get("simulator") or {}).get("seed")
+        return f"emulated firmware {firmware} under simavr" + (
+            f" (seed {seed})" if seed is not None else "")
     if kind == "serial":
         device = meta.get("device") or {}
         parts = [source.get("port") or "port unknown"]

@@ -14,7 +14,8 @@ the one its training data were taken on, recorded in the ONNX file beside it.
 A kind whose detector gates (one contact: eskin/kinds.py) detects contact, and locates
 and weighs a contact only where it detects one (elsewhere x and y are NaN and the force
 0); stretch is estimated on every frame. A two-contact stack always has two contacts:
-x1, y1, x2, y2, force1, force2.
+x1, y1, x2, y2, force1, force2 — or x1, y1, x2, y2 and force, their total, where the
+training recording gave only that (the kind's total-force variant).
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ import yaml
 from threadpoolctl import ThreadpoolController
 
 from eskin.catalog import TASK_NAMES, features_path, featurizer_path, model_path, processed_path
-from eskin.data.schema import dataset_skin, read_metadata
+from eskin.data.schema import dataset_kind, dataset_skin, read_metadata
 from eskin.errors import EskinError
 from eskin.kinds import get_kind
 from eskin.learning.saved import load_models
@@ -98,8 +99,8 @@ class SkinStack:
         processed = root / processed_path(scene)
         if processed.exists():
             rest = rest_reading(pd.read_parquet(processed), skin)
-        return cls(scene, meta["kind"], skin, featurizer, models, skipped, meta.get("device"),
-                   rest)
+        return cls(scene, dataset_kind(features).name, skin, featurizer, models, skipped,
+                   meta.get("device"), rest)
 
     # ------------------------------------------------------------ predicting
 

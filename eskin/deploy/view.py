@@ -88,15 +88,18 @@ function show(state) {{
   if (!e) return;
   for (const cell of marked) {{ cell.style.background = ""; cell.textContent = ""; }}
   marked = [];
+  // two contacts under one force sensor: their total force, none per contact
+  const total = !("x" in e) && "force" in e;
   const contacts = "x" in e ? [[e.x, e.y, e.force]]
-    : [[e.x1, e.y1, e.force1], [e.x2, e.y2, e.force2]];
+    : [[e.x1, e.y1, total ? null : e.force1], [e.x2, e.y2, total ? null : e.force2]];
   const touching = "contact" in e ? e.contact : true;
   if (touching) for (const [x, y, f] of contacts) {{
     const cell = document.getElementById(`cell-${{x}}-${{y}}`);
     if (!cell) continue;
-    const strength = Math.max(0.25, Math.min(1, (f || 0) / 6));
+    const shade = total ? (e.force || 0) / 2 : (f || 0);
+    const strength = Math.max(0.25, Math.min(1, shade / 6));
     cell.style.background = `rgba(179, 38, 30, ${{strength}})`;
-    cell.textContent = fixed(f, 1);
+    cell.textContent = total ? "" : fixed(f, 1);
     marked.push(cell);
   }}
   const contact = document.getElementById("contact");
@@ -105,7 +108,9 @@ function show(state) {{
     (e.contact_probability === null || e.contact_probability === undefined ? ""
      : ` (p = ${{e.contact_probability.toFixed(3)}})`);
   text("location", touching ? contacts.map(([x, y]) => `x ${{x}}, y ${{y}}`).join("; ") : "–");
-  text("force", touching ? contacts.map(([, , f]) => `${{fixed(f, 2)}} N`).join("; ") : "0 N");
+  text("force", !touching ? "0 N"
+    : total ? `${{fixed(e.force, 2)}} N in all (the training recording gave no force per contact)`
+    : contacts.map(([, , f]) => `${{fixed(f, 2)}} N`).join("; "));
   text("stretch", fixed(e.stretch, 3));
   text("drift", `${{fixed(e.drift_counts, 1)}} counts`);
   text("seq", `${{e.seq}} (t = ${{(e.t_ms / 1000).toFixed(2)}} s)`);

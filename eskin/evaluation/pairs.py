@@ -12,7 +12,8 @@ one), pair right (both contacts right as a set), ghost (the predicted pair is
 the truth's ghost: {(xa, yb), (xb, ya)} for {(xa, ya), (xb, yb)} — the pair a
 row/column read-out cannot tell from the truth except by amplitude), and the
 force error of each contact against the force predicted for the contact
-matched to it.
+matched to it — where the labels give each contact's force: a recording of their total
+force only is scored on its positions alone.
 """
 
 from __future__ import annotations
@@ -53,11 +54,12 @@ def _stack(frame: pd.DataFrame, pattern: str) -> np.ndarray:
                      for i in CONTACTS], axis=1)
 
 
-def pair_outcomes(frame: pd.DataFrame) -> pd.DataFrame:
-    """Per sample: matched wrong contacts, ordered wrong contacts, matched forces.
+def pair_outcomes(frame: pd.DataFrame, forces: bool = True) -> pd.DataFrame:
+    """Per sample: matched wrong contacts, ordered wrong contacts, and (``forces``)
+    matched forces.
 
-    ``frame`` holds ``x1_true … y2_true``, ``x1_pred … y2_pred``, ``force1_true``,
-    ``force2_true``, ``force1_pred``, ``force2_pred``.
+    ``frame`` holds ``x1_true … y2_true``, ``x1_pred … y2_pred`` and, with ``forces``,
+    ``force1_true``, ``force2_true``, ``force1_pred``, ``force2_pred``.
     """
     true_nodes = _stack(frame, "{axis}{i}_true")
     predicted_nodes = _stack(frame, "{axis}{i}_pred")
@@ -70,25 +72,30 @@ def pair_outcomes(frame: pd.DataFrame) -> pd.DataFrame:
     ghost_assignment = match_contacts(ghost_nodes, predicted_nodes)
     ghost_matched = np.take_along_axis(predicted_nodes, ghost_assignment[:, :, None], axis=1)
     ghost = has_ghost & np.all(ghost_matched == ghost_nodes, axis=(1, 2))
+    out = pd.DataFrame({
+        "wrong_contacts": wrong_matched, "wrong_contacts_ordered": wrong_ordered,
+        "swapped": (assignment[:, 0] == 1), "ghost": ghost, "has_ghost": has_ghost},
+        index=frame.index)
+    if not forces:
+        return out
     forces_true = frame[[f"force{i}_true" for i in CONTACTS]].to_numpy(dtype=float)
     forces_pred = frame[[f"force{i}_pred" for i in CONTACTS]].to_numpy(dtype=float)
     matched_forces = np.take_along_axis(forces_pred, assignment, axis=1)
-    return pd.DataFrame({
-        "wrong_contacts": wrong_matched, "wrong_contacts_ordered": wrong_ordered,
-        "swapped": (assignment[:, 0] == 1), "ghost": ghost, "has_ghost": has_ghost,
+    return out.assign(
         **{f"force{i}_true": forces_true[:, k] for k, i in enumerate(CONTACTS)},
-        **{f"force{i}_matched": matched_forces[:, k] for k, i in enumerate(CONTACTS)}},
-        index=frame.index)
+        **{f"force{i}_matched": matched_forces[:, k] for k, i in enumerate(CONTACTS)})
 
 
-def pair_scores(outcomes: pd.DataFrame) -> dict[str, float]:
+def pair_scores(outcomes: pd.DataFrame, forces: bool = True) -> dict[str, float]:
     """Pair accuracy (set and ordered), per-contact accuracy, the ghost share (of the pairs
-    that have a ghost, the share predicted as it), matched force error."""
+    that have a ghost, the share predicted as it), and (``forces``) matched force error."""
     wrong = outcomes["wrong_contacts"].to_numpy()
     ordered = outcomes["wrong_contacts_ordered"].to_numpy()
-    forces_true = outcomes[[f"force{i}_true" for i in CONTACTS]].to_numpy().ravel()
-    forces_matched = outcomes[[f"force{i}_matched" for i in CONTACTS]].to_numpy().ravel()
-    force = regression(forces_true, forces_matched)
+    force = {}
+    if forces:
+        forces_true = outcomes[[f"force{i}_true" for i in CONTACTS]].to_numpy().ravel()
+        forces_matched = outcomes[[f"force{i}_matched" for i in CONTACTS]].to_numpy().ravel()
+        force = regression(forces_true, forces_matched)
     return {"pair_accuracy": float(np.mean(wrong == 0)),
             "pair_accuracy_ordered": float(np.mean(ordered == 0)),
             "contact_accuracy": float(1 - np.mean(wrong) / len(CONTACTS)),
@@ -99,22 +106,27 @@ def pair_scores(outcomes: pd.DataFrame) -> dict[str, float]:
             **{f"force_{name}": value for name, value in force.items()}}
 
 
-def score_pairs(localise: pd.DataFrame, force: pd.DataFrame) -> dict[str, dict[str, float]]:
+def score_pairs(localise: pd.DataFrame, force: pd.DataFrame | None
+                ) -> dict[str, dict[str, float]]:
     """Per CV scheme, mean and std over folds of :func:`pair_scores`.
 
     The frames are the out-of-fold predictions of a two-force scene's localise and
-    force tasks (one row per sample and scheme, keyed by trial and sample).
+    force tasks (one row per sample and scheme, keyed by trial and sample); ``force``
+    None: the scene has no per-contact forces, and its positions alone are scored.
     """
-    key = ["scheme", "trial", "sample"]
-    forces = [f"force{i}_{what}" for i in CONTACTS for what in ("pred", "true")]
-    joined = localise.merge(force[key + forces], on=key, validate="one_to_one")
-    if len(joined) != len(localise):
-        raise ValueError(f"the two-force predictions do not cover the same samples: "
-                         f"{len(localise)} localised, {len(joined)} with both forces")
+    joined = localise
+    if force is not None:
+        key = ["scheme", "trial", "sample"]
+        forces = [f"force{i}_{what}" for i in CONTACTS for what in ("pred", "true")]
+        joined = localise.merge(force[key + forces], on=key, validate="one_to_one")
+        if len(joined) != len(localise):
+            raise ValueError(f"the two-force predictions do not cover the same samples: "
+                             f"{len(localise)} localised, {len(joined)} with both forces")
     out = {}
     for scheme, rows in joined.groupby("scheme", sort=False):
-        outcomes = pair_outcomes(rows)
-        per_fold = [pair_scores(outcomes[rows["fold"].to_numpy() == f])
+        outcomes = pair_outcomes(rows, forces=force is not None)
+        per_fold = [pair_scores(outcomes[rows["fold"].to_numpy() == f],
+                                forces=force is not None)
                     for f in sorted(rows["fold"].unique())]
         out[str(scheme)] = summarise(per_fold)
     return out

@@ -29,6 +29,7 @@ from sklearn.utils.validation import check_is_fitted, validate_data
 from eskin.config import Featurize
 from eskin.data.schema import (
     contact_mask,
+    dataset_kind,
     dataset_skin,
     md5_file,
     read_dataset,
@@ -126,13 +127,13 @@ def featurize_scene(scene: str, processed_dir: Path, features_dir: Path, models_
         raise FileNotFoundError(f"{source}: no dataset; run `dvc repro ingest@{scene}` first")
     meta = read_metadata(source)
     frame = read_dataset(source)
-    skin = dataset_skin(source)
+    skin, kind = dataset_skin(source), dataset_kind(source)
     method = settings.method
-    featurizer = fit_featurizer(method, frame, meta["kind"], skin)
+    featurizer = fit_featurizer(method, frame, kind.name, skin)
     out = Path(features_dir) / f"{scene}.parquet"
     meta.update(featurize={"method": method},
                 dataset={"path": source.as_posix(), "md5": md5_file(source), "rows": len(frame)})
-    write_dataset(featurize(frame, featurizer, skin), meta["kind"], out, meta, skin=skin)
+    write_dataset(featurize(frame, featurizer, skin), kind.name, out, meta, skin=skin)
     transform = Path(models_dir) / scene / "featurizer.joblib"
     transform.parent.mkdir(parents=True, exist_ok=True)
     joblib.dump(featurizer, transform)

@@ -14,7 +14,9 @@ Single force (the paper's section III-D):
 Two forces (section III-E): ``force`` (force1 and force2, one model each) and
 ``localise`` (x1, y1, x2, y2), every sample; ``stretch`` where the scene has two
 or more levels. ``detect`` needs samples without contact, which a two-force
-scene has not: it is skipped, with that reason in its metrics file.
+scene has not: it is skipped, with that reason in its metrics file. A recording of two
+contacts that gives their total force only (the kind's total-force variant) has one
+force target, ``force``, the total; its positions are learnt as any two contacts'.
 
 Every kind has the same task names (:data:`TASK_NAMES`), so the stage graph is
 scenes × tasks, and a task a scene's data cannot support is skipped by the data,
@@ -31,18 +33,20 @@ import pandas as pd
 
 from eskin.catalog import HEADLINE_METRIC
 from eskin.data.schema import contact_mask
-from eskin.kinds import KINDS, Kind, get_kind
+from eskin.kinds import DATASET_KINDS, Kind, get_kind
 
 
 def _all_rows(frame: pd.DataFrame) -> np.ndarray:
     return np.ones(len(frame), dtype=bool)
 
 
-def _physical_force(index: str = "") -> Callable[[pd.DataFrame], np.ndarray]:
+def _physical_force(force: str, nodes: list[str]) -> Callable[[pd.DataFrame], np.ndarray]:
+    """The force column ``force`` where it presses a node (one of the ``nodes`` columns of
+    the contacts it weighs is not 0), else 0."""
     def target(frame: pd.DataFrame) -> np.ndarray:
-        force = frame[f"force{index}"].to_numpy(dtype=float)
-        touching = (force > 0) & (frame[f"x{index}"].to_numpy() > 0)
-        return np.where(touching, force, 0.0)
+        values = frame[force].to_numpy(dtype=float)
+        at_node = np.logical_or.reduce([frame[x].to_numpy() > 0 for x in nodes])
+        return np.where((values > 0) & at_node, values, 0.0)
     return target
 
 
@@ -101,17 +105,16 @@ def _tasks(kind: Kind) -> dict[str, Task]:
     return {
         "stretch": Task("stretch", "stretch", "regression", {"stretch": _column("stretch")}),
         "force": Task("force", "force", "regression",
-                      {force: _physical_force(force.removeprefix("force"))
-                       for force in kind.force_columns}),
+                      {force: _physical_force(force, nodes)
+                       for force, nodes in kind.weighed_contacts.items()}),
         "detect": Task("detect", "detect", "detection", {"contact": contact_mask}),
         "localise": Task("localise", "localise", "localisation",
                          {name: _column(name) for name in kind.node_columns}, **localise_rows,
-                         positions={"position" + force.removeprefix("force"): (x, y)
-                                    for force, x, y in kind.contact_columns}),
+                         positions=kind.positions),
     }
 
 
-TASKS: dict[str, dict[str, Task]] = {name: _tasks(kind) for name, kind in KINDS.items()}
+TASKS: dict[str, dict[str, Task]] = {name: _tasks(kind) for name, kind in DATASET_KINDS.items()}
 
 
 def get_task(kind: str, name: str) -> Task:

@@ -21,6 +21,7 @@ import pandas as pd
 from eskin.catalog import HEADLINE_SCHEME, PAIRS_HEADLINE
 from eskin.config import CV, Params, TaskModels
 from eskin.data.schema import (
+    dataset_kind,
     dataset_skin,
     describe_source,
     md5_file,
@@ -29,7 +30,7 @@ from eskin.data.schema import (
 )
 from eskin.evaluation.crossval import cross_validate, fit_final, parallel_backend
 from eskin.evaluation.folds import assign_folds
-from eskin.kinds import KINDS
+from eskin.kinds import DATASET_KINDS, TOTAL_FORCE_ONLY
 from eskin.learning.estimators import build_model, model_for_skin, model_settings
 from eskin.learning.saved import save_models
 from eskin.learning.tasks import Task, get_task
@@ -78,10 +79,13 @@ def train(scene: str, task_name: str, *, task_params: TaskModels, configuration:
     meta = read_metadata(source)
     frame = read_dataset(source)
     skin = dataset_skin(source)
-    kind = meta["kind"]
+    # the dataset's kind (a total-force variant's name, where its labels say so); the
+    # models are chosen per kind of scene, as params.yaml names them
+    the_kind = dataset_kind(source)
+    kind = the_kind.name
     task = get_task(kind, task_name)
     model_name, hyper, model_note = model_for_skin(
-        task_params, *model_settings(task_params, configuration, kind), skin)
+        task_params, *model_settings(task_params, configuration, the_kind.scene_kind), skin)
     estimator = build_model(task.role, model_name, hyper, skin)
     header = {"scene": scene, "kind": kind, "task": task_name, "model": model_name,
               "dataset_md5": meta["dataset"]["md5"], "dataset_rows": meta["dataset"]["rows"],
@@ -208,6 +212,8 @@ def score_pairs(scene: str, predictions_dir: Path, metrics_path: Path, scores_pa
                 pipeline_params: Params | None = None, track: bool = True) -> PairsScored:
     """Score a two-force scene's contacts as sets (order-free), from its tasks' predictions;
     the scene's kind and dataset come from the localise task's scores (beside ``scores_path``).
+    A recording of the contacts' total force only has its positions scored, and its
+    per-contact force scores skipped with the reason (``skipped_scores``).
     ``pipeline_params`` (the whole params, not read here) goes to the MLflow pipeline run."""
     from eskin.evaluation.pairs import score_pairs as score
 
@@ -219,13 +225,15 @@ def score_pairs(scene: str, predictions_dir: Path, metrics_path: Path, scores_pa
         write_json({**scores_doc, "status": "skipped", "reason": reason}, scores_path)
         write_json({}, metrics_path)
 
-    kind = KINDS.get(localise.get("kind", ""))
+    kind = DATASET_KINDS.get(localise.get("kind", ""))
     if kind is None or kind.contacts < 2:
         reason = f"a {localise.get('kind')} scene has one contact; pairs need two"
         skip(reason)
         return PairsScored(scene, "skipped", f"{scene}/pairs: skipped — {reason}", reason)
+    if kind.total_force:
+        scores_doc["skipped_scores"] = {"force": TOTAL_FORCE_ONLY}
     frames = {}
-    for task in ("localise", "force"):
+    for task in ("localise",) if kind.total_force else ("localise", "force"):
         path = directory / f"{task}.parquet"
         if not path.exists():
             raise FileNotFoundError(f"{path}: no predictions; run `dvc repro train@{scene}-{task}`")
@@ -236,9 +244,10 @@ def score_pairs(scene: str, predictions_dir: Path, metrics_path: Path, scores_pa
         skip(reason)
         return PairsScored(scene, "skipped", f"{scene}/pairs: skipped — "
                            f"{', '.join(skipped)} skipped", reason)
-    scores = score(frames["localise"], frames["force"])
+    scores = score(frames["localise"], frames.get("force"))
     write_json({**scores_doc, "status": "scored", **scores}, scores_path)
-    write_json(headline_metrics({scheme: {name: values[name] for name in PAIRS_HEADLINE}
+    write_json(headline_metrics({scheme: {name: values[name] for name in PAIRS_HEADLINE
+                                          if name in values}
                                  for scheme, values in scores.items()}), metrics_path)
     run_note, run_id = "", ""
     if track:
@@ -248,7 +257,11 @@ def score_pairs(scene: str, predictions_dir: Path, metrics_path: Path, scores_pa
                                      pipeline_params=pipeline_params,
                                      dataset_digest=localise.get("dataset_md5", ""))
         run_note = f"; MLflow run {run_id}"
-    parts = [f"{scheme} pair {s['pair_accuracy']:.3f} (ordered {s['pair_accuracy_ordered']:.3f}), "
-             f"force R² {s['force_r2']:.3f}" for scheme, s in scores.items()]
-    return PairsScored(scene, "scored", f"{scene}/pairs: {'; '.join(parts)}{run_note}",
+    parts = [f"{scheme} pair {s['pair_accuracy']:.3f} (ordered {s['pair_accuracy_ordered']:.3f})"
+             + (f", force R² {s['force_r2']:.3f}" if "force_r2" in s else "")
+             for scheme, s in scores.items()]
+    not_scored = "".join(f"; {what} scores skipped — {reason}"
+                         for what, reason in scores_doc.get("skipped_scores", {}).items())
+    return PairsScored(scene, "scored",
+                       f"{scene}/pairs: {'; '.join(parts)}{not_scored}{run_note}",
                        scores=scores, run_id=run_id)

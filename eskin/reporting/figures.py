@@ -190,6 +190,23 @@ def two_force_parity(oof: pd.DataFrame) -> Figure:
     return fig
 
 
+def total_force_parity(oof: pd.DataFrame) -> Figure:
+    """The total force of two contacts, predicted against true: every prediction and the
+    ideal line. A recording of one force sensor under both contacts is continuous, so
+    there are no levels to take a mean ± std at (Figs. 6 and 9 have them)."""
+    with plt.rc_context(STYLE):
+        fig, ax = plt.subplots(figsize=(COLUMN_IN + 0.5, COLUMN_IN + 0.9))
+        true, pred = oof["force_true"], oof["force_pred"].astype(float)
+        _ideal(ax, min(0.0, pred.min()), max(true.max(), pred.max()), floor=0.0)
+        ax.scatter(true, pred, s=3, alpha=0.3, color="tab:blue", rasterized=True, zorder=2,
+                   label="each prediction")
+        ax.set_xlabel("true total force (N)")
+        ax.set_ylabel("predicted total force (N)")
+        ax.set_title("predicted against true")
+        ax.legend(loc="upper left")
+    return fig
+
+
 def _share(share: float) -> str:
     """A share as a percentage that tells a rare error from none: 0.011%, 99.989%."""
     if share in (0.0, 1.0):

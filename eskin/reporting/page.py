@@ -88,9 +88,12 @@ def dataset(scores: Mapping[str, Mapping]) -> tuple[str, str, str] | None:
 
 
 def skipped(scores: Mapping[str, Mapping]) -> list[tuple[str, str]]:
-    """(task, reason) of each task the scene's data did not support."""
+    """(task, reason) of each task the scene's data did not support, and (``pairs force
+    scores``, reason) of the scores a task that ran could not give (``skipped_scores``)."""
     return [(task, str(document.get("reason", "")))
-            for task, document in scores.items() if document.get("status") == "skipped"]
+            for task, document in scores.items() if document.get("status") == "skipped"] + [
+        (f"{task} {what} scores", str(reason)) for task, document in scores.items()
+        for what, reason in (document.get("skipped_scores") or {}).items()]
 
 
 def results_markdown(scenes: Scenes) -> str:

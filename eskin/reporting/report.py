@@ -21,7 +21,7 @@ import matplotlib.pyplot as plt
 import pandas as pd
 
 from eskin.catalog import SCORED_TASKS
-from eskin.config import Report, Scene, scene_skin
+from eskin.config import Report, Scene, scene_kind, scene_skin
 from eskin.data.schema import force_columns, node_columns
 from eskin.kinds import Figure, Headline, get_kind
 from eskin.reporting import figures as fig
@@ -207,7 +207,7 @@ def report(*, report: Report, scenes: Mapping[str, Scene], scores_dir: Path,
     ``scenes`` section: which, and their kinds), with the ``report`` section; ``run``:
     which commit and experiment the page says it shows (:func:`provenance`)."""
     settings = report
-    kinds = {name: scene.kind for name, scene in scenes.items()}
+    kinds = {name: scene_kind(scene).name for name, scene in scenes.items()}
     skins = {name: scene_skin(scene) for name, scene in scenes.items()}
     scores = {scene: _task_files(scores_dir, scene, ".json", lambda p: json.loads(p.read_text()))
               for scene in kinds}

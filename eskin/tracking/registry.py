@@ -19,7 +19,7 @@ import numpy as np
 import pandas as pd
 
 from eskin.catalog import TASK_NAMES, features_path, model_path, processed_path
-from eskin.data.schema import dataset_skin, md5_file, read_dataset, read_metadata
+from eskin.data.schema import dataset_kind, dataset_skin, md5_file, read_dataset, read_metadata
 from eskin.deploy.stack import SkinStack, StackError, featurizer_for, rest_reading
 from eskin.evaluation.crossval import cross_validate
 from eskin.evaluation.folds import assign_folds
@@ -74,7 +74,7 @@ def reproduce(name: str, version: str | None = None, *, root: Path = Path("."),
     run = client.get_run(entry.run_id)
     path = versioned_file(root, features_path(scene),
                           tags["eskin.features_md5"], f"features of {scene}")
-    frame, kind, skin = read_dataset(path), read_metadata(path)["kind"], dataset_skin(path)
+    frame, kind, skin = read_dataset(path), dataset_kind(path).name, dataset_skin(path)
     task = get_task(kind, task_name)
     # The model is the DVC-tracked file whose md5 the run recorded (eskin.model_md5, as in
     # dvc.lock), unpickled only after that md5 is checked: a pickle runs code when loaded.
@@ -155,6 +155,7 @@ def stack_from_registry(scene: str, alias: str, root: Path = Path(".")) -> SkinS
                                                   f"{version.name} v{version.version}"), md5)
     processed = versioned_file(root, processed_path(scene), meta["dataset"]["md5"],
                                f"dataset of {scene}")
-    return SkinStack(scene, meta["kind"], skin, featurizer_for(scene, meta, features, skin, root),
+    return SkinStack(scene, dataset_kind(features).name, skin,
+                     featurizer_for(scene, meta, features, skin, root),
                      models, skipped, meta.get("device"),
                      rest_reading(pd.read_parquet(processed), skin))
