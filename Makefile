@@ -16,7 +16,7 @@ export DO_NOT_TRACK := 1
 # Material for MkDocs prints an end-of-life banner at every build; not a warning.
 export NO_MKDOCS_2_WARNING := 1
 
-.PHONY: setup plots-page browser avr firmware postgres lab-server repro bench stress test docs lint clean
+.PHONY: setup plots-page browser avr firmware postgres sshd lab-server repro bench stress test docs lint clean FORCE
 
 # `dvc plots show|diff` pages that draw offline (DVC's own page loads vega from a CDN):
 # vega, vega-lite and vega-embed, pinned, from npm's registry, checked against the
@@ -78,9 +78,19 @@ postgres:
 	  $(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends \
 	    postgresql; }
 
-# PostgreSQL and `mlflow server --serve-artifacts` on it, data in .lab/, until Ctrl-C;
-# then, in each clone: export MLFLOW_TRACKING_URI=http://127.0.0.1:5000
-lab-server: setup postgres
+# A lab's DVC remote (eskin/tracking/lab.py): Debian's OpenSSH server, installed where
+# missing, run on 127.0.0.1 for the remote only.
+sshd:
+	@[ -x /usr/sbin/sshd ] || { \
+	  echo "installing Debian's openssh-server for the lab's DVC remote"; \
+	  $(SUDO) apt-get update -qq && \
+	  $(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends \
+	    openssh-server; }
+
+# PostgreSQL and `mlflow server --serve-artifacts` on it, and an SSH server for the DVC
+# remote, data in .lab/, until Ctrl-C; it prints what each clone sets
+# (MLFLOW_TRACKING_URI=http://127.0.0.1:5000, `dvc remote add`).
+lab-server: setup postgres sshd
 	python -m eskin.tracking.lab serve --dir .lab
 
 # The paper's skin's firmware/eskin/build/10x10/eskin.{hex,elf}, the flash and RAM used in
@@ -93,8 +103,17 @@ firmware: avr
 	avr-size -C --mcu=atmega328p firmware/eskin/build/10x10/eskin.elf \
 	  | tee firmware/eskin/build/10x10/size.txt
 
-# Rebuilt whenever the package list or the pinned versions change.
-$(VENV)/.installed: pyproject.toml constraints.txt
+# Rebuilt whenever the package list or the pinned versions change, and where it was made
+# for another directory (a project copied or moved with its .venv; venv notes where in
+# pyvenv.cfg): its scripts' #! lines run that directory's Python, and its editable install
+# imports that directory's eskin.
+VENV_MADE_FOR := $(shell sed -n 's/^command = .* //p' $(VENV)/pyvenv.cfg 2>/dev/null)
+VENV_ELSEWHERE := $(filter-out $(CURDIR)/$(VENV),$(VENV_MADE_FOR))
+$(VENV)/.installed: pyproject.toml constraints.txt $(if $(VENV_ELSEWHERE),FORCE)
+ifneq ($(VENV_ELSEWHERE),)
+	@echo "$(VENV) was made for $(VENV_ELSEWHERE): rebuilding it here"
+	rm -rf $(VENV)
+endif
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -c constraints.txt -e '.[dev]'
@@ -125,7 +144,7 @@ stress: setup
 # Then, on a quiet machine, the tests marked `alone` (a Dask worker killed mid-sweep:
 # under two workers' load, Dask cancelled the sweep for "lost dependencies" once in three
 # runs; the cause is not found yet).
-test: setup browser firmware postgres
+test: setup browser firmware postgres sshd
 	mkdocs build --strict --quiet
 	pytest -q -n 2 --dist loadfile -m "not alone" --durations=15
 	pytest -q -m alone

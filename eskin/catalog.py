@@ -25,7 +25,7 @@ SCORED_TASKS: tuple[str, ...] = (*TASK_NAMES, PAIRS)
 
 # The one score a task is summarised by (MLflow compare, stage output, audit), by scorer.
 HEADLINE_METRIC = {"regression": "r2", "detection": "accuracy", "localisation": "accuracy"}
-# The scheme DVC's metrics files hold (the one `make bench` chooses models by); every
+# The scheme DVC's metrics file holds (the one `make bench` chooses models by); every
 # scheme's scores, with spreads and confusion counts, are in the scores files.
 HEADLINE_SCHEME = "grouped"
 # A two-force scene's contacts scored as sets: the pairs stage's headline scores.
@@ -34,8 +34,14 @@ PAIRS_HEADLINE = ("pair_accuracy", "ghost_share", "force_r2")
 RAW_DIR = Path("data/raw")
 PROCESSED_DIR = Path("data/processed")
 FEATURES_DIR = Path("data/features")
+FOLDS_DIR = Path("data/folds")
 MODELS_DIR = Path("models")
-METRICS_DIR = Path("reports/metrics")
+# DVC's one metrics file: every scene's and task's headline scores, `<scene>.<task>.<name>`
+# (the report stage writes it), so `dvc metrics show` is one row an experiment.
+METRICS = Path("reports/metrics.json")
+# What each training run did and when (not a DVC output: its times would change dvc.lock);
+# the tracking stage logs it to MLflow.
+RUNS_DIR = Path("reports/runs")
 SCORES_DIR = Path("reports/scores")
 PREDICTIONS_DIR = Path("reports/predictions")
 LINEAGE_DIR = Path("reports/lineage")
@@ -62,14 +68,19 @@ def features_path(scene: str) -> Path:
     return FEATURES_DIR / f"{scene}.parquet"
 
 
+def folds_path(scene: str) -> Path:
+    """Every CV scheme's fold number of each of a scene's rows, drawn once for all tasks."""
+    return FOLDS_DIR / f"{scene}.parquet"
+
+
 def featurizer_path(scene: str) -> Path:
     return MODELS_DIR / scene / "featurizer.joblib"
 
 
-def metrics_path(scene: str, task: str) -> Path:
-    """DVC's metrics file of a task: its headline scores only, so `dvc exp show` stays
-    readable."""
-    return METRICS_DIR / scene / f"{task}.json"
+def run_record_path(scene: str, task: str) -> Path:
+    """When a task's training ran, for how long, and its scores per fold (the train stage
+    writes it, the tracking stage reads it; ignored by git and DVC)."""
+    return RUNS_DIR / scene / f"{task}.json"
 
 
 def scores_path(scene: str, task: str) -> Path:
@@ -107,9 +118,11 @@ def bayes_bound_path(scene: str) -> Path:
 
 
 def task_outputs(scene: str, task: str) -> dict[str, Path]:
-    """Where one task's outputs go (the paths dvc.yaml declares)."""
-    return {"metrics_path": metrics_path(scene, task),
+    """Where one task reads its folds and writes its outputs (the paths dvc.yaml declares),
+    and its run record."""
+    return {"folds_path": folds_path(scene),
             "scores_path": scores_path(scene, task),
             "predictions_path": predictions_path(scene, task),
             "model_path": model_path(scene, task),
-            "lineage_path": LINEAGE_DIR / scene / f"{task}.json"}
+            "lineage_path": LINEAGE_DIR / scene / f"{task}.json",
+            "record_path": run_record_path(scene, task)}

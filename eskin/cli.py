@@ -17,6 +17,8 @@ from eskin.catalog import (
     RAW_DIR,
     SOURCES,
     TASK_NAMES,
+    features_path,
+    folds_path,
     task_outputs,
 )
 from eskin.errors import run_friendly
@@ -294,14 +296,14 @@ def build_parser() -> argparse.ArgumentParser:
     featurize.add_argument("scene", help="a scene of params.yaml, e.g. single_force")
     featurize.add_argument("--params", type=Path, default=Path("params.yaml"), help=PARAMS_HELP)
     featurize.set_defaults(run=_learning_step)
-    train = commands.add_parser("train", help="cross-validate, refit and log one task "
-                                "of a scene (train.<task> in params.yaml)")
+    train = commands.add_parser("train", help="draw the scene's folds, then cross-validate "
+                                "and refit one task of it (train.<task> in params.yaml); "
+                                "`dvc repro track` logs it to MLflow")
     train.add_argument("scene", help="a scene of params.yaml, e.g. single_force")
     train.add_argument("task", choices=TASK_NAMES,
                        help="a task (train.<task> in params.yaml); one a scene's data cannot "
                        "support is skipped, with the reason in its scores file")
     train.add_argument("--params", type=Path, default=Path("params.yaml"), help=PARAMS_HELP)
-    train.add_argument("--no-track", action="store_true", help="do not log to MLflow")
     train.set_defaults(run=_learning_step)
 
     export = commands.add_parser(
@@ -390,6 +392,7 @@ def _reproduce(args: argparse.Namespace) -> int:
 
 def _learning_step(args: argparse.Namespace) -> int:
     from eskin.config import get_scene, load_params
+    from eskin.evaluation.folds import write_scene_folds
     from eskin.learning import train
     from eskin.learning.features import featurize_scene
 
@@ -399,10 +402,13 @@ def _learning_step(args: argparse.Namespace) -> int:
         print(featurize_scene(args.scene, PROCESSED_DIR, FEATURES_DIR, MODELS_DIR,
                               settings=params.featurize).summary)
     else:
+        print(write_scene_folds(features_path(args.scene), folds_path(args.scene),
+                                schemes=list(params.cv.schemes), n_splits=int(params.cv.folds),
+                                seed=int(params.cv.seed), scene=args.scene))
         print(train.train(args.scene, args.task, task_params=getattr(params.train, args.task),
                           configuration=params.train.configuration, cv=params.cv,
-                          features_dir=FEATURES_DIR, pipeline_params=params,
-                          track=not args.no_track, **task_outputs(args.scene, args.task)).summary)
+                          features_dir=FEATURES_DIR,
+                          **task_outputs(args.scene, args.task)).summary)
     return 0
 
 

@@ -519,10 +519,28 @@ class Params(_Section):
     train: Train  # type: ignore[valid-type]
     report: Report
     # make bench / make stress only: a lab's params file may leave them out.
+    # (Not PIPELINE_SECTIONS: the pipeline never reads them.)
     soak: Soak | None = None
     fuzz: Fuzz | None = None
     bench: Bench | None = None
     stress: Stress | None = None
+
+
+# The sections `dvc repro` reads, in the file's order: the tracking stage logs these, and
+# only these, to the pipeline's MLflow run.
+PIPELINE_SECTIONS: tuple[str, ...] = ("sim", "sim_board", "acquire", "scenes", "ingest",
+                                      "featurize", "cv", "train", "report")
+
+
+def pipeline_params(params: Params) -> dict[str, Any]:
+    """The sections the pipeline reads (:data:`PIPELINE_SECTIONS`), as written: keys the
+    file leaves out stay out."""
+    out: dict[str, Any] = {}
+    for name in PIPELINE_SECTIONS:
+        section = getattr(params, name)
+        out[name] = ({key: spec.model_dump(exclude_unset=True) for key, spec in section.items()}
+                     if isinstance(section, Mapping) else section.model_dump(exclude_unset=True))
+    return out
 
 
 def _describe(error: dict) -> str:

@@ -1,19 +1,16 @@
-"""DVC stage: a two-force scene's predictions → order-free pair scores (and their headline)."""
+"""DVC stage: a two-force scene's predictions → order-free pair scores."""
 
 import sys
 
-from eskin.catalog import PAIRS, PREDICTIONS_DIR, metrics_path, scores_path
+from eskin.catalog import PAIRS, PREDICTIONS_DIR, scores_path
 from eskin.config import get_scene, load_params
 from eskin.errors import run_friendly
 from eskin.learning import train
 
 
 def main(scene: str) -> str:
-    # The params only go to the MLflow pipeline run: the stage reads none of them.
-    params = load_params()
-    get_scene(params, scene)
-    return train.score_pairs(scene, PREDICTIONS_DIR, metrics_path(scene, PAIRS),
-                             scores_path(scene, PAIRS), pipeline_params=params).summary
+    get_scene(load_params(), scene)
+    return train.score_pairs(scene, PREDICTIONS_DIR, scores_path(scene, PAIRS)).summary
 
 
 if __name__ == "__main__":

@@ -1,4 +1,5 @@
-"""DVC stage: features of a scene → one task's metrics, predictions, models and MLflow run."""
+"""DVC stage: features and folds of a scene → one task's scores, predictions, models, and
+the run's record for the tracking stage."""
 
 import sys
 
@@ -13,8 +14,7 @@ def main(scene: str, task: str) -> str:
     get_scene(params, scene)
     return train.train(scene, task, task_params=getattr(params.train, task),
                        configuration=params.train.configuration, cv=params.cv,
-                       features_dir=FEATURES_DIR, pipeline_params=params,
-                       **task_outputs(scene, task)).summary
+                       features_dir=FEATURES_DIR, **task_outputs(scene, task)).summary
 
 
 if __name__ == "__main__":

@@ -14,10 +14,12 @@ from conftest import typed
 from sklearn.base import clone
 
 from eskin.catalog import (
+    METRICS,
     TASK_NAMES,
     export_report_path,
     features_path,
     featurizer_path,
+    folds_path,
     model_path,
     processed_path,
     stack_path,
@@ -28,7 +30,7 @@ from eskin.data.schema import dataset_skin, md5_file, write_dataset
 from eskin.deploy.export import export_scene
 from eskin.deploy.stack import ExportedStack, SkinStack
 from eskin.deploy.view import LiveView
-from eskin.evaluation.folds import strata
+from eskin.evaluation.folds import strata, write_scene_folds
 from eskin.evaluation.metrics import position_error_mm
 from eskin.learning import train
 from eskin.learning.estimators import (
@@ -124,12 +126,15 @@ def run_pipeline(root, scene: str, frame: pd.DataFrame, skin, spec, params) -> d
                   skin=skin)
     featurize_scene(scene, root / "data/processed", root / "data/features", root / "models",
                     settings=params.featurize)
+    write_scene_folds(root / features_path(scene), root / folds_path(scene),
+                      schemes=list(params.cv.schemes), n_splits=int(params.cv.folds),
+                      seed=int(params.cv.seed), scene=scene)
     trained = {}
     for task in TASK_NAMES:
         trained[task] = train.train(
             scene, task, task_params=getattr(params.train, task),
             configuration=params.train.configuration, cv=params.cv,
-            features_dir=root / "data/features", track=False,
+            features_dir=root / "data/features",
             **{name: root / path for name, path in task_outputs(scene, task).items()})
     # dvc.lock as DVC records the outputs the stack is loaded from (their md5s)
     outs = [featurizer_path(scene), *(model_path(scene, task) for task in TASK_NAMES)]
@@ -142,7 +147,8 @@ def run_pipeline(root, scene: str, frame: pd.DataFrame, skin, spec, params) -> d
         scenes={scene: SimpleNamespace(kind="single_force", skin=spec)},
         scores_dir=root / "reports/scores", predictions_dir=root / "reports/predictions",
         figures_dir=root / "reports/figures", plots_dir=root / "reports/plots",
-        page_path=root / "reports/index.html", results_path=root / "reports/results.md")
+        page_path=root / "reports/index.html", results_path=root / "reports/results.md",
+        metrics_path=root / METRICS)
     scores = {task: json.loads((root / task_outputs(scene, task)["scores_path"]).read_text())
               for task in TASK_NAMES}
     return {"trained": trained, "exported": exported, "reported": reported, "scores": scores}

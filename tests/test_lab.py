@@ -129,8 +129,8 @@ class socket_closed:
 
 
 def test_a_ctrl_c_as_the_lab_server_says_how_to_stop_it_is_a_clean_stop(monkeypatch, tmp_path):
-    """Ctrl-C at the moment `make lab-server` prints "Ctrl-C stops both." (as a user, or the
-    test below, answers that line): exit 0 and both servers stopped, not "interrupted" (130).
+    """Ctrl-C at the moment `make lab-server` prints "Ctrl-C stops them." (as a user, or the
+    test below, answers that line): exit 0 and every server stopped, not "interrupted" (130).
     The fresh-clone CI of 799af58 caught that window, once, under load."""
     from types import SimpleNamespace
 
@@ -153,13 +153,21 @@ def test_a_ctrl_c_as_the_lab_server_says_how_to_stop_it_is_a_clean_stop(monkeypa
         if "Ctrl-C" in " ".join(map(str, args)):
             raise KeyboardInterrupt
 
+    @contextlib.contextmanager
+    def remote(directory, **port):
+        try:
+            yield SimpleNamespace(port=2222, objects=directory, clone_commands=lambda: [])
+        finally:
+            stopped.append("remote")
+
     monkeypatch.setattr(eskin.tracking.lab, "lab_server", servers)
+    monkeypatch.setattr(eskin.tracking.lab, "data_remote", remote)
     monkeypatch.setattr(eskin.tracking.runs, "ensure_experiment", lambda: "1")
     monkeypatch.setattr(eskin.tracking.lab, "print", ctrl_c_on_the_line_that_names_it,
                         raising=False)
     monkeypatch.setenv("MLFLOW_TRACKING_URI", "")
     assert eskin.tracking.lab.main(["serve", "--dir", str(tmp_path)]) == 0
-    assert stopped == [tmp_path]
+    assert stopped == ["remote", tmp_path]
 
 
 def test_make_lab_server_names_the_training_view_of_its_experiment():
@@ -182,7 +190,8 @@ def test_make_lab_server_names_the_training_view_of_its_experiment():
     serving = subprocess.Popen(
         [sys.executable, "-m", "eskin.tracking.lab", "serve", "--dir", str(home),
          "--port", str(port),
-         "--pg-port", str(free_port())], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+         "--pg-port", str(free_port()), "--ssh-port", str(free_port())],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
         text=True, env={**os.environ, "MLFLOW_TRACKING_URI": ""})
     lines: list[str] = []
     try:

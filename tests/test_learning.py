@@ -46,9 +46,9 @@ def features(project, scene="single_force"):
 
 def train(project, scene, task, out, params=None, **kwargs):
     return train_step(params or project[0], scene, task, project[1] / "features",
-                      metrics_path=out / "metrics.json", scores_path=out / "scores.json",
+                      scores_path=out / "scores.json",
                       predictions_path=out / "oof.parquet",
-                      model_path=out / "model.joblib", track=False,
+                      model_path=out / "model.joblib",
                       **kwargs).summary
 
 
@@ -114,6 +114,8 @@ def test_localise_uses_contact_samples_only_and_force_is_physical(project):
 
 
 def test_a_single_stretch_level_skips_stretch_with_its_reason(project, tmp_path):
+    from eskin.reporting.report import headline_metrics
+
     params, root = project
     frame = features(project)
     one_level = root / "one_level"
@@ -123,16 +125,16 @@ def test_a_single_stretch_level_skips_stretch_with_its_reason(project, tmp_path)
     write_dataset(frame[frame["stretch"] == 1.0], "single_force",
                   one_level / "single_force.parquet", meta)
     result = train_step(params, "single_force", "stretch", one_level,
-                        metrics_path=tmp_path / "m.json", scores_path=tmp_path / "s.json",
+                        folds_path=tmp_path / "folds.parquet", scores_path=tmp_path / "s.json",
                         predictions_path=tmp_path / "p.parquet",
-                        model_path=tmp_path / "model.joblib",
-                        track=False)
+                        model_path=tmp_path / "model.joblib")
     assert "skipped" in result.summary
     assert result.status == "skipped" and "two or more stretch levels" in result.reason
     scores = json.loads((tmp_path / "s.json").read_text())
     assert scores["status"] == "skipped"
     assert "two or more stretch levels" in scores["reason"]
-    assert json.loads((tmp_path / "m.json").read_text()) == {}  # no headline to show
+    # no headline: the report's metrics leave a skipped task out
+    assert headline_metrics({"single_force": {"stretch": scores}}) == {}
 
 
 def test_every_kind_has_the_catalogs_tasks_each_with_a_registered_role():
@@ -229,10 +231,11 @@ def test_scores_carry_every_score_under_both_schemes_and_metrics_the_headline(pr
     assert metrics["dataset_md5"] == md5_file(project[1] / "processed" / "single_force.parquet")
     oof = pd.read_parquet(tmp_path / "oof.parquet")
     assert set(oof["scheme"]) == {"stratified", "grouped"}
-    # DVC's metrics file: the grouped accuracy of each axis, nothing else
-    assert json.loads((tmp_path / "metrics.json").read_text()) == {
-        "grouped": {axis: {"accuracy": metrics["grouped"][axis]["accuracy"]}
-                    for axis in ("x", "y")}}
+    # DVC's metrics (the report writes them): the grouped accuracy of each axis, nothing else
+    from eskin.reporting.report import headline_metrics
+    assert headline_metrics({"single_force": {"localise": metrics}}) == {"single_force": {
+        "localise": {axis: {"accuracy": metrics["grouped"][axis]["accuracy"]}
+                     for axis in ("x", "y")}}}
 
 
 def test_detection_keeps_a_score_per_sample_for_roc_curves(project, tmp_path):
@@ -250,9 +253,9 @@ def test_two_force_tasks_train(project, tmp_path):
     scores = json.loads((tmp_path / "loc" / "scores.json").read_text())
     assert set(scores["stratified"]) == {"x1", "y1", "x2", "y2"}, summary
     train(project, "two_force", "force", tmp_path / "f")
-    metrics = json.loads((tmp_path / "f" / "metrics.json").read_text())
-    assert np.isfinite(metrics["grouped"]["force1"]["r2"])
-    assert np.isfinite(metrics["grouped"]["force2"]["r2"])
+    scores = json.loads((tmp_path / "f" / "scores.json").read_text())
+    assert np.isfinite(scores["grouped"]["force1"]["r2"])
+    assert np.isfinite(scores["grouped"]["force2"]["r2"])
     for task, reason in (("stretch", "two or more stretch levels"),
                          ("detect", "contact and no-contact samples")):
         train(project, "two_force", task, tmp_path / task)

@@ -23,7 +23,7 @@ COMMANDS = {
     "acquire": ["acquire", TYPO, "--no-progress"],
     "ingest": ["ingest", TYPO],
     "featurize": ["featurize", TYPO],
-    "train": ["train", TYPO, "force", "--no-track"],
+    "train": ["train", TYPO, "force"],
     "live": ["live", TYPO, "--simulated", "--frames", "1"],
     "export": ["export", TYPO],
     "device": ["device", "simulate", "--scene", TYPO],

@@ -59,26 +59,23 @@ def test_each_stage_reads_exactly_the_params_it_declares(scratch):
 def test_dvc_metrics_show_lists_the_headline_metrics(scratch):
     root, env = scratch
     shown = json.loads(run(["dvc", "metrics", "show", "--json"], root, env))
-    metrics = {}
-    for data in shown.values():
-        for path, content in data["data"].items():
-            # make bench's metrics (reports/soak, reports/fuzz) are declared but not made here
-            if "data" in content:
-                metrics[path] = content["data"]
-    # The headline only: grouped CV, one score a target (every scheme, spread and confusion
-    # count is in reports/scores/, which the report reads).
-    single = "reports/metrics/single_force/{}.json"
-    assert metrics[single.format("stretch")] == {"grouped": {"stretch": {
-        "r2": json.loads((root / "reports/scores/single_force/stretch.json").read_text())[
-            "grouped"]["stretch"]["r2"]}}}
-    assert set(metrics[single.format("force")]["grouped"]["force"]) == {"r2"}
-    assert set(metrics[single.format("detect")]["grouped"]["contact"]) == {"accuracy"}
-    assert set(metrics[single.format("localise")]["grouped"]) == {"x", "y"}
-    assert set(metrics["reports/metrics/two_force/pairs.json"]["grouped"]) == {
-        "pair_accuracy", "ghost_share", "force_r2"}
-    assert metrics[single.format("pairs")] == {}  # skipped: one contact (reason in its scores)
-    table = run(["dvc", "metrics", "show"], root, env)
-    assert "grouped.stretch.r2" in table and "grouped.contact.accuracy" in table
+    files = {path: content["data"] for data in shown.values()
+             for path, content in data["data"].items() if "data" in content}
+    # One file: the headline only (grouped CV, one score a target; every scheme, spread
+    # and confusion count is in reports/scores/), named by scene and task.
+    assert list(files) == ["reports/metrics.json"]
+    metrics = files["reports/metrics.json"]
+    scores = json.loads((root / "reports/scores/single_force/stretch.json").read_text())
+    assert metrics["single_force"]["stretch"] == {"r2": scores["grouped"]["stretch"]["r2"]}
+    assert set(metrics["single_force"]["force"]) == {"r2"}
+    assert set(metrics["single_force"]["detect"]["contact"]) == {"accuracy"}
+    assert set(metrics["single_force"]["localise"]) == {"x", "y"}
+    assert set(metrics["two_force"]["pairs"]) == {"pair_accuracy", "ghost_share", "force_r2"}
+    # skipped tasks (one contact's pairs, two contacts' stretch and detect) have no entry
+    assert "pairs" not in metrics["single_force"]
+    assert set(metrics["two_force"]) == {"force", "localise", "pairs"}
+    table = run_checked(["dvc", "metrics", "show"], root, {**env, "COLUMNS": "120"}).stdout
+    assert "single_force.stretch.r2" in table and "single_force.detect.contact.accuracy" in table
     assert "stratified" not in table and "_std" not in table
 
 
@@ -96,12 +93,13 @@ def test_a_second_force_model_is_a_second_mlflow_run_on_the_same_dataset(scratch
                                             "tags.`eskin.scene` = 'single_force'")
     default, _ = model_settings(TaskModels.model_validate(repo_params["train"]["force"]),
                                 "tuned", "single_force")
-    assert sorted(runs["params.model"]) == sorted([default, "random_forest"])
+    # Hyperparameters under stable names (force.<name>), whichever model ran.
+    assert sorted(runs["params.force.model"]) == sorted([default, "random_forest"])
     digest = md5_file(root / "data" / "processed" / "single_force.parquet")
     assert set(runs["tags.eskin.dataset_digest"]) == {digest}
-    experiment_run = runs[runs["params.model"] == "random_forest"].iloc[0]
+    experiment_run = runs[runs["params.force.model"] == "random_forest"].iloc[0]
     assert experiment_run["tags.eskin.dvc_experiment"] == "force-rf"
-    assert experiment_run["params.random_forest.n_estimators"] == "100"
+    assert experiment_run["params.force.n_estimators"] == "100"
 
     client = mlflow.MlflowClient()
     for run_id in runs["run_id"]:
@@ -115,7 +113,8 @@ def test_a_second_force_model_is_a_second_mlflow_run_on_the_same_dataset(scratch
     # changed score and the changed param; DVC folds what does not fit into "…", which
     # here is only the changed dependencies' md5s (DVC puts those last).
     changed = run(["dvc", "exp", "show", "--only-changed", "--csv"], root, env)
-    changed_scores = [c for c in changed.splitlines()[0].split(",") if c.startswith("grouped.")]
+    changed_scores = [c for c in changed.splitlines()[0].split(",")
+                      if c.startswith("single_force.force.")]
     assert changed_scores, changed
     shown = run_checked(["dvc", "exp", "show", "--only-changed", "--no-pager"], root,
                         {**env, "COLUMNS": "160"}).stdout
@@ -236,15 +235,17 @@ def test_the_mlflow_ui_opens_on_the_training_runs_and_shows_their_figures(scratc
         listing = text_of(runs.ui_url(experiment), parent.info.run_name)
         assert "/runs" in page.url and "Duration" in listing and "Token Usage" not in listing
         run_page = text_of(runs.ui_url(experiment, task["run_id"]), "Duration")
-        artifacts = text_of(runs.ui_url(experiment, parent.info.run_id, artifacts=True),
+        artifacts = text_of(runs.ui_url(experiment, task["run_id"], artifacts=True),
                             "figures")
+        page_artifacts = text_of(runs.ui_url(experiment, parent.info.run_id, artifacts=True),
+                                 "index.html")
     assert task["tags.mlflow.runName"] in run_page  # single_force/force <model> @repro-…
     shown = run_page.split("Duration", 1)[1].split()[0]  # "26.9s", "1.2min"
     seconds = (task["end_time"] - task["start_time"]).total_seconds()
     assert shown.endswith(("s", "min")) and not shown.endswith("ms"), shown
     assert float(shown.rstrip("mins")) * (60 if shown.endswith("min") else 1) == \
         pytest.approx(seconds, rel=0.1, abs=0.1), (shown, seconds)
-    assert "index.html" in artifacts
+    assert "index.html" in page_artifacts and "figures" in artifacts
 
 
 def test_a_repro_groups_its_task_runs_under_one_pipeline_run(scratch):
@@ -279,26 +280,37 @@ def test_a_repro_groups_its_task_runs_under_one_pipeline_run(scratch):
     # A run's headline metric is the mean over folds, as in the metrics file; the
     # folds are a history of their own.
     logged = mlflow.MlflowClient().get_run(run_id).data.metrics
-    written = json.loads((root / "reports" / "metrics" / "single_force" / "detect.json")
-                         .read_text())
-    assert logged["grouped.contact.accuracy"] == written["grouped"]["contact"]["accuracy"]
+    written = json.loads((root / "reports" / "metrics.json").read_text())
+    assert logged["grouped.contact.accuracy"] == written["single_force"]["detect"]["contact"][
+        "accuracy"]
     per_fold = mlflow.artifacts.load_dict(f"runs:/{run_id}/scores/per_fold_grouped.json")
     assert len(per_fold["contact"]) == 3
     assert "grouped.fold.contact.accuracy" not in logged
     model = mlflow.sklearn.load_model(f"runs:/{run_id}/detect-contact")
     features = pd.read_parquet(root / "data" / "features" / "single_force.parquet")
     assert set(model.predict(features[PAPER_SKIN.channels].head(50))) <= {False, True}
-    # The pipeline run carries the whole params file, for `eskin compare`.
+    # The pipeline run carries the params the pipeline reads (for `eskin compare`), not
+    # make bench's, and the headline scores; its tags name every scene.
     parent = mlflow.MlflowClient().get_run(runs.iloc[0]["tags.mlflow.parentRunId"])
     assert parent.data.params["sim.seed"] == str(yaml.safe_load(
         (root / "params.yaml").read_text())["sim"]["seed"])
-    # ... and the report's figures and page, as artifacts (through the server)
+    assert not [k for k in parent.data.params if k.split(".")[0] in ("bench", "stress", "soak",
+                                                                      "fuzz")]
+    assert parent.data.metrics["single_force.detect.contact.accuracy"] == logged[
+        "grouped.contact.accuracy"]
+    assert parent.data.tags["eskin.scenes"] == "single_force,two_force"
+    assert "eskin.scene" not in parent.data.tags
+    # Each task run holds its own figures, and the pipeline run the page (through the server).
     client = mlflow.MlflowClient()
-    logged = {a.path for a in client.list_artifacts(parent.info.run_id, "figures/single_force")}
-    written = {f"figures/single_force/{p.name}"
-               for p in (root / "reports" / "figures" / "single_force").iterdir()}
+    logged = {a.path for a in client.list_artifacts(run_id, "figures")}
+    written = {f"figures/{p.name}"
+               for p in (root / "reports" / "figures" / "single_force").glob("detection_*")}
     assert logged == written and any(p.endswith(".png") for p in logged), logged
     assert "index.html" in {a.path for a in client.list_artifacts(parent.info.run_id)}
+    # A registered version says what it is: dataset, scores, run.
+    version = client.get_model_version("single_force.detect.contact", "1")
+    assert run_id in version.description and "grouped CV: contact accuracy" in \
+        version.description and "rows" in version.description
 
 
 def test_eskin_live_runs_the_reproduced_stack_and_refuses_a_changed_model_file(scratch):
@@ -410,9 +422,13 @@ def test_queued_experiments_run_two_at_a_time_and_compare_side_by_side(scratch, 
     everything = mlflow.search_runs(experiment_names=["eskin"])
     assert set(everything["status"]) == {"FINISHED"}
     for name, task in (("q-logistic", "detect"), ("q-ridge", "stretch"), ("c2-alpha", "stretch")):
-        found = mlflow.search_runs(experiment_names=["eskin"], filter_string=(
+        logged = mlflow.search_runs(experiment_names=["eskin"], filter_string=(
             f"tags.`eskin.dvc_experiment` = '{name}' and tags.`eskin.kind` = 'task'"))
+        found = logged[logged["tags.eskin.trained"] != "reused"]
         assert set(found["tags.eskin.task"]) == {task}  # only what the setting changes
+        # every other task is there too, marked reused, naming the run that trained it
+        reused = logged[logged["tags.eskin.trained"] == "reused"]
+        assert len(reused) >= 3 and reused["tags.eskin.reused_from"].str.len().min() == 32
         trained = found[found["tags.eskin.scene"] == "single_force"].iloc[0]
         assert trained["tags.eskin.dataset_digest"] == digest
         assert trained["tags.eskin.git_commit"] == head

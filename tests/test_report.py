@@ -91,7 +91,8 @@ def build(root, out, run):
     return report.report(report=SETTINGS, scenes=SCENES, scores_dir=root / "scores",
                          predictions_dir=root / "predictions", figures_dir=out / "figures",
                          plots_dir=out / "plots", page_path=out / "index.html",
-                         results_path=out / "results.md", run=run)
+                         results_path=out / "results.md", metrics_path=out / "metrics.json",
+                         run=run)
 
 
 @pytest.fixture(scope="module")
@@ -116,6 +117,17 @@ def test_every_figure_is_written_as_png_and_svg_per_scheme(built):
     assert names == expected, summary
     assert {p.relative_to(root / "figures").with_suffix("").as_posix()
             for p in (root / "figures").rglob("*.svg")} == expected
+
+
+def test_dvc_metrics_are_one_table_named_by_scene_and_task_without_skipped_tasks(built):
+    root, _ = built
+    metrics = json.loads((root / "metrics.json").read_text())
+    assert metrics == {
+        "single_force": {"stretch": {"r2": 0.8}, "force": {"r2": 0.8},
+                         "detect": {"contact": {"accuracy": 0.93}},
+                         "localise": {"x": {"accuracy": 0.93}, "y": {"accuracy": 0.93}}},
+        "two_force": {"force": {"force1": {"r2": 0.8}, "force2": {"r2": 0.8}},
+                      "localise": {t: {"accuracy": 0.93} for t in ("x1", "y1", "x2", "y2")}}}
 
 
 def test_dvc_plot_data_has_the_columns_dvc_yaml_names(built):

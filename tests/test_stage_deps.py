@@ -203,8 +203,10 @@ def test_subpackage_init_files_hold_no_code():
 def test_the_closure_finds_what_a_stage_imports_lazily_and_starts_as_a_process(tmp_path):
     """The checker itself: a function-local import and a child process both count."""
     learn = closure("eskin.learning.train")
-    assert ROOT / "eskin/tracking/runs.py" in learn      # imported inside train()
+    assert ROOT / "eskin/evaluation/pairs.py" in learn   # imported inside score_pairs()
     assert ROOT / "eskin/learning/gp.py" in learn            # through eskin.learning.estimators
+    track = closure("stages.track")
+    assert ROOT / "eskin/tracking/runs.py" in track      # imported inside main()
     session = closure("eskin.acquisition.session")
     assert ROOT / "eskin/device/board.py" in session  # the simulated board's own process
 

@@ -16,10 +16,12 @@ from conftest import acquire_step, headless_chromium, ingest_step, needs_chromiu
 from foreign_tactile import CHANNELS, GRID_MM, write_two_touch_recording
 
 from eskin.catalog import (
+    METRICS,
     PAIRS,
     TASK_NAMES,
     features_path,
     featurizer_path,
+    folds_path,
     model_path,
     processed_path,
     stack_path,
@@ -38,6 +40,7 @@ from eskin.data.schema import (
 from eskin.deploy.export import export_scene
 from eskin.deploy.stack import ExportedStack, SkinStack
 from eskin.deploy.view import LiveView
+from eskin.evaluation.folds import write_scene_folds
 from eskin.evaluation.pairs import score_pairs
 from eskin.kinds import (
     TOTAL_FORCE_ONLY,
@@ -83,16 +86,18 @@ def pipeline(tmp_path_factory, repo_params):
     ingested = ingest_step(params, "two", root / "data/raw/two", root / "data/processed")
     featurize_scene("two", root / "data/processed", root / "data/features", root / "models",
                     settings=params.featurize)
+    write_scene_folds(root / features_path("two"), root / folds_path("two"),
+                      schemes=list(params.cv.schemes), n_splits=int(params.cv.folds),
+                      seed=int(params.cv.seed), scene="two")
     trained = {task: train.train(
         "two", task, task_params=getattr(params.train, task),
         configuration=params.train.configuration, cv=params.cv,
-        features_dir=root / "data/features", track=False,
+        features_dir=root / "data/features",
         **{name: root / path for name, path in task_outputs("two", task).items()})
         for task in TASK_NAMES}
     pairs_outputs = task_outputs("two", PAIRS)
     paired = train.score_pairs("two", root / "reports/predictions",
-                               root / pairs_outputs["metrics_path"],
-                               root / pairs_outputs["scores_path"], track=False)
+                               root / pairs_outputs["scores_path"])
     outs = [featurizer_path("two"), *(model_path("two", task) for task in TASK_NAMES)]
     # dvc.lock as DVC records the outputs the stack is loaded from (their md5s)
     (root / "dvc.lock").write_text(yaml.safe_dump({"stages": {"train": {"outs": [
@@ -104,7 +109,8 @@ def pipeline(tmp_path_factory, repo_params):
         scenes=params.scenes, scores_dir=root / "reports/scores",
         predictions_dir=root / "reports/predictions", figures_dir=root / "reports/figures",
         plots_dir=root / "reports/plots", page_path=root / "reports/index.html",
-        results_path=root / "reports/results.md")
+        results_path=root / "reports/results.md",
+        metrics_path=root / METRICS)
     scores = {task: json.loads((root / task_outputs("two", task)["scores_path"]).read_text())
               for task in (*TASK_NAMES, PAIRS)}
     return {"root": root, "params": params, "ingested": ingested, "trained": trained,
@@ -159,9 +165,8 @@ def test_pairs_score_the_positions_and_skip_the_per_contact_forces_with_the_reas
         assert not any(name.startswith("force") for name in pairs[scheme])
     assert pairs["stratified"]["pair_accuracy"] > 0.9
     assert paired.summary.count(TOTAL_FORCE_ONLY) == 1
-    metrics = json.loads((pipeline["root"] / task_outputs("two", PAIRS)["metrics_path"])
-                         .read_text())
-    assert set(metrics["grouped"]) == {"pair_accuracy", "ghost_share"}
+    metrics = json.loads((pipeline["root"] / METRICS).read_text())
+    assert set(metrics["two"]["pairs"]) == {"pair_accuracy", "ghost_share"}
 
 
 def test_the_report_gives_the_total_force_and_says_once_why_there_is_no_per_contact_force(

@@ -17,8 +17,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
-from joblib import Parallel, delayed, parallel_config
+from joblib import Parallel, cpu_count, delayed, parallel_config
 from sklearn.base import BaseEstimator, clone
+from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
 from eskin.evaluation import metrics
@@ -39,9 +40,16 @@ class CVResult:
     fit_seconds: float = 0.0               # summed over folds
     predict_seconds: float = 0.0
     notes: dict[str, int] = field(default_factory=dict)  # fit remark → folds that made it
+    pooled: bool = False  # whether folds went to the n_jobs workers (:data:`POOL_PAYS_S`)
 
 
 LOKY_IDLE_S = 10
+# Starting a process pool costs a stage one to three seconds on this machine (each worker
+# imports scikit-learn). A fold faster than this runs the rest here; a slower one sends
+# the rest to the workers. A fold run here gets the BLAS and OpenMP threads a worker
+# would (joblib gives each cpu_count // n_jobs), as the thread count moves a model's
+# last digits: where a fold runs changes no result.
+POOL_PAYS_S = 1.0
 
 
 DASK_CONNECT_S = 30        # a lab cluster that does not answer in this long is an error
@@ -145,12 +153,14 @@ def _fit_predict_fold(estimator: BaseEstimator, X: np.ndarray, channels: list[st
 
 
 def cross_validate(task: Task, frame: pd.DataFrame, folds: np.ndarray, estimator: BaseEstimator,
-                   scheme: str, skin: AnySkin, *, n_jobs: int = 1,
+                   scheme: str, skin: AnySkin, *, n_jobs: int = 1, probe: bool = False,
                    progress: str | None = None) -> CVResult:
     """Score ``estimator`` on ``task`` over the given fold assignment of ``frame``'s rows,
     readings of ``skin``; where the skin places its nodes in mm, each contact's position
     error in mm too.
 
+    ``n_jobs``: folds in parallel; with ``probe``, only if the first fold, run here, took
+    :data:`POOL_PAYS_S` or longer (``CVResult.pooled`` says which).
     ``progress``: a label, and a progress bar of the folds on stderr (as they finish)."""
     rows = task.rows(frame)
     data = frame[rows].reset_index(drop=True)
@@ -169,12 +179,25 @@ def cross_validate(task: Task, frame: pd.DataFrame, folds: np.ndarray, estimator
           tqdm(total=len(splits), desc=progress, unit="fold", disable=progress is None,
                file=sys.stderr, leave=False) as bar):
         outcomes = []
-        for outcome in Parallel(n_jobs=n_jobs, return_as="generator")(
-                delayed(_fit_predict_fold)(estimator, X, channels, target_frame, splitter, k,
-                                           binary)
-                for k in range(len(splits))):
-            outcomes.append(outcome)
-            bar.update()
+        if probe and n_jobs != 1 and splits:
+            with threadpool_limits(max(cpu_count() // n_jobs, 1)):
+                started = time.perf_counter()
+                outcomes.append(_fit_predict_fold(estimator, X, channels, target_frame,
+                                                  splitter, 0, binary))
+                bar.update()
+                if time.perf_counter() - started < POOL_PAYS_S:
+                    for k in range(1, len(splits)):
+                        outcomes.append(_fit_predict_fold(estimator, X, channels,
+                                                          target_frame, splitter, k, binary))
+                        bar.update()
+        pooled = len(outcomes) < len(splits) and n_jobs != 1
+        if len(outcomes) < len(splits):
+            for outcome in Parallel(n_jobs=n_jobs, return_as="generator")(
+                    delayed(_fit_predict_fold)(estimator, X, channels, target_frame, splitter,
+                                               k, binary)
+                    for k in range(len(outcomes), len(splits))):
+                outcomes.append(outcome)
+                bar.update()
 
     score: Callable = metrics.SCORERS[task.scorer]
     predictions = data.drop(columns=channels).assign(fold=fold_of)
@@ -206,7 +229,7 @@ def cross_validate(task: Task, frame: pd.DataFrame, folds: np.ndarray, estimator
         summary={name: metrics.summarise(scores) for name, scores in per_fold.items()},
         confusion=confusion,
         fit_seconds=sum(o[1] for o in outcomes), predict_seconds=sum(o[2] for o in outcomes),
-        notes=dict(Counter(note for o in outcomes for note in o[3])))
+        notes=dict(Counter(note for o in outcomes for note in o[3])), pooled=pooled)
 
 
 def _dtype(values: np.ndarray) -> str:

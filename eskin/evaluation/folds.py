@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import warnings
 from itertools import islice
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -132,3 +133,39 @@ def fold_splitter(fold_of: np.ndarray, n_folds: int | None = None) -> FoldSplit:
     """The splitter over a task's rows given their fold numbers (``assign_folds``' array
     restricted to the task's rows): every fold, or the first ``n_folds``."""
     return FoldSplit(fold_of, n_folds)
+
+
+def write_scene_folds(features: Path, out: Path, *, schemes: list[str], n_splits: int,
+                      seed: int, scene: str) -> str:
+    """Every scheme's fold numbers for a scene's rows, drawn once (the folds stage): one
+    column per scheme, in ``schemes``' order, beside the row's trial (checked by
+    :func:`read_scene_folds`). Every task and model variant of the scene reads them."""
+    from eskin.data.schema import dataset_kind, dataset_skin, read_dataset
+
+    frame = read_dataset(features)
+    kind, skin = dataset_kind(features).name, dataset_skin(features)
+    columns = {"trial": frame["trial"].to_numpy()}
+    for scheme in schemes:
+        try:
+            columns[scheme] = assign_folds(frame, kind, scheme, n_splits, seed, skin=skin)
+        except ValueError as err:
+            raise ValueError(f"scenes.{scene} ({features}): {err}") from None
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    pd.DataFrame(columns).to_parquet(out, index=False)
+    return (f"{scene}: {n_splits} folds of {len(frame):,} rows, "
+            f"{len(np.unique(columns['trial'])):,} trials, for {', '.join(schemes)} CV")
+
+
+def read_scene_folds(path: Path, frame: pd.DataFrame) -> dict[str, np.ndarray]:
+    """The fold numbers of ``frame``'s rows by scheme, as the folds stage drew them for
+    these very rows (same count, same trials, in order)."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no folds; run `dvc repro folds@{path.stem}` first")
+    folds = pd.read_parquet(path)
+    if len(folds) != len(frame) or not np.array_equal(folds["trial"].to_numpy(),
+                                                      frame["trial"].to_numpy()):
+        raise ValueError(f"{path}: its {len(folds):,} rows are not the features' "
+                         f"{len(frame):,} rows in order; run `dvc repro folds@{path.stem}`")
+    return {scheme: folds[scheme].to_numpy() for scheme in folds.columns if scheme != "trial"}

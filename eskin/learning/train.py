@@ -1,14 +1,16 @@
 """Pipeline steps of learning, shared by the DVC stages and the command line.
 
 ``train`` cross-validates one task of a scene under each CV scheme, refits it
-on all the data, saves scores (and their headline as DVC metrics), out-of-fold
-predictions and models, and logs an MLflow run; ``score_pairs`` scores a
-two-force scene's contacts as sets.
+on all the data, and saves scores, out-of-fold predictions, models and a record of the
+run (which the tracking stage logs to MLflow); ``score_pairs`` scores a two-force
+scene's contacts as sets.
 """
 
 from __future__ import annotations
 
 import json
+import os
+import socket
 import sys
 import time
 from collections.abc import Callable
@@ -18,8 +20,7 @@ from typing import Any
 
 import pandas as pd
 
-from eskin.catalog import HEADLINE_SCHEME, PAIRS_HEADLINE
-from eskin.config import CV, Params, TaskModels
+from eskin.config import CV, TaskModels
 from eskin.data.schema import (
     dataset_kind,
     dataset_skin,
@@ -29,7 +30,7 @@ from eskin.data.schema import (
     read_metadata,
 )
 from eskin.evaluation.crossval import cross_validate, fit_final, parallel_backend
-from eskin.evaluation.folds import assign_folds
+from eskin.evaluation.folds import read_scene_folds
 from eskin.kinds import DATASET_KINDS, TOTAL_FORCE_ONLY
 from eskin.learning.estimators import build_model, model_for_skin, model_settings
 from eskin.learning.saved import save_models
@@ -39,8 +40,7 @@ from eskin.learning.tasks import Task, get_task
 @dataclass(frozen=True)
 class Trained:
     """What :func:`train` did: ``status`` is ``trained`` or ``skipped`` (``reason``);
-    ``results`` the cross-validation of each scheme; ``run_id`` and ``registered`` the
-    MLflow run and model versions (empty when not tracked)."""
+    ``results`` the cross-validation of each scheme."""
 
     scene: str
     task: str
@@ -49,30 +49,28 @@ class Trained:
     summary: str
     reason: str = ""
     results: list = field(default_factory=list)
-    run_id: str = ""
-    registered: list[str] = field(default_factory=list)
 
 
 def train(scene: str, task_name: str, *, task_params: TaskModels, configuration: str, cv: CV,
-          features_dir: Path, metrics_path: Path, scores_path: Path, predictions_path: Path,
-          model_path: Path, lineage_path: Path | None = None,
-          pipeline_params: Params | None = None, track: bool = True,
+          features_dir: Path, folds_path: Path, scores_path: Path, predictions_path: Path,
+          model_path: Path, lineage_path: Path | None = None, record_path: Path | None = None,
           log: Callable[[str], None] = lambda message: print(message, file=sys.stderr,
                                                                flush=True)) -> Trained:
-    """Cross-validate one task under each CV scheme (a progress bar per scheme), refit,
-    save, and log to MLflow, on the skin the features were taken on. A model that reads a
-    row/column skin's terminals is replaced, on a channel array, by its generic model
+    """Cross-validate one task on the scene's folds (``folds_path``, every scheme drawn
+    once by the folds stage; a progress bar per scheme), refit and save, on the skin the
+    features were taken on. A model that reads a row/column skin's terminals is replaced,
+    on a channel array, by its generic model
     (:func:`~eskin.learning.estimators.model_for_skin`), and the summary says so.
 
     ``task_params`` is the task's ``train.<task>`` section, ``configuration``
-    ``train.configuration``, ``cv`` the ``cv`` section; ``pipeline_params`` (the whole
-    params, not read here) goes to the MLflow pipeline run when ``track``.
+    ``train.configuration``; of ``cv`` only how folds run (``n_jobs``, ``backend``).
 
     ``lineage_path`` (uncached in dvc.yaml, which turns DVC's run cache off for the
-    stage): what trained the model. With the run cache on, a queued experiment whose
-    task had run before was restored without running, so it left no MLflow run.
+    stage): what trained the model. ``record_path`` (not a DVC output, so its times never
+    reach dvc.lock): when and how long it ran, and each fold's scores, for the tracking
+    stage (:mod:`eskin.tracking.runs`) to log; a task DVC reused has none.
     """
-    started = time.perf_counter()
+    started, started_at = time.perf_counter(), time.time()
     source = Path(features_dir) / f"{scene}.parquet"
     if not source.exists():
         raise FileNotFoundError(f"{source}: no features; run `dvc repro featurize@{scene}` first")
@@ -98,22 +96,19 @@ def train(scene: str, task_name: str, *, task_params: TaskModels, configuration:
         if lineage_path is not None:
             write_json({**header, "status": "skipped"}, lineage_path)
         write_json({**header, "status": "skipped", "reason": reason}, scores_path)
-        write_json({}, metrics_path)
         save_predictions(pd.DataFrame(), predictions_path)
         save_models({"skipped": reason}, model_path)
         return Trained(scene, task_name, model_name, "skipped",
                        f"{scene}/{task_name}: skipped — {reason}", reason=reason)
 
-    results = []
+    results: list = []
+    n_jobs = int(cv.n_jobs)
     with parallel_backend(cv.backend):
-        for scheme in cv.schemes:
-            try:
-                folds = assign_folds(frame, kind, scheme, int(cv.folds), int(cv.seed),
-                                     skin=skin)
-            except ValueError as err:  # before any fold runs: name the scene
-                raise ValueError(f"scenes.{scene} ({source}): {err}") from None
+        for scheme, folds in read_scene_folds(folds_path, frame).items():
+            # the first scheme's first fold decides whether a pool pays (crossval.POOL_PAYS_S)
             results.append(cross_validate(
-                task, frame, folds, estimator, scheme, skin, n_jobs=int(cv.n_jobs),
+                task, frame, folds, estimator, scheme, skin, probe=not results,
+                n_jobs=n_jobs if not results or results[0].pooled else 1,
                 progress=f"{scene}/{task_name} [{model_name}] {scheme} CV"))
     log(f"{scene}/{task_name} [{model_name}]: refitting on all {len(frame):,} rows …")
     models = fit_final(task, frame, estimator, skin)
@@ -126,51 +121,27 @@ def train(scene: str, task_name: str, *, task_params: TaskModels, configuration:
     if confusion:
         scores_doc["confusion"] = confusion
     write_json(scores_doc, scores_path)
-    name = task.headline_metric
-    write_json(headline_metrics({r.scheme: {target: {name: r.summary[target][name]}
-                                            for target in task.targets}
-                                 for r in results}), metrics_path)
     if lineage_path is not None:
         write_json({**header, "status": "trained", "features_md5": md5_file(source)},
                    lineage_path)
     save_predictions(pd.concat([r.predictions.assign(scheme=r.scheme) for r in results],
                                ignore_index=True), predictions_path)
-    run_note, tracked = "", None
-    if track:
-        from eskin.tracking import runs  # MLflow takes seconds to import; only training needs it
-
-        tracked = runs.log_task_run(
-            scene=scene, task=task_name,
-            params={"model": model_name, model_name: hyper, "cv": cv.model_dump()},
-            pipeline_params=pipeline_params, results=results, models=models,
-            dataset=frame.drop(columns=["session", "trial", "seq", "t_ms"]),
-            channels=skin.channels,
-            dataset_digest=meta["dataset"]["md5"], dataset_source=meta["dataset"]["path"],
-            started=started,
-            extra_tags={"eskin.model_md5": header["model_md5"], "eskin.model": model_name,
-                        "eskin.features_md5": md5_file(source),
-                        "eskin.featurize_method": meta["featurize"]["method"],
-                        "eskin.dataset_rows": str(meta["dataset"]["rows"]),
-                        "eskin.dataset_source": describe_source(meta)})
-        run_note = (f"; MLflow run {tracked.run_id}, registered "
-                    f"{', '.join(tracked.registered)}")
+    if record_path is not None:
+        write_json({"model_md5": header["model_md5"], "hyperparameters": hyper,
+                    "started": started_at, "ended": time.time(),
+                    "wall_seconds": time.perf_counter() - started,
+                    "host": socket.gethostname(), "pid": os.getpid(),
+                    "timings": {r.scheme: {"fit_seconds": r.fit_seconds,
+                                           "predict_seconds": r.predict_seconds}
+                                for r in results},
+                    "per_fold": {r.scheme: r.per_fold for r in results}}, record_path)
     headline = ", ".join(f"{r.scheme} {_headline(task, r.summary)}" for r in results)
     notes = "".join(f"\n  note ({r.scheme}, {n} of {len(r.per_fold[next(iter(r.per_fold))])} "
                     f"folds): {text}" for r in results for text, n in sorted(r.notes.items()))
     if model_note:
         notes = f"\n  note: {model_note}" + notes
     return Trained(scene, task_name, model_name, "trained",
-                   f"{scene}/{task_name} [{model_name}]: {headline}{run_note}{notes}",
-                   results=results, run_id=tracked.run_id if tracked else "",
-                   registered=list(tracked.registered) if tracked else [])
-
-
-def headline_metrics(by_scheme: dict[str, dict]) -> dict[str, dict]:
-    """What DVC's metrics file holds: the headline scheme's headline scores (or, without
-    that scheme, every scheme's), so `dvc exp show --only-changed` fits a terminal."""
-    if HEADLINE_SCHEME in by_scheme:
-        return {HEADLINE_SCHEME: by_scheme[HEADLINE_SCHEME]}
-    return by_scheme
+                   f"{scene}/{task_name} [{model_name}]: {headline}{notes}", results=results)
 
 
 def _headline(task: Task, summary: dict[str, dict[str, float]]) -> str:
@@ -198,23 +169,20 @@ def save_predictions(frame: pd.DataFrame, path: Path) -> None:
 @dataclass(frozen=True)
 class PairsScored:
     """What :func:`score_pairs` did: ``status`` is ``scored`` or ``skipped``
-    (``reason``); ``scores`` per scheme; ``run_id`` the MLflow run (empty if not tracked)."""
+    (``reason``); ``scores`` per scheme."""
 
     scene: str
     status: str
     summary: str
     reason: str = ""
     scores: dict = field(default_factory=dict)
-    run_id: str = ""
 
 
-def score_pairs(scene: str, predictions_dir: Path, metrics_path: Path, scores_path: Path, *,
-                pipeline_params: Params | None = None, track: bool = True) -> PairsScored:
+def score_pairs(scene: str, predictions_dir: Path, scores_path: Path) -> PairsScored:
     """Score a two-force scene's contacts as sets (order-free), from its tasks' predictions;
     the scene's kind and dataset come from the localise task's scores (beside ``scores_path``).
     A recording of the contacts' total force only has its positions scored, and its
-    per-contact force scores skipped with the reason (``skipped_scores``).
-    ``pipeline_params`` (the whole params, not read here) goes to the MLflow pipeline run."""
+    per-contact force scores skipped with the reason (``skipped_scores``)."""
     from eskin.evaluation.pairs import score_pairs as score
 
     directory = Path(predictions_dir) / scene
@@ -223,7 +191,6 @@ def score_pairs(scene: str, predictions_dir: Path, metrics_path: Path, scores_pa
 
     def skip(reason: str) -> None:
         write_json({**scores_doc, "status": "skipped", "reason": reason}, scores_path)
-        write_json({}, metrics_path)
 
     kind = DATASET_KINDS.get(localise.get("kind", ""))
     if kind is None or kind.contacts < 2:
@@ -246,22 +213,10 @@ def score_pairs(scene: str, predictions_dir: Path, metrics_path: Path, scores_pa
                            f"{', '.join(skipped)} skipped", reason)
     scores = score(frames["localise"], frames.get("force"))
     write_json({**scores_doc, "status": "scored", **scores}, scores_path)
-    write_json(headline_metrics({scheme: {name: values[name] for name in PAIRS_HEADLINE
-                                          if name in values}
-                                 for scheme, values in scores.items()}), metrics_path)
-    run_note, run_id = "", ""
-    if track:
-        from eskin.tracking import runs
-
-        run_id = runs.log_scores_run(scene=scene, task="pairs", scores=scores,
-                                     pipeline_params=pipeline_params,
-                                     dataset_digest=localise.get("dataset_md5", ""))
-        run_note = f"; MLflow run {run_id}"
     parts = [f"{scheme} pair {s['pair_accuracy']:.3f} (ordered {s['pair_accuracy_ordered']:.3f})"
              + (f", force R² {s['force_r2']:.3f}" if "force_r2" in s else "")
              for scheme, s in scores.items()]
     not_scored = "".join(f"; {what} scores skipped — {reason}"
                          for what, reason in scores_doc.get("skipped_scores", {}).items())
     return PairsScored(scene, "scored",
-                       f"{scene}/pairs: {'; '.join(parts)}{not_scored}{run_note}",
-                       scores=scores, run_id=run_id)
+                       f"{scene}/pairs: {'; '.join(parts)}{not_scored}", scores=scores)

@@ -20,7 +20,7 @@ from typing import Any
 import matplotlib.pyplot as plt
 import pandas as pd
 
-from eskin.catalog import SCORED_TASKS
+from eskin.catalog import HEADLINE_SCHEME, PAIRS, PAIRS_HEADLINE, SCORED_TASKS
 from eskin.config import Report, Scene, scene_kind, scene_skin
 from eskin.data.schema import force_columns, node_columns
 from eskin.kinds import Figure, Headline, get_kind
@@ -202,10 +202,11 @@ class Reported:
 
 def report(*, report: Report, scenes: Mapping[str, Scene], scores_dir: Path,
            predictions_dir: Path, figures_dir: Path, plots_dir: Path, page_path: Path,
-           results_path: Path, run: Provenance | None = None) -> Reported:
-    """Figures, plot data, the page and the results of every scene in ``scenes`` (the
-    ``scenes`` section: which, and their kinds), with the ``report`` section; ``run``:
-    which commit and experiment the page says it shows (:func:`provenance`)."""
+           results_path: Path, metrics_path: Path, run: Provenance | None = None) -> Reported:
+    """Figures, plot data, the page, the results and DVC's metrics of every scene in
+    ``scenes`` (the ``scenes`` section: which, and their kinds), with the ``report``
+    section; ``run``: which commit and experiment the page says it shows
+    (:func:`provenance`)."""
     settings = report
     kinds = {name: scene_kind(scene).name for name, scene in scenes.items()}
     skins = {name: scene_skin(scene) for name, scene in scenes.items()}
@@ -258,8 +259,34 @@ def report(*, report: Report, scenes: Mapping[str, Scene], scores_dir: Path,
     href = Path(os.path.relpath(figures_dir, Path(page_path).parent)).as_posix()
     Path(page_path).write_text(render_page(scenes, page_figures, run or Provenance(), href))
     Path(results_path).write_text(results_markdown(scenes))
+    Path(metrics_path).write_text(json.dumps(headline_metrics(scores), indent=2) + "\n")
     return Reported(kinds, written, figures_dir, plots_dir, Path(page_path), Path(results_path),
                     f"report: {len(kinds)} scene(s), {written} figures (PNG + SVG) in "
                     f"{figures_dir}, plot data in {plots_dir}, {page_path}, results in "
-                    f"{results_path}")
+                    f"{results_path}, headline scores in {metrics_path}")
 
+
+
+def headline_metrics(scores: Mapping[str, Mapping[str, dict]]) -> dict[str, dict]:
+    """DVC's metrics, one table for every scene: each scored task's headline scores under
+    the headline scheme (``<scene>.<task>.<target>.<score>``, the target left out where
+    it is the task: ``single_force.force.r2``; a pairs score sits under its task).
+    ``scores``: every scene's scores files by task. A skipped task has no entry."""
+    from eskin.learning.tasks import get_task
+
+    metrics: dict[str, dict] = {}
+    for scene, by_task in scores.items():
+        for task_name, doc in by_task.items():
+            scheme = doc.get(HEADLINE_SCHEME)
+            if doc.get("status") not in ("trained", "scored") or not scheme:
+                continue
+            if task_name == PAIRS:
+                entry = {name: scheme[name] for name in PAIRS_HEADLINE if name in scheme}
+            else:
+                task = get_task(doc["kind"], task_name)
+                entry = {}
+                for target in task.targets:
+                    score = {task.headline_metric: scheme[target][task.headline_metric]}
+                    entry.update(score if target == task_name else {target: score})
+            metrics.setdefault(scene, {})[task_name] = entry
+    return metrics

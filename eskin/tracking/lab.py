@@ -1,15 +1,20 @@
-"""A lab's tracking server: MLflow on PostgreSQL, its artifacts served by MLflow.
+"""A lab's servers: MLflow on PostgreSQL, its artifacts served by MLflow; a DVC remote.
 
 One researcher's clone logs to SQLite in the project (``mlflow.db``). A lab shares
 one server: PostgreSQL as MLflow's backend store, and ``mlflow server
 --serve-artifacts``, so that clients send artifacts through the server and need no
 access to its disk. Every clone then sets ``MLFLOW_TRACKING_URI`` to the server's
 address; the pipeline is unchanged. ``make lab-server`` (``python -m eskin.tracking.lab
-serve``) starts both on 127.0.0.1 with their data under ``.lab/``; a lab that serves
-other machines puts the server behind its own network or SSH tunnel.
+serve``) starts them, and the DVC remote below, on 127.0.0.1 with their data under
+``.lab/``; a lab that serves other machines puts them behind its own network or SSH tunnel.
 
 PostgreSQL refuses to run as root: as root, its commands run as Debian's
 ``postgres`` user, which owns the data directory.
+
+The lab's data (DVC's outputs: datasets, models, scores) is shared the same way: a DVC
+remote in ``.lab/dvc-remote``, served over SFTP by Debian's OpenSSH server on 127.0.0.1
+(``dvc-ssh`` is DVC's client for it), to a key made for it. A clone adds the remote,
+``dvc pull``s what another pushed, and runs no stage to get it.
 """
 
 from __future__ import annotations
@@ -18,6 +23,7 @@ import argparse
 import contextlib
 import glob
 import os
+import pwd
 import shutil
 import signal
 import socket
@@ -163,6 +169,148 @@ class TrackingServer:
                 self.process.wait(timeout=15)
 
 
+SSHD = "/usr/sbin/sshd"  # Debian's openssh-server; run by absolute path (it re-executes itself)
+
+
+@dataclass
+class DataRemote:
+    """DVC's remote for a lab: ``directory/dvc-remote`` served over SFTP by OpenSSH's sshd
+    on 127.0.0.1:``port``, to one key, made for it (``directory/ssh/client_ed25519``)."""
+
+    directory: Path
+    port: int
+    process: subprocess.Popen | None = None
+
+    @property
+    def ssh(self) -> Path:
+        return self.directory / "ssh"
+
+    @property
+    def objects(self) -> Path:
+        return self.directory / "dvc-remote"
+
+    @property
+    def key(self) -> Path:
+        return self.ssh / "client_ed25519"
+
+    @property
+    def host_key(self) -> Path:
+        return self.ssh / "host_ed25519"
+
+    @property
+    def log(self) -> Path:
+        return self.ssh / "sshd.log"
+
+    @property
+    def user(self) -> str:
+        return pwd.getpwuid(os.geteuid()).pw_name  # the one AllowUsers lets in
+
+    @property
+    def url(self) -> str:
+        return f"ssh://{self.user}@127.0.0.1:{self.port}{self.objects}"
+
+    def clone_commands(self, name: str = "lab") -> list[str]:
+        """What a clone runs to use the remote: in its .dvc/config.local (the remote is this
+        machine's, and git status stays clean). No known_hosts line: DVC's SSH client
+        (sshfs) connects with ``known_hosts=None``, checking no host key."""
+        return [f"dvc remote add --local --default {name} {self.url}",
+                f"dvc remote modify --local {name} keyfile {self.key}"]
+
+    def _keygen(self, path: Path, comment: str) -> None:
+        if path.exists():  # kept across restarts: clones keep their keyfile and known_hosts
+            return
+        done = subprocess.run(["ssh-keygen", "-q", "-t", "ed25519", "-N", "", "-C", comment,
+                               "-f", str(path)], capture_output=True, text=True,
+                              timeout=START_S)
+        if done.returncode != 0:
+            raise LabServerError(f"ssh-keygen {path} failed: {done.stderr.strip()}")
+
+    def _write_config(self) -> Path:
+        authorized = self.ssh / "authorized_keys"
+        # restrict: no forwarding, no terminal; ForceCommand below: SFTP only, which is all
+        # DVC's remote does.
+        authorized.write_text("restrict " + self.key.with_suffix(".pub").read_text())
+        authorized.chmod(0o600)
+        config = self.ssh / "sshd_config"
+        config.write_text("\n".join([
+            f"ListenAddress 127.0.0.1:{self.port}",
+            f"HostKey {self.host_key}",
+            f"PidFile {self.ssh / 'sshd.pid'}",
+            f"AuthorizedKeysFile {authorized}",
+            f"AllowUsers {self.user}",
+            "PermitRootLogin prohibit-password",
+            "PubkeyAuthentication yes",
+            "PasswordAuthentication no",
+            "KbdInteractiveAuthentication no",
+            "UsePAM no",
+            # The lab's directory may sit under a world-writable one (/tmp), which sshd's
+            # check of every parent refuses; its own files are the user's, 0600 in 0700.
+            "StrictModes no",
+            "Subsystem sftp internal-sftp",
+            "ForceCommand internal-sftp",
+            "AllowTcpForwarding no",
+            "AllowAgentForwarding no",
+            "X11Forwarding no",
+            "PermitTTY no",
+            "",
+        ]))
+        return config
+
+    def start(self) -> None:
+        if not os.access(SSHD, os.X_OK):
+            raise LabServerError(f"OpenSSH's sshd is not installed ({SSHD}): run `make "
+                                 "lab-server` (it installs Debian's openssh-server where missing)")
+        self.ssh.mkdir(parents=True, exist_ok=True)
+        self.ssh.chmod(0o700)
+        self.objects.mkdir(parents=True, exist_ok=True)
+        self._keygen(self.host_key, "eskin lab: the DVC remote's host key")
+        self._keygen(self.key, "eskin lab: DVC remote")
+        config = self._write_config()
+        if os.geteuid() == 0:  # Debian's sshd, as root, separates privileges there
+            Path("/run/sshd").mkdir(mode=0o755, exist_ok=True)
+        with self.log.open("ab") as log:
+            self.process = subprocess.Popen([SSHD, "-D", "-e", "-f", str(config)],
+                                            stdout=log, stderr=subprocess.STDOUT,
+                                            start_new_session=True)
+        deadline = time.monotonic() + START_S
+        while time.monotonic() < deadline:
+            if self.process.poll() is not None:
+                tail = self.log.read_text(errors="replace").strip().splitlines()[-1:]
+                raise LabServerError(f"sshd exited ({self.process.returncode}): "
+                                     f"{tail[0] if tail else '?'} (log: {self.log})")
+            try:  # up when it greets: an SSH server's first line is its version
+                with socket.create_connection(("127.0.0.1", self.port), timeout=2) as peer:
+                    if peer.recv(8).startswith(b"SSH-"):
+                        return
+            except OSError:
+                pass
+            time.sleep(0.25)
+        self.stop()
+        raise LabServerError(f"sshd did not answer on 127.0.0.1:{self.port} within "
+                             f"{START_S:g} s; its log: {self.log}")
+
+    def stop(self) -> None:
+        if self.process is not None and self.process.poll() is None:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(self.process.pid, signal.SIGTERM)
+            try:
+                self.process.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                os.killpg(self.process.pid, signal.SIGKILL)
+                self.process.wait(timeout=15)
+
+
+@contextlib.contextmanager
+def data_remote(directory: Path, *, port: int | None = None) -> Iterator[DataRemote]:
+    """The lab's DVC remote over SSH on 127.0.0.1, stopped on exit."""
+    remote = DataRemote(Path(directory).resolve(), port or free_port())
+    remote.start()
+    try:
+        yield remote
+    finally:
+        remote.stop()
+
+
 @contextlib.contextmanager
 def lab_server(directory: Path, *, pg_port: int | None = None,
                port: int | None = None) -> Iterator[tuple[Postgres, TrackingServer]]:
@@ -186,17 +334,20 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m eskin.tracking.lab", description=__doc__.split(
         "\n\n")[0])
     commands = parser.add_subparsers(dest="command", required=True)
-    serve = commands.add_parser("serve", help="start PostgreSQL and the MLflow server on it "
-                                "until Ctrl-C")
+    serve = commands.add_parser("serve", help="start PostgreSQL and the MLflow server on it, "
+                                "and the DVC remote over SSH, until Ctrl-C")
     serve.add_argument("--dir", type=Path, default=Path(".lab"),
                        help="where the database and the artifacts live (default .lab)")
     serve.add_argument("--port", type=int, default=5000, help="MLflow's port (default 5000)")
     serve.add_argument("--pg-port", type=int, default=5433,
                        help="PostgreSQL's port (default 5433)")
+    serve.add_argument("--ssh-port", type=int, default=2222,
+                       help="the DVC remote's SSH port (default 2222)")
     args = parser.parse_args(argv)
 
     def serve_until_stopped() -> int:
-        with lab_server(args.dir, pg_port=args.pg_port, port=args.port) as (database, tracking):
+        with lab_server(args.dir, pg_port=args.pg_port, port=args.port) as (database, tracking), \
+                data_remote(args.dir, port=args.ssh_port) as remote:
             # The experiment made now, so that its page (in the training view) can be named.
             os.environ["MLFLOW_TRACKING_URI"] = tracking.uri
             from eskin.tracking import runs
@@ -207,7 +358,10 @@ def main(argv: list[str] | None = None) -> int:
                       f"artifacts in {tracking.artifacts}); in each clone:\n"
                       f"  export MLFLOW_TRACKING_URI={tracking.uri}\n"
                       f"The training runs: {runs.ui_url(experiment)}\n"
-                      "Ctrl-C stops both.", flush=True)
+                      f"DVC remote over SSH on 127.0.0.1:{remote.port} (objects in "
+                      f"{remote.objects}); in each clone:\n"
+                      + "".join(f"  {command}\n" for command in remote.clone_commands()) +
+                      "Ctrl-C stops them.", flush=True)
                 while tracking.process.poll() is None:
                     time.sleep(1)
             except KeyboardInterrupt:

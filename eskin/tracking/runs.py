@@ -6,12 +6,14 @@ stage runs in a temporary copy of the repository, so the project is found
 through ``DVC_ROOT`` (set by DVC to the parent repository) and every
 experiment logs to the same store. ``MLFLOW_TRACKING_URI`` overrides it all.
 
-A pipeline run — all the stages of one ``dvc repro`` or one ``dvc exp run``
-— is a parent run keyed by the DVC experiment name, or, outside ``dvc exp``,
-by the git commit and the params file; each stage finds its parent by that
-key (creating it on first use) and logs its own run under it. The parent
-carries the whole params file (for ``eskin compare``); each task run registers
-its final models with the run's lineage as version tags (for ``eskin reproduce``).
+No training stage talks to MLflow: the tracking stage, last in the pipeline, logs one
+``dvc repro`` or ``dvc exp run`` in one process (:func:`track_pipeline`). Its pipeline
+run is keyed by the DVC experiment name, or, outside ``dvc exp``, by the git commit and
+the params; it holds the params the pipeline reads (for ``eskin compare``) and the
+headline scores. Under it, one run per task: a task trained by this pipeline logs its
+scores, predictions, figures and models, registered with the run's lineage as version
+tags (for ``eskin reproduce``); a task DVC reused logs its scores and names the run
+that trained it.
 """
 
 from __future__ import annotations
@@ -27,8 +29,9 @@ import tempfile
 import time
 import warnings
 from collections.abc import Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any
 
 os.environ.setdefault("MLFLOW_ENABLE_TELEMETRY", "false")
 os.environ.setdefault("MLFLOW_DISABLE_TELEMETRY", "true")
@@ -42,11 +45,12 @@ os.environ.setdefault("MLFLOW_HTTP_REQUEST_TIMEOUT", "60")
 
 import mlflow  # noqa: E402 - telemetry must be off before import
 import pandas as pd  # noqa: E402
-from mlflow.entities import Param  # noqa: E402
+from mlflow.entities import Metric, Param  # noqa: E402
 from mlflow.models import infer_signature  # noqa: E402
 from mlflow.tracking import MlflowClient  # noqa: E402
 
 from eskin.errors import EskinError  # noqa: E402
+from eskin.tracking import store  # noqa: E402
 
 EXPERIMENT = "eskin"
 PIPELINE_TAG = "eskin.pipeline"
@@ -74,7 +78,7 @@ def project_root() -> Path:
 
 
 def tracking_uri() -> str:
-    return os.environ.get("MLFLOW_TRACKING_URI") or f"sqlite:///{project_root() / 'mlflow.db'}"
+    return os.environ.get("MLFLOW_TRACKING_URI") or store.own_uri(project_root())
 
 
 def connect() -> MlflowClient:
@@ -99,23 +103,12 @@ def dvc_experiment() -> str:
 
 def pipeline_key(params: Mapping[str, Any], commit: str) -> str:
     """The same for every stage of one ``dvc repro`` / ``dvc exp run``: the DVC
-    experiment's name, or the commit and the params (as :func:`logged_params` gives them)."""
+    experiment's name, or the commit and the params (the sections the pipeline reads)."""
     if dvc_experiment():
         return f"exp:{dvc_experiment()}"
     text = json.dumps(params, sort_keys=True, default=str)
     digest = hashlib.sha256(f"{commit}\n{text}".encode()).hexdigest()[:16]
     return f"repro:{digest}"
-
-
-def logged_params(params: Any | None) -> dict[str, Any]:
-    """The whole params file (a :class:`eskin.config.Params`) as the pipeline run logs it:
-    as written, keys the file leaves out left out (flattened by :func:`flatten`). Not a
-    stage's knobs: read under the trace's proxy without noting them."""
-    if params is None:
-        return {}
-    from eskin.config import untraced
-
-    return untraced(params).model_dump(exclude_unset=True)
 
 
 # MLflow 3's UI opens an experiment in its GenAI view (traces, token usage) unless told
@@ -130,14 +123,15 @@ def variant_name(key: str) -> str:
 
 
 def _experiment_id(client: MlflowClient, name: str) -> str:
-    experiment = client.get_experiment_by_name(name)
+    # Not "MLFLOW_TRACKING_URI unset": mlflow.set_tracking_uri (connect) sets it.
+    own_store = tracking_uri() == store.own_uri(project_root())
+    experiment = (store.own_experiment(client, name, project_root()) if own_store
+                  else client.get_experiment_by_name(name))
     if experiment is not None:
         if experiment.tags.get(EXPERIMENT_KIND) != MODEL_TRAINING:  # made by an older eskin
             client.set_experiment_tag(experiment.experiment_id, EXPERIMENT_KIND, MODEL_TRAINING)
         return experiment.experiment_id
-    location = None
-    if not os.environ.get("MLFLOW_TRACKING_URI"):
-        location = (project_root() / "mlruns").as_uri()
+    location = store.artifact_root(project_root()) if own_store else None
     try:
         return client.create_experiment(name, artifact_location=location,
                                         tags={EXPERIMENT_KIND: MODEL_TRAINING})
@@ -151,7 +145,7 @@ def parent_run(client: MlflowClient, experiment_id: str, key: str,
                start_time: int | None = None) -> str:
     """The id of the pipeline run keyed ``key``, created on first use.
 
-    It carries the whole params file, flattened, so that variants can be told
+    It carries the params the pipeline reads, flattened, so that variants can be told
     apart by the params that differ (``eskin compare``).
     """
     found = client.search_runs([experiment_id], filter_string=f"tags.`{PIPELINE_TAG}` = '{key}'"
@@ -213,84 +207,6 @@ def settle_stale_runs(client: MlflowClient, experiment_ids: list[str]) -> list[s
     return settled
 
 
-def _pipeline(scene: str, pipeline_params: Any | None, start_time: int | None = None
-              ) -> tuple[str, str, str, dict[str, str]]:
-    """(experiment id, parent run id, pipeline key, common tags) for a stage's run; a parent
-    made now starts at ``start_time`` (ms since the epoch: the stage's start)."""
-    client = connect()
-    experiment_id = _experiment_id(client, EXPERIMENT)
-    settle_stale_runs(client, [experiment_id])
-    params = logged_params(pipeline_params)
-    key, tags = _pipeline_key_and_tags(params)
-    tags["eskin.scene"] = scene
-    return (experiment_id, parent_run(client, experiment_id, key, tags, params,
-                                      start_time), key, tags)
-
-
-def _pipeline_key_and_tags(params: Mapping[str, Any]) -> tuple[str, dict[str, str]]:
-    """The pipeline run's key (commit and params) and the tags every run of it carries."""
-    commit = git_commit(project_root())
-    return pipeline_key(params, commit), {
-        "eskin.git_commit": commit, "mlflow.source.git.commit": commit,
-        "eskin.dvc_experiment": dvc_experiment()}
-
-
-def _epoch_ms(perf_counter_start: float | None) -> int | None:
-    """A ``time.perf_counter()`` reading as milliseconds since the epoch."""
-    if perf_counter_start is None:
-        return None
-    return int(1000 * (time.time() - (time.perf_counter() - perf_counter_start)))
-
-
-def _extend_parent(client: MlflowClient, parent: str) -> None:
-    """The pipeline run ends when its last task run does (runs of parallel stages end in
-    any order: the latest end is kept)."""
-    now = int(1000 * time.time())
-    if (client.get_run(parent).info.end_time or 0) < now:
-        client.set_terminated(parent, end_time=now)
-
-
-def log_task_run(*, scene: str, task: str, params: Mapping[str, Any],
-                 pipeline_params: Any | None,
-                 results: list, models: Mapping[str, Any], dataset: pd.DataFrame,
-                 channels: list[str], dataset_digest: str, dataset_source: str,
-                 started: float | None = None,
-                 extra_tags: Mapping[str, str] | None = None) -> TrackedRun:
-    """Log one task execution and register its models; returns the run id and versions.
-
-    ``results`` are :class:`~eskin.evaluation.crossval.CVResult` per scheme;
-    ``models`` maps target name → fitted final model; ``dataset`` is the
-    frame that trained them (features and labels), logged as an MLflow input
-    whose digest is the DVC md5 of the dataset's Parquet file, and ``channels`` its skin's
-    channels (the models' input example); ``started``, the
-    step's ``time.perf_counter()`` at its start, gives the metric ``wall_seconds``;
-    ``pipeline_params``, the whole :class:`eskin.config.Params`, goes to the pipeline run.
-    """
-    with _naming_the_store(f"logging {scene}/{task}"):
-        return _log_task_run(scene, task, params, pipeline_params, results, models, dataset,
-                             channels, dataset_digest, dataset_source, started, extra_tags)
-
-
-def _log_task_run(scene, task, params, pipeline_params, results, models, dataset, channels,
-                  dataset_digest, dataset_source, started, extra_tags) -> TrackedRun:
-    experiment_id, parent, key, tags = _pipeline(scene, pipeline_params, _epoch_ms(started))
-    run_tags = {**tags, **(extra_tags or {}), **process_tags(), "eskin.task": task,
-                "eskin.kind": "task",
-                "eskin.cv_schemes": ",".join(r.scheme for r in results),
-                "eskin.cv_scheme": results[0].scheme if results else "",
-                PIPELINE_TAG: key, "eskin.dataset_digest": dataset_digest}
-    with warnings.catch_warnings(), _quiet("mlflow.sklearn"):
-        # Both warnings are about choices made here on purpose: the dataset source is
-        # a plain local path, and integer node labels never carry missing values.
-        warnings.filterwarnings("ignore", message="The specified dataset source can be")
-        warnings.filterwarnings("ignore", message="Hint: Inferred schema contains integer")
-        tracked = _log_run(experiment_id, parent, scene, task, run_tags, params, results,
-                           models, dataset, channels, dataset_digest, dataset_source,
-                           started, variant_name(key))
-        _extend_parent(MlflowClient(), parent)
-        return tracked
-
-
 class _quiet:
     """Raise a logger's level for a block: MLflow's pickle advice, given on every save.
 
@@ -307,64 +223,6 @@ class _quiet:
 
     def __exit__(self, *exc: object) -> None:
         self.logger.setLevel(self.level)
-
-
-def _log_run(experiment_id, parent, scene, task, run_tags, params, results, models, dataset,
-             channels, dataset_digest, dataset_source, started, variant) -> TrackedRun:
-    # Created with the step's start, so that the UI's duration is the training's; named
-    # so that Compare tells variants and models apart.
-    created = MlflowClient().create_run(
-        experiment_id, start_time=_epoch_ms(started),
-        run_name=f"{scene}/{task} {run_tags.get('eskin.model', '')} @{variant}",
-        tags={**run_tags, "mlflow.parentRunId": parent})
-    with mlflow.start_run(run_id=created.info.run_id) as run:
-        mlflow.log_params({k: str(v) for k, v in flatten(params).items()})
-        mlflow.log_input(mlflow.data.from_pandas(dataset, source=dataset_source,
-                                                 targets=None, name=scene,
-                                                 digest=dataset_digest),
-                         context="training")
-        for result in results:
-            # Per fold as an artifact, not as metrics: the UI's charts and parallel
-            # coordinates took a fold's score for the run's.
-            mlflow.log_dict(result.per_fold, f"scores/per_fold_{result.scheme}.json")
-            mlflow.log_metrics(flatten({result.scheme: result.summary}))
-            mlflow.log_metrics({f"{result.scheme}.fit_seconds": result.fit_seconds,
-                                f"{result.scheme}.predict_seconds": result.predict_seconds})
-        with tempfile.TemporaryDirectory() as scratch:
-            for result in results:
-                path = Path(scratch) / f"oof_{result.scheme}.parquet"
-                result.predictions.to_parquet(path, index=False)
-                mlflow.log_artifact(str(path), artifact_path="predictions")
-                if result.confusion:
-                    mlflow.log_dict(result.confusion, f"confusion/{result.scheme}.json")
-        example = dataset[channels].head(5)
-        client = MlflowClient()
-        lineage = {k: v for k, v in run_tags.items()
-                   if k.startswith("eskin.") and k not in ("eskin.kind", "eskin.cv_scheme")}
-        registered = []
-        for target, model in models.items():
-            info = mlflow.sklearn.log_model(
-                model, name=task if target == task else f"{task}-{target}",
-                input_example=example,
-                signature=infer_signature(example, model.predict(example)),
-                pip_requirements=_requirements(), serialization_format="cloudpickle")
-            # Registered with the run's lineage: `eskin reproduce` finds the dataset
-            # version by these tags and reruns the cross-validation on it.
-            name = registered_name(scene, task, target)
-            _ensure_registered_model(client, name)
-            version = client.create_model_version(
-                name, source=info.model_uri, run_id=run.info.run_id, model_id=info.model_id,
-                tags={**lineage, "eskin.target": target}, await_creation_for=0,
-                description=f"{scene}/{task}, target {target}: {run_tags.get('eskin.model')}")
-            registered.append(f"{name} v{version.version}")
-        if started is not None:
-            mlflow.log_metric("wall_seconds", time.perf_counter() - started)
-        return TrackedRun(run.info.run_id, registered)
-
-
-class TrackedRun(NamedTuple):
-    run_id: str
-    registered: list[str]   # "<registered model> v<version>" per target
 
 
 def _ensure_registered_model(client: MlflowClient, name: str) -> None:
@@ -411,34 +269,330 @@ def ui_url(experiment_id: str, run_id: str | None = None, artifacts: bool = Fals
     return f"{base}/{page}?{TRAINING_VIEW}"
 
 
-def log_report(*, figures_dir: Path, page_path: Path, pipeline_params: Any | None) -> str:
-    """The report's figures (PNG and SVG, under ``figures/<scene>/``) and page as artifacts
-    of the pipeline run the training stages logged under; the UI's page of them."""
-    with _naming_the_store("logging the report's figures"):
-        client = connect()
-        experiment_id = _experiment_id(client, EXPERIMENT)
-        params = logged_params(pipeline_params)
-        key, tags = _pipeline_key_and_tags(params)
-        parent = parent_run(client, experiment_id, key, tags, params)
-        client.log_artifacts(parent, str(figures_dir), "figures")
-        client.log_artifact(parent, str(page_path))
-        return ui_url(experiment_id, parent, artifacts=True)
 
 
-def log_scores_run(*, scene: str, task: str, scores: Mapping[str, Any],
-                   pipeline_params: Any | None, dataset_digest: str) -> str:
-    """Log a run that only scores other runs' predictions (e.g. two-force pairs)."""
-    with _naming_the_store(f"logging {scene}/{task}"):
-        return _log_scores_run(scene, task, scores, pipeline_params, dataset_digest)
+# ---------------------------------------------------------------- the tracking stage
+@dataclass(frozen=True)
+class TaskFiles:
+    """What the pipeline left of one scene's task: its scores (every scheme, and what
+    trained on what), and the files the task run logs."""
+
+    scene: str
+    task: str
+    scores: dict
+    scores_path: Path
+    predictions_path: Path | None = None
+    model_path: Path | None = None
+    record_path: Path | None = None
+    features_path: Path | None = None
+    figures: tuple[Path, ...] = ()
+    hyperparameters: Mapping[str, Any] = field(default_factory=dict)
+    cv: Mapping[str, Any] = field(default_factory=dict)
 
 
-def _log_scores_run(scene, task, scores, pipeline_params, dataset_digest) -> str:
-    experiment_id, parent, key, tags = _pipeline(scene, pipeline_params)
-    with mlflow.start_run(experiment_id=experiment_id,
-                          run_name=f"{scene}/{task} @{variant_name(key)}", parent_run_id=parent,
-                          tags={**tags, "eskin.task": task, "eskin.kind": "scores",
-                                PIPELINE_TAG: key, "eskin.dataset_digest": dataset_digest}) as run:
-        mlflow.log_metrics({k: v for k, v in flatten(scores).items()
-                            if isinstance(v, (int, float))})
-    _extend_parent(MlflowClient(), parent)
+@dataclass(frozen=True)
+class Tracked:
+    """What :func:`track_pipeline` logged: the pipeline run, and per task ``trained``
+    (a run with its models), ``reused`` (DVC kept the task: a run pointing at the one that
+    trained it) or ``present`` (already logged under this pipeline run)."""
+
+    pipeline_run: str
+    variant: str
+    tasks: dict[str, str]
+    url: str
+
+    @property
+    def summary(self) -> str:
+        counts = {what: sum(1 for v in self.tasks.values() if v == what)
+                  for what in ("trained", "reused", "scored", "present")}
+        told = ", ".join(f"{n} {what}" for what, n in counts.items() if n)
+        return (f"MLflow: pipeline run {self.pipeline_run} ({self.variant}): "
+                f"{told or 'nothing new'}\n  {self.url}")
+
+
+def track_pipeline(*, params: Mapping[str, Any], scenes: list[str], tasks: list[TaskFiles],
+                   headline: Mapping[str, Any], page: Path | None = None,
+                   log=lambda message: None) -> Tracked:
+    """Log one ``dvc repro`` / ``dvc exp run`` to MLflow in one process, from what its
+    stages wrote: a pipeline run (keyed by the experiment, or by the commit and
+    ``params``, which it holds, with the ``headline`` scores and the report page), and
+    under it a run per task: with its models, figures and out-of-fold predictions where
+    this pipeline trained it (the times are the train stage's own, from its record), or,
+    where DVC reused the task's outputs, a run that names the run that trained it."""
+    with _naming_the_store("logging the pipeline"), warnings.catch_warnings(), \
+            _quiet("mlflow.sklearn"):
+        # Both warnings are about choices made here on purpose: the dataset source is
+        # a plain local path, and integer node labels never carry missing values.
+        warnings.filterwarnings("ignore", message="The specified dataset source can be")
+        warnings.filterwarnings("ignore", message="Hint: Inferred schema contains integer")
+        return _track_pipeline(params, scenes, tasks, headline, page, log)
+
+
+def _track_pipeline(params, scenes, tasks, headline, page, log) -> Tracked:
+    client = connect()
+    experiment_id = _experiment_id(client, EXPERIMENT)
+    settle_stale_runs(client, [experiment_id])
+    commit = git_commit(project_root())
+    key = pipeline_key(params, commit)
+    variant = variant_name(key)
+    records = {(t.scene, t.task): _record(t) for t in tasks}
+    starts = [r["started"] for r in records.values() if r]
+    tags = {"eskin.git_commit": commit, "mlflow.source.git.commit": commit,
+            "eskin.dvc_experiment": dvc_experiment(), PIPELINE_TAG: key}
+    parent = parent_run(client, experiment_id, key, {**tags, "eskin.scenes": ",".join(scenes)},
+                        params, int(1000 * min(starts)) if starts else None)
+    present = {(r.data.tags.get("eskin.scene"), r.data.tags.get("eskin.task"),
+                r.data.tags.get("eskin.model_md5") or r.data.tags.get("eskin.scores_md5"))
+               for r in client.search_runs([experiment_id],
+                                           f"tags.`mlflow.parentRunId` = '{parent}'",
+                                           max_results=1000)}
+    # pid and host: a run left RUNNING by a killed process is settled the next time
+    common = {**tags, **process_tags(), "mlflow.parentRunId": parent}
+    done: dict[str, str] = {}
+    for files in tasks:
+        name = f"{files.scene}/{files.task}"
+        scores, record = files.scores, records[(files.scene, files.task)]
+        if files.model_path is None:  # a scoring task (pairs): its scores only
+            md5 = _md5(files.scores_path)
+            if (files.scene, files.task, md5) in present:
+                done[name] = "present"
+                continue
+            _log_scores(client, experiment_id, files, md5, variant, common)
+            done[name] = "scored"
+            continue
+        md5 = scores["model_md5"]
+        if (files.scene, files.task, md5) in present:
+            done[name] = "present"
+            continue
+        earlier = _trained_run(client, experiment_id, files.scene, files.task, md5)
+        if earlier and not (record and not record.get("run_id")):
+            log(f"{name}: reused by DVC (trained in run {earlier})")
+            _log_reused(client, experiment_id, files, earlier, variant, common)
+            done[name] = "reused"
+            continue
+        log(f"{name}: logging its run, models and figures …")
+        run_id = _log_trained(client, experiment_id, files, record, variant, common)
+        if record:  # the record now names its run: a later pipeline that reuses the task
+            _write_record(files.record_path, {**record, "run_id": run_id})  # points at it
+        done[name] = "trained"
+    ends = [r["ended"] for r in records.values() if r]
+    client.log_batch(parent, metrics=[Metric(k, float(v), int(1000 * time.time()), 0)
+                                      for k, v in flatten(headline).items()])
+    if page is not None and Path(page).exists():
+        client.log_artifact(parent, str(page))
+    end = max([int(1000 * time.time())] + [int(1000 * e) for e in ends])
+    client.set_terminated(parent, end_time=end)
+    return Tracked(parent, variant, done, ui_url(experiment_id, parent))
+
+
+def _md5(path: Path) -> str:
+    return hashlib.md5(Path(path).read_bytes()).hexdigest()
+
+
+def _record(files: TaskFiles) -> dict | None:
+    """The train stage's record of this very model (same md5), else None: DVC reused the
+    task's outputs, or they came from elsewhere (a pull, another clone)."""
+    if files.record_path is None or not Path(files.record_path).exists():
+        return None
+    record = json.loads(Path(files.record_path).read_text())
+    return record if record.get("model_md5") == files.scores.get("model_md5") else None
+
+
+def _write_record(path: Path, record: dict) -> None:
+    Path(path).write_text(json.dumps(record, indent=2, sort_keys=True) + "\n")
+
+
+def _trained_run(client: MlflowClient, experiment_id: str, scene: str, task: str,
+                 md5: str) -> str | None:
+    """The first run that trained (not reused) ``scene``/``task``'s model of this md5."""
+    found = client.search_runs(
+        [experiment_id], f"tags.`eskin.model_md5` = '{md5}' and tags.`eskin.task` = '{task}' "
+        f"and tags.`eskin.scene` = '{scene}' and tags.`eskin.trained` != 'reused' "
+        "and attributes.status = 'FINISHED'", order_by=["attributes.start_time ASC"],
+        max_results=1)
+    return found[0].info.run_id if found else None
+
+
+def task_params(files: TaskFiles) -> dict[str, str]:
+    """A task run's params under names that stay the same whichever model it runs
+    (``force.model``, ``force.max_iter``), so that runs of different models compare; and
+    the CV settings (``cv.folds``; ``eskin reproduce`` reruns the folds from them)."""
+    named = {f"{files.task}.model": files.scores.get("model", ""),
+             **{f"{files.task}.{k}": v for k, v in flatten(files.hyperparameters).items()},
+             **{f"cv.{k}": v for k, v in files.cv.items()}}
+    return {k: str(v) for k, v in named.items()}
+
+
+def _scores_metrics(scores: Mapping[str, Any]) -> dict[str, float]:
+    """Every scheme's scores and spreads, ``<scheme>.<target>.<score>``."""
+    from eskin.catalog import SCHEMES
+
+    return {k: float(v) for k, v in flatten({s: scores[s] for s in SCHEMES if s in scores}).items()
+            if isinstance(v, (int, float)) and not isinstance(v, bool)}
+
+
+def _task_tags(files: TaskFiles, common: Mapping[str, str], trained: str) -> dict[str, str]:
+    s = files.scores
+    schemes = [k for k in ("stratified", "grouped") if k in s]
+    return {**common, "eskin.scene": files.scene, "eskin.task": files.task, "eskin.kind": "task",
+            "eskin.model": s.get("model", ""), "eskin.model_md5": s.get("model_md5", ""),
+            "eskin.dataset_digest": s.get("dataset_md5", ""),
+            "eskin.dataset_rows": str(s.get("dataset_rows", "")),
+            "eskin.dataset_source": s.get("source", ""),
+            "eskin.cv_schemes": ",".join(schemes), "eskin.trained": trained}
+
+
+def _log_reused(client, experiment_id, files, earlier, variant, common) -> str:
+    """A task DVC reused: its scores, and the run that trained its model."""
+    run = client.create_run(
+        experiment_id, run_name=f"{files.scene}/{files.task} {files.scores.get('model', '')} "
+                                f"@{variant} (reused)",
+        tags={**_task_tags(files, common, "reused"), "eskin.reused_from": earlier})
+    client.log_batch(run.info.run_id, metrics=[
+        Metric(k, v, int(1000 * time.time()), 0) for k, v in _scores_metrics(files.scores).items()],
+        params=[Param(k, v) for k, v in task_params(files).items()])
+    client.set_terminated(run.info.run_id)
     return run.info.run_id
+
+
+def _log_scores(client, experiment_id, files, md5, variant, common) -> str:
+    """A run that only scores other runs' predictions (two-force pairs)."""
+    run = client.create_run(
+        experiment_id, run_name=f"{files.scene}/{files.task} @{variant}",
+        tags={**common, "eskin.scene": files.scene, "eskin.task": files.task,
+              "eskin.kind": "scores", "eskin.scores_md5": md5,
+              "eskin.dataset_digest": files.scores.get("dataset_md5", "")})
+    client.log_batch(run.info.run_id, metrics=[
+        Metric(k, v, int(1000 * time.time()), 0) for k, v in _scores_metrics(files.scores).items()])
+    client.set_terminated(run.info.run_id)
+    return run.info.run_id
+
+
+def _log_trained(client, experiment_id, files, record, variant, common) -> str:
+    """A task this pipeline trained (``record``: the train stage's own times and per-fold
+    scores), or one whose outputs came from elsewhere with no run here (``record`` None):
+    params, scores, dataset, predictions, figures, and its models, registered with a
+    description (dataset, scores, run)."""
+    from eskin.data.schema import dataset_skin, read_dataset
+    from eskin.learning.saved import load_models
+
+    s = files.scores
+    run = client.create_run(
+        experiment_id, start_time=int(1000 * record["started"]) if record else None,
+        run_name=f"{files.scene}/{files.task} {s.get('model', '')} @{variant}",
+        tags={**_task_tags(files, common, "here" if record else "elsewhere"),
+              **({"eskin.features_md5": _md5(files.features_path)}
+                 if files.features_path else {})})
+    run_id = run.info.run_id
+    metrics = _scores_metrics(s)
+    if record:
+        metrics["wall_seconds"] = float(record["wall_seconds"])
+        metrics.update({f"{scheme}.{k}": float(v) for scheme, t in record["timings"].items()
+                        for k, v in t.items()})
+    now = int(1000 * time.time())
+    client.log_batch(run_id, metrics=[Metric(k, v, now, 0) for k, v in metrics.items()],
+                     params=[Param(k, v) for k, v in task_params(files).items()])
+    frame = read_dataset(files.features_path)
+    with mlflow.start_run(run_id=run_id):
+        mlflow.log_input(mlflow.data.from_pandas(
+            frame.drop(columns=["session", "trial", "seq", "t_ms"], errors="ignore"),
+            source=str(files.features_path), targets=None, name=files.scene,
+            digest=s.get("dataset_md5", "")), context="training")
+        if record:
+            for scheme, per_fold in record["per_fold"].items():
+                # Per fold as an artifact, not as metrics: the UI's charts and parallel
+                # coordinates took a fold's score for the run's.
+                mlflow.log_dict(per_fold, f"scores/per_fold_{scheme}.json")
+        for scheme, confusion in s.get("confusion", {}).items():
+            mlflow.log_dict(confusion, f"confusion/{scheme}.json")
+        predictions = pd.read_parquet(files.predictions_path)
+        with tempfile.TemporaryDirectory() as scratch:
+            for scheme, oof in predictions.groupby("scheme", sort=False):
+                path = Path(scratch) / f"oof_{scheme}.parquet"
+                oof.drop(columns="scheme").to_parquet(path, index=False)
+                mlflow.log_artifact(str(path), artifact_path="predictions")
+        for figure in files.figures:
+            mlflow.log_artifact(str(figure), artifact_path="figures")
+        models = load_models(files.model_path, s["model_md5"])
+        example = frame[dataset_skin(files.features_path).channels].head(5)
+        lineage = {k: v for k, v in _task_tags(files, {}, "").items()
+                   if k not in ("eskin.kind", "eskin.trained")}
+        headline = _headline_text(s)
+        for target, model in models.items():
+            info = mlflow.sklearn.log_model(
+                model, name=files.task if target == files.task else f"{files.task}-{target}",
+                input_example=example,
+                signature=infer_signature(example, model.predict(example)),
+                pip_requirements=_requirements(), serialization_format="cloudpickle")
+            # Registered with the run's lineage: `eskin reproduce` finds the dataset
+            # version by these tags and reruns the cross-validation on it.
+            name = registered_name(files.scene, files.task, target)
+            _ensure_registered_model(client, name)
+            client.create_model_version(
+                name, source=info.model_uri, run_id=run_id, model_id=info.model_id,
+                tags={**lineage, "eskin.target": target,
+                      **({"eskin.features_md5": _md5(files.features_path)}
+                         if files.features_path else {})},
+                await_creation_for=0,
+                description=(f"{files.scene}/{files.task}, target {target}: {s.get('model')} "
+                             f"on dataset {s.get('dataset_md5', '')[:8]} "
+                             f"({s.get('dataset_rows')} rows, {s.get('source', '')}); "
+                             f"{headline}; run {run_id}"))
+    client.set_terminated(run_id, end_time=int(1000 * record["ended"]) if record else None)
+    return run_id
+
+
+def _headline_text(scores: Mapping[str, Any]) -> str:
+    """``grouped CV: force r2 0.941 ± 0.010``: the headline scheme's scores of a task."""
+    from eskin.catalog import HEADLINE_METRIC, HEADLINE_SCHEME
+
+    scheme = scores.get(HEADLINE_SCHEME, {})
+    parts = [f"{target} {name} {values[name]:.3f} ± {values.get(name + '_std', 0):.3f}"
+             for target, values in scheme.items() for name in set(HEADLINE_METRIC.values())
+             if isinstance(values, Mapping) and name in values]
+    return f"{HEADLINE_SCHEME} CV: " + ", ".join(parts)
+
+
+def pipeline_tasks(scenes: Mapping[str, Any], train: Any, cv: Mapping[str, Any], *,
+                   log=lambda message: None) -> list[TaskFiles]:
+    """Every scored task of ``scenes`` (the ``scenes`` section) as its stages left it;
+    a task with no scores, or skipped, is left out (and said). ``train``: the ``train``
+    section (the hyperparameters each run logs), ``cv``: the ``cv`` section as a dict."""
+    from eskin.catalog import (
+        FIGURES_DIR,
+        SCORED_TASKS,
+        TASK_NAMES,
+        features_path,
+        model_path,
+        predictions_path,
+        run_record_path,
+        scores_path,
+    )
+    from eskin.config import scene_skin
+    from eskin.kinds import DATASET_KINDS
+    from eskin.learning.estimators import model_for_skin, model_settings
+
+    found = []
+    for scene, spec in scenes.items():
+        for task in SCORED_TASKS:
+            path = scores_path(scene, task)
+            if not path.exists():
+                log(f"{scene}/{task}: no scores ({path}); not logged")
+                continue
+            scores = json.loads(path.read_text())
+            if scores.get("status") not in ("trained", "scored"):
+                continue
+            if task not in TASK_NAMES:
+                found.append(TaskFiles(scene, task, scores, path))
+                continue
+            kind = DATASET_KINDS[scores["kind"]]
+            task_models = getattr(train, task)
+            _, hyper, _ = model_for_skin(
+                task_models, *model_settings(task_models, train.configuration,
+                                             kind.scene_kind), scene_skin(spec))
+            figures = tuple(sorted(p for figure in kind.figures if figure.task == task
+                                   for p in (FIGURES_DIR / scene).glob(f"{figure.id}_*.*")))
+            found.append(TaskFiles(scene, task, scores, path, predictions_path(scene, task),
+                                   model_path(scene, task), run_record_path(scene, task),
+                                   features_path(scene), figures, hyper, cv))
+    return found
