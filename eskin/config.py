@@ -1,8 +1,10 @@
-"""params.yaml: the one place every knob lives, checked once at load, read as typed sections.
+"""params.yaml: the one place every knob of the pipeline lives, checked once at load, read
+as typed sections; bench/params.yaml and stress/params.yaml: the same for `make bench` and
+`make stress` (DVC projects of their own, so their knobs stay out of `dvc exp show`).
 
-:func:`load_params` validates the whole file against a declared schema
+:func:`load_params` validates a whole file against its declared schema
 (pydantic, strict: types, ranges, required keys, no unknown keys) before any
-step runs, so a typo or a wrong type is one line naming the key, the value
+step runs, so a typo or a wrong type is one line naming the file, the key, the value
 and what is allowed — never a traceback after an hour of acquisition, and
 never a value silently truncated or replaced by a default.
 """
@@ -41,6 +43,10 @@ from eskin.kinds import KIND_NAMES, KINDS, Kind
 from eskin.skin import PAPER_SKIN, AnySkin, skin_from_dict
 
 DEFAULT_PARAMS = Path("params.yaml")
+# The subprojects' own default params files (bench/dvc.yaml, stress/dvc.yaml), from the
+# project root, where their stages run.
+BENCH_PARAMS = Path("bench/params.yaml")
+STRESS_PARAMS = Path("stress/params.yaml")
 # Set to a directory, each process notes there the params keys it read after validation
 # (tests/test_stage_deps.py compares them with each DVC stage's declared params).
 TRACE_ENV = "ESKIN_PARAMS_TRACE"
@@ -508,6 +514,9 @@ class Stress(_Section):
 
 
 class Params(_Section):
+    """params.yaml: the pipeline's knobs, every one read by a stage of dvc.yaml (`dvc exp
+    show` lists the whole file)."""
+
     sim: Sim
     sim_board: SimBoard
     acquire: Acquire
@@ -518,18 +527,33 @@ class Params(_Section):
     cv: CV
     train: Train  # type: ignore[valid-type]
     report: Report
-    # make bench / make stress only: a lab's params file may leave them out.
-    # (Not PIPELINE_SECTIONS: the pipeline never reads them.)
-    soak: Soak | None = None
-    fuzz: Fuzz | None = None
-    bench: Bench | None = None
-    stress: Stress | None = None
 
 
-# The sections `dvc repro` reads, in the file's order: the tracking stage logs these, and
-# only these, to the pipeline's MLflow run.
-PIPELINE_SECTIONS: tuple[str, ...] = ("sim", "sim_board", "acquire", "scenes", "ingest",
-                                      "featurize", "cv", "train", "report")
+class BenchParams(_Section):
+    """bench/params.yaml: `make bench`'s knobs (bench/dvc.yaml)."""
+
+    bench: Bench
+    soak: Soak
+    fuzz: Fuzz
+
+
+class StressParams(_Section):
+    """stress/params.yaml: `make stress`'s knobs (stress/dvc.yaml)."""
+
+    stress: Stress
+
+
+Schema = typing.TypeVar("Schema", bound=_Section)
+# Which file each section lives in (a section written in another file is told where to go).
+SECTION_FILES = {name: path for path, schema in ((DEFAULT_PARAMS, Params),
+                                                 (BENCH_PARAMS, BenchParams),
+                                                 (STRESS_PARAMS, StressParams))
+                 for name in schema.model_fields}
+
+
+# The sections `dvc repro` reads, which are params.yaml's (make bench's and make stress's
+# have files of their own): the tracking stage logs these to the pipeline's MLflow run.
+PIPELINE_SECTIONS: tuple[str, ...] = tuple(Params.model_fields)
 
 
 def pipeline_params(params: Params) -> dict[str, Any]:
@@ -570,11 +594,11 @@ def _keys(model: type[BaseModel]) -> dict[str, Any]:
     return {field.alias or name: field for name, field in model.model_fields.items()}
 
 
-def _section_models(loc: tuple) -> list[type[BaseModel]]:
-    """The schema section (pydantic models: several where a section takes one of a few
-    forms, as a scene does) at ``loc`` (``("cv",)``, ``("scenes", "a")``), or none where
+def _section_models(loc: tuple, schema: type[BaseModel]) -> list[type[BaseModel]]:
+    """The section of ``schema`` (pydantic models: several where a section takes one of a
+    few forms, as a scene does) at ``loc`` (``("cv",)``, ``("scenes", "a")``), or none where
     the params there are free-form (hyperparameters)."""
-    models: Any = [Params]
+    models: Any = [schema]
     for part in loc:
         if isinstance(models, tuple):  # a mapping: any key, then its values' models
             models = models[1]
@@ -600,11 +624,12 @@ def _unwrap(annotation: Any) -> Any:
     return [annotation]
 
 
-def _known_keys(loc: tuple) -> list[str]:
-    return list(dict.fromkeys(key for model in _section_models(loc) for key in _keys(model)))
+def _known_keys(loc: tuple, schema: type[BaseModel]) -> list[str]:
+    return list(dict.fromkeys(key for model in _section_models(loc, schema)
+                              for key in _keys(model)))
 
 
-def _typo_errors(errors: list[dict]) -> list[str]:
+def _typo_errors(errors: list[dict], schema: type[BaseModel]) -> list[str]:
     """Unknown keys, each with the key of its section it most resembles (``cv.fols is
     not a known key; did you mean cv.folds?``) and, where that key is missing, saying so
     in the same message. Returns the messages; the unknown keys, and the missing keys
@@ -614,18 +639,24 @@ def _typo_errors(errors: list[dict]) -> list[str]:
     for error in [e for e in errors if e["type"] == "extra_forbidden"]:
         loc = tuple(error["loc"])
         section, key = loc[:-1], str(loc[-1])
+        if not section and key in SECTION_FILES:  # another params file's section
+            errors.remove(error)
+            messages.append(f"{key} is not a section of this file: move it to "
+                            f"{SECTION_FILES[key]}")
+            continue
         dotted = ".".join(str(p) for p in section)
         prefix = f"{dotted}." if dotted else ""
         absent = [str(m[-1]) for m in missing if m[:-1] == section]
         close = (difflib.get_close_matches(key, absent, n=1, cutoff=0.6)
-                 or difflib.get_close_matches(key, _known_keys(section), n=1, cutoff=0.6))
+                 or difflib.get_close_matches(key, _known_keys(section, schema), n=1,
+                                              cutoff=0.6))
         if close:
             text = f"{prefix}{key} is not a known key; did you mean {prefix}{close[0]}?"
             if close[0] in absent:
                 errors.remove(missing.pop((*section, close[0])))
                 text += f" ({prefix}{close[0]} is missing)"
         else:
-            known = _known_keys(section)
+            known = _known_keys(section, schema)
             text = f"{prefix}{key} is not a known key" + (
                 f" of {dotted or 'the params file'} (known: {', '.join(known)})" if known else "")
         errors.remove(error)
@@ -633,30 +664,33 @@ def _typo_errors(errors: list[dict]) -> list[str]:
     return messages
 
 
-def validate_params(params: Any, path: Path = DEFAULT_PARAMS) -> Params:
-    """``params`` (a mapping, as YAML gives it) checked against the schema: the typed
-    model, or ParamsError naming the first mistake. An unknown key comes first, with the
-    known key it most resembles: a typo shows up as both an unknown key and a missing
-    one, and the unknown one is the mistake to name."""
+def validate_params(params: Any, path: Path = DEFAULT_PARAMS,
+                    schema: type[Schema] = Params) -> Schema:
+    """``params`` (a mapping, as YAML gives it) checked against ``schema`` (:class:`Params`,
+    :class:`BenchParams`, :class:`StressParams`): the typed model, or ParamsError naming
+    the first mistake. An unknown key comes first, with the known key it most resembles:
+    a typo shows up as both an unknown key and a missing one, and the unknown one is the
+    mistake to name."""
     if not isinstance(params, dict):
         raise ParamsError(f"{path}: expected a mapping of sections, got "
                           f"{type(params).__name__}")
     try:
-        return Params.model_validate(params)
+        return schema.model_validate(params)
     except ValidationError as err:
         # A skin's layout tag (row_column | channel_array) and a scene's (acquired |
         # imported) are pydantic's, not keys.
         errors = [{**e, "loc": tuple(p for p in e["loc"]
                                      if p not in SKIN_LAYOUTS + SCENE_SOURCES)}
                   for e in err.errors()]
-        messages = _typo_errors(errors) + [_describe(e) for e in errors]
+        messages = _typo_errors(errors, schema) + [_describe(e) for e in errors]
         more = f" (and {len(messages) - 1} more)" if len(messages) > 1 else ""
         raise ParamsError(f"{path}: {messages[0]}{more}") from None
 
 
-def load_params(path: Path = DEFAULT_PARAMS) -> Params:
-    """The params file, validated, as :class:`Params` (with ``ESKIN_PARAMS_TRACE`` set,
-    a proxy of it that notes the keys read)."""
+def load_params(path: Path = DEFAULT_PARAMS, schema: type[Schema] = Params) -> Schema:
+    """The params file at ``path``, validated against ``schema`` (``load_params()``: the
+    pipeline's; ``load_params(BENCH_PARAMS, BenchParams)``: `make bench`'s), with
+    ``ESKIN_PARAMS_TRACE`` set, a proxy of it that notes the keys read."""
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: no params file (run from the project root)")
@@ -672,9 +706,9 @@ def load_params(path: Path = DEFAULT_PARAMS) -> Params:
         raise ParamsError(f"{where}: not valid YAML: {problem}") from None
     except UnicodeDecodeError as err:
         raise ParamsError(f"{path}: not UTF-8 text ({err.reason})") from None
-    params = validate_params(params, path)
+    params = validate_params(params, path, schema)
     trace_dir = os.environ.get(TRACE_ENV)
-    return _traced(params, trace_dir) if trace_dir else params
+    return _traced(params, path, trace_dir) if trace_dir else params
 
 
 def get_scene(params: Params, name: str, path: Path | str = DEFAULT_PARAMS) -> Scene:
@@ -689,15 +723,6 @@ def get_scene(params: Params, name: str, path: Path | str = DEFAULT_PARAMS) -> S
     close = difflib.get_close_matches(name, names, n=1)
     hint = f"; did you mean {close[0]}?" if close else ""
     raise ParamsError(f"{path} has no scene {name!r}{hint} (its scenes: {', '.join(names)})")
-
-
-def required(params: Params, name: str) -> Any:
-    """An optional section (``bench``, ``soak``, ``fuzz``, ``stress``: ``make bench`` and
-    ``make stress`` only), with an error naming it when the params file leaves it out."""
-    value = getattr(params, name)
-    if value is None:
-        raise KeyError(f"params.yaml has no {name}")
-    return value
 
 
 # ------------------------------------------------------------------ read tracing
@@ -808,13 +833,15 @@ def validating():
         _recording[0] = was
 
 
-def _traced(params: Params, trace_dir: str) -> Params:
+def _traced(params: Schema, path: Path, trace_dir: str) -> Schema:
     reads: set[str] = set()
-    out = Path(trace_dir) / f"params-read-{os.getpid()}.json"
+    # one file per params file loaded (a bench stage loads two)
+    out = Path(trace_dir) / f"params-read-{os.getpid()}-{str(path).replace(os.sep, '_')}.json"
 
     def write() -> None:
         out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(json.dumps({"argv": sys.argv, "reads": sorted(reads)}))
+        out.write_text(json.dumps({"argv": sys.argv, "file": str(path),
+                                   "reads": sorted(reads)}))
 
     atexit.register(write)
     return _TracedModel(params, "", reads)  # type: ignore[return-value]

@@ -5,7 +5,7 @@ purpose (flipped and lost bytes, junk lines, cut lines, any chunking for the
 parser; text, NaN, inf, short and long rows, headers, other delimiters, bad
 encodings for the importer), in seeded runs of 5,000, so the same count gives
 the same inputs. ``make test`` runs a few hundred; ``make bench`` runs
-``fuzz.examples`` of each (bench/dvc.yaml, stage ``fuzz``).
+``fuzz.examples`` of each (bench/params.yaml; bench/dvc.yaml, stage ``fuzz``).
 
 Properties:
 

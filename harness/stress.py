@@ -317,23 +317,23 @@ def large_factorisation(frame: pd.DataFrame, rows: int, seed: int,
             "seconds": round(time.perf_counter() - start, 1), "warnings": 0}
 
 
-def stress(params: Any, scene: str, features_path, out_dir, *, scratch, log=print) -> str:
+def stress(params: Any, settings: Any, scene: str, features_path, out_dir, *, scratch,
+           log=print) -> str:
     """The DVC stage: the suite on a scene's features (subsampled by trial), noise
     datasets acquired from the simulated skin (a simulated scene only), and the large
     factorisation → ``<out_dir>/<scene>.{json,md,html}``. A scene of another kind is
     written as skipped, with the reason. ``params``: the :class:`eskin.config.Params` (its
-    ``stress``, ``sim`` and ``train`` sections and the scene's; the noise datasets are
-    acquired, ingested and featurized with the pipeline's sections)."""
+    ``sim`` and ``train`` sections and the scene's; the noise datasets are acquired,
+    ingested and featurized with the pipeline's sections); ``settings``: the
+    :class:`eskin.config.Stress` of stress/params.yaml."""
     import json
     from pathlib import Path
 
     from eskin.acquisition import acquire
-    from eskin.config import required
     from eskin.data import build
     from eskin.data.schema import dataset_skin, describe_source, read_dataset, read_metadata
     from eskin.learning.features import featurize_scene
 
-    settings = required(params, "stress")
     meta = read_metadata(features_path)
     skin = dataset_skin(features_path)
     out_dir = Path(out_dir)

@@ -4,7 +4,7 @@ against error, and the summary."""
 import sys
 
 from eskin.catalog import bayes_bound_path, bench_dir, features_path, processed_path
-from eskin.config import get_scene, load_params, required
+from eskin.config import BENCH_PARAMS, BenchParams, get_scene, load_params
 from eskin.errors import run_friendly
 from harness import benchmark
 
@@ -12,16 +12,16 @@ from harness import benchmark
 def main(what: str, scene: str, task: str | None = None) -> str:
     params = load_params()
     get_scene(params, scene)
+    bench = load_params(BENCH_PARAMS, BenchParams).bench
     out = bench_dir(scene)
     if what == "bound":
         return benchmark.bayes_bound(scene, params.scenes[scene], processed_path(scene),
-                                     bayes_bound_path(scene), sim=params.sim,
-                                     seed=required(params, "bench").seed)
+                                     bayes_bound_path(scene), sim=params.sim, seed=bench.seed)
     if what == "summary":
-        return benchmark.summarise(scene, out, features_path(scene),
-                                   bench=required(params, "bench"), train=params.train)
+        return benchmark.summarise(scene, out, features_path(scene), bench=bench,
+                                   train=params.train)
     return benchmark.bench(scene, task, features_path(scene), bayes_bound_path(scene), out,
-                           bench=required(params, "bench"), cv=params.cv)
+                           bench=bench, cv=params.cv)
 
 
 if __name__ == "__main__":

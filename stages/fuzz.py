@@ -4,7 +4,7 @@ import json
 import sys
 from pathlib import Path
 
-from eskin.config import load_params, required
+from eskin.config import BENCH_PARAMS, BenchParams, load_params
 from eskin.errors import run_friendly
 from harness import fuzz
 
@@ -12,7 +12,7 @@ TARGETS = {"parser": fuzz.fuzz_parser, "import": fuzz.fuzz_import}
 
 
 def main(target: str) -> int:
-    examples = int(required(load_params(), "fuzz").examples)
+    examples = int(load_params(BENCH_PARAMS, BenchParams).fuzz.examples)
     result = TARGETS[target](examples, progress=True)
     out = Path("reports/fuzz") / f"{target}.json"
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -4,7 +4,7 @@ import json
 import sys
 from pathlib import Path
 
-from eskin.config import load_params, required
+from eskin.config import BENCH_PARAMS, BenchParams, load_params
 from eskin.errors import run_friendly
 from harness.memory_bench import import_memory, markdown
 
@@ -12,7 +12,8 @@ REPORT = Path("reports")
 
 
 def main() -> int:
-    results = import_memory([int(n) for n in required(load_params(), "bench").import_rows])
+    rows = load_params(BENCH_PARAMS, BenchParams).bench.import_rows
+    results = import_memory([int(n) for n in rows])
     (REPORT / "import_memory.json").write_text(json.dumps(results, indent=2) + "\n")
     (REPORT / "import_memory.md").write_text(markdown(results))
     print(markdown(results))

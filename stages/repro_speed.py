@@ -5,7 +5,7 @@ import json
 import sys
 from pathlib import Path
 
-from eskin.config import load_params, required
+from eskin.config import BENCH_PARAMS, BenchParams, load_params
 from eskin.errors import run_friendly
 from harness.repro_speed import measure, render
 
@@ -13,7 +13,7 @@ REPORT = Path("reports/repro_speed")
 
 
 def main() -> str:
-    result = measure(str(required(load_params(), "bench").repro_baseline),
+    result = measure(str(load_params(BENCH_PARAMS, BenchParams).bench.repro_baseline),
                      log=lambda line: print(line, file=sys.stderr, flush=True))
     REPORT.mkdir(parents=True, exist_ok=True)
     (REPORT / "default.json").write_text(json.dumps(result, indent=2) + "\n")

@@ -8,7 +8,7 @@ from pathlib import Path
 import pandas as pd
 
 from eskin.catalog import SOAK_DIR, processed_path
-from eskin.config import get_scene, load_params, required
+from eskin.config import BENCH_PARAMS, BenchParams, get_scene, load_params
 from eskin.errors import run_friendly
 from harness.soak import run_soak
 
@@ -16,7 +16,7 @@ from harness.soak import run_soak
 def main(scene: str) -> int:
     params = load_params()
     get_scene(params, scene)
-    settings = required(params, "soak")
+    settings = load_params(BENCH_PARAMS, BenchParams).soak
     SOAK_DIR.mkdir(parents=True, exist_ok=True)
     json_path, md_path = SOAK_DIR / f"{scene}.json", SOAK_DIR / f"{scene}.md"
     source = params.scenes[scene].source

@@ -5,7 +5,7 @@ import sys
 import tempfile
 
 from eskin.catalog import STRESS_DIR, features_path
-from eskin.config import get_scene, load_params
+from eskin.config import STRESS_PARAMS, StressParams, get_scene, load_params
 from eskin.errors import run_friendly
 from harness import stress
 
@@ -13,8 +13,10 @@ from harness import stress
 def main(scene: str) -> str:
     params = load_params()
     get_scene(params, scene)
+    settings = load_params(STRESS_PARAMS, StressParams).stress
     with tempfile.TemporaryDirectory(prefix="eskin-stress-") as scratch:
-        return stress.stress(params, scene, features_path(scene), STRESS_DIR, scratch=scratch)
+        return stress.stress(params, settings, scene, features_path(scene), STRESS_DIR,
+                             scratch=scratch)
 
 
 if __name__ == "__main__":

@@ -14,7 +14,8 @@ os.environ.setdefault("DVC_NO_ANALYTICS", "1")
 # `make test` runs two workers, a file each (pytest-xdist --dist loadfile), handing files
 # out in collection order: the longest go first, so neither worker is left alone with one
 # at the end (measured with --durations; the rest keep their order).
-LONGEST_FIRST = ("test_pipeline_tracking.py", "test_foreign_data.py", "test_stress.py")
+LONGEST_FIRST = ("test_pipeline_tracking.py", "test_foreign_data.py", "test_views.py",
+                 "test_stress.py")
 
 
 def pytest_collection_modifyitems(items):
@@ -51,6 +52,12 @@ def headless_chromium():
 @pytest.fixture(scope="session")
 def repo_params():
     return yaml.safe_load((ROOT / "params.yaml").read_text())
+
+
+@pytest.fixture(scope="session")
+def repo_bench_params():
+    """bench/params.yaml: `make bench`'s knobs (bench, soak, fuzz)."""
+    return yaml.safe_load((ROOT / "bench" / "params.yaml").read_text())
 
 
 def small_scenes(repo_params: dict) -> dict:
@@ -153,10 +160,12 @@ def params_trace_dir(root: Path) -> Path:
     return root.parent / f"{root.name}-params-read"
 
 
-def scratch_project(root: Path, params: dict, tracking_uri: str) -> dict:
-    """A scratch copy of the project at ``root`` (code, dvc.yaml, README) with ``params``,
-    committed in a fresh git and DVC repository; returns the environment its commands run
-    in, logging to MLflow at ``tracking_uri``."""
+def scratch_project(root: Path, params: dict, tracking_uri: str, *,
+                    bench_params: dict | None = None) -> dict:
+    """A scratch copy of the project at ``root`` (code, dvc.yaml, README) with ``params``
+    (and ``bench_params`` as bench/params.yaml, the repository's by default), committed in
+    a fresh git and DVC repository; returns the environment its commands run in, logging
+    to MLflow at ``tracking_uri``."""
     import shutil
 
     for name in PROJECT_FILES:
@@ -168,6 +177,8 @@ def scratch_project(root: Path, params: dict, tracking_uri: str) -> dict:
         else:
             shutil.copy2(source, root / name)
     write_params(root, params)
+    if bench_params is not None:
+        write_params(root / "bench", bench_params)
     bin_dir = str(Path(sys.executable).parent)  # dvc, and the python DVC's stages call
     env = {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ.get('PATH', '')}",
            "DVC_NO_ANALYTICS": "1", "MLFLOW_ENABLE_TELEMETRY": "false",

@@ -185,10 +185,10 @@ def test_serial_source_prompts_the_operator_only_when_the_weights_change(small_p
 
 
 def test_soak_every_fault_kind_and_two_sigkills_lose_and_duplicate_nothing(clean_run, tmp_path,
-                                                                          repo_params):
+                                                                          repo_bench_params):
     """make test's soak: the small scene; `make bench` runs the whole one (bench/dvc.yaml)."""
     params, _, clean = clean_run
-    settings = {**repo_params["soak"], "corrupt_fraction": 0.01, "timeout_s": 0.25}
+    settings = {**repo_bench_params["soak"], "corrupt_fraction": 0.01, "timeout_s": 0.25}
     settings["faults"] = {**settings["faults"], "stall_s": 0.3, **dict.fromkeys(
         ["drop", "garbage", "reset", "stall", "vanish"], 0.01)}
     result = run_soak(typed(params), Soak.model_validate(settings), tmp_path, clean,

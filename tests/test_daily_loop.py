@@ -22,7 +22,7 @@ import pytest
 from conftest import ROOT, run_checked, scratch_project, small_scenes
 
 # Each key a stage of the scratch project reads (a list item: its list).
-READ_KEYS = ("soak.faults.drop", "train.stretch.model", "train.force.model",
+READ_KEYS = ("sim_board.faults.stall_s", "train.stretch.model", "train.force.model",
              "scenes.single_force.stretches")
 SHOW_PARAMS = """\
 import json, yaml
@@ -74,7 +74,7 @@ def changed_lines(root: Path, env: dict, *revisions: str) -> tuple[list[str], li
 
 @pytest.mark.parametrize("setting, out, into, shown", [
     # a scalar in a nested section
-    ("soak.faults.drop=0.02", ["    drop: 0.017"], ["    drop: 0.02"], 0.02),
+    ("sim_board.faults.stall_s=0.4", ["    stall_s: 0.5"], ["    stall_s: 0.4"], 0.4),
     # a model name
     ("train.stretch.model=ridge", ["    model: paper             # linear regression"],
      ["    model: ridge             # linear regression"], "ridge"),

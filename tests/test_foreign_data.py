@@ -93,7 +93,7 @@ def scenes(lab_single: Path, lab_pairs: Path, port: str) -> dict:
 
 
 @pytest.fixture(scope="module")
-def project(tmp_path_factory, repo_params, mlflow_server):
+def project(tmp_path_factory, repo_params, repo_bench_params, mlflow_server):
     root = tmp_path_factory.mktemp("foreign")
     files = tmp_path_factory.mktemp("lab_files")
     rows = {"lab_single": write_lab_single(files / "lab_single.csv"),
@@ -110,13 +110,15 @@ def project(tmp_path_factory, repo_params, mlflow_server):
         params["train"]["localise"]["paper"]["n_estimators"] = 20
         params["train"]["force"]["paper"]["subsample"] = 200
         # make bench, small: every candidate the train section names, one grouped fold.
-        params["bench"].update(schemes=["grouped"], evaluate_folds=1,
-                               scaling_fractions=[0.5, 1.0], tasks={
-                                   task: {name: {"model": name, **hyper}
-                                          for name, hyper in settings.items() if name != "model"}
-                                   for task, settings in params["train"].items()
-                                   if task != "configuration"})
-        env = scratch_project(root, params, mlflow_server)
+        bench_params = copy.deepcopy(repo_bench_params)
+        bench_params["bench"].update(schemes=["grouped"], evaluate_folds=1,
+                                     scaling_fractions=[0.5, 1.0], tasks={
+                                         task: {name: {"model": name, **hyper}
+                                                for name, hyper in settings.items()
+                                                if name != "model"}
+                                         for task, settings in params["train"].items()
+                                         if task != "configuration"})
+        env = scratch_project(root, params, mlflow_server, bench_params=bench_params)
         repro = run(["dvc", "repro"], root, env).stdout
     run(["git", "add", "-A"], root, env)
     run(["git", "commit", "-qm", "repro"], root, env)

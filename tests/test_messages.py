@@ -6,6 +6,10 @@ from __future__ import annotations
 import copy
 import importlib
 import io
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import pandas as pd
 import pytest
@@ -13,7 +17,7 @@ import yaml
 from conftest import ROOT, write_params
 
 from eskin import cli
-from eskin.config import ParamsError, validate_params
+from eskin.config import BenchParams, Params, ParamsError, StressParams, validate_params
 from eskin.tracking import compare
 
 TYPO = "singel_force"
@@ -84,8 +88,13 @@ def _commands(parser, path=("eskin",)):
                 yield from _commands(sub, (*path, name))
 
 
-def repo_params() -> dict:
-    return yaml.safe_load((ROOT / "params.yaml").read_text())
+# Each params file and its schema: the pipeline's, and `make bench`'s and `make stress`'s.
+SCHEMAS = {"params.yaml": Params, "bench/params.yaml": BenchParams,
+           "stress/params.yaml": StressParams}
+
+
+def repo_params(name: str = "params.yaml") -> dict:
+    return yaml.safe_load((ROOT / name).read_text())
 
 
 def test_a_mistyped_key_is_named_with_the_key_it_resembles(project, capsys):
@@ -102,22 +111,50 @@ def test_a_mistyped_key_is_named_with_the_key_it_resembles(project, capsys):
     assert err.count("\n") == 1 and "cv.fols" in err and "did you mean cv.folds?" in err, err
 
 
-@pytest.mark.parametrize("path, typo, known", [
-    (("scenes", "single_force"), "sampels", "samples"),
-    (("soak", "faults"), "dorp", "drop"),
-    ((), "reprot", "report"),
+@pytest.mark.parametrize("name, path, typo, known", [
+    ("params.yaml", ("scenes", "single_force"), "sampels", "samples"),
+    ("params.yaml", (), "reprot", "report"),
+    ("bench/params.yaml", ("soak", "faults"), "dorp", "drop"),
+    ("bench/params.yaml", ("bench",), "evaluate_fold", "evaluate_folds"),
+    ("bench/params.yaml", (), "fuz", "fuzz"),
+    ("stress/params.yaml", ("stress",), "trails", "trials"),
 ])
-def test_a_mistyped_key_anywhere_suggests_the_known_one(path, typo, known):
-    params = copy.deepcopy(repo_params())
+def test_a_mistyped_key_anywhere_suggests_the_known_one(name, path, typo, known):
+    params = copy.deepcopy(repo_params(name))
     section = params
     for part in path:
         section = section[part]
     section[typo] = section.pop(known)
     with pytest.raises(ParamsError) as raised:
-        validate_params(params)
+        validate_params(params, Path(name), SCHEMAS[name])
     prefix = ".".join(path) + "." if path else ""
-    assert f"{prefix}{typo} is not a known key; did you mean {prefix}{known}?" in \
-        str(raised.value)
+    assert str(raised.value) == (f"{name}: {prefix}{typo} is not a known key; did you mean "
+                                 f"{prefix}{known}? ({prefix}{known} is missing)")
+
+
+def test_a_mistyped_key_in_a_subprojects_params_is_one_line_from_its_stage(project):
+    """`make bench`'s knobs are in bench/params.yaml: a typo there stops its stage with
+    one line naming the file and the key, as in params.yaml."""
+    bench = repo_params("bench/params.yaml")
+    bench["fuzz"]["exampels"] = bench["fuzz"].pop("examples")
+    write_params(project / "bench", bench)
+    done = subprocess.run([sys.executable, "-m", "stages.fuzz", "parser"], cwd=project,
+                          capture_output=True, text=True, timeout=120,
+                          env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert done.returncode == 1, done
+    assert done.stderr == ("eskin: error: bench/params.yaml: fuzz.exampels is not a known "
+                           "key; did you mean fuzz.examples? (fuzz.examples is missing)\n")
+
+
+def test_the_pipelines_params_file_takes_no_bench_knobs():
+    """bench, soak, fuzz and stress are the subprojects' (`dvc exp show` lists every key of
+    params.yaml): written there, they are one line saying so."""
+    params = repo_params()
+    params["soak"] = repo_params("bench/params.yaml")["soak"]
+    with pytest.raises(ParamsError) as raised:
+        validate_params(params)
+    assert str(raised.value) == ("params.yaml: soak is not a section of this file: move it to "
+                                 "bench/params.yaml")
 
 
 def test_an_unknown_key_like_no_known_one_lists_the_known_keys():

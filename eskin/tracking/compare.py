@@ -161,8 +161,10 @@ def variant_table(runs: pd.DataFrame, scheme: str = "grouped", *,
         for (scene, column), label in zip(scored, labels, strict=True):
             values = own.loc[own["_scene"] == scene, column].dropna()
             row[label] = values.iloc[-1] if len(values) else np.nan
-        row["runs"] = len(own)
-        row["run time s"] = round(float(run_seconds(own).sum()), 1)
+        # runs that trained: a task DVC reused has a run too, but its time is another's
+        trained = own[_tag(own, "eskin.trained") != "reused"]
+        row["runs"] = len(trained)
+        row["run time s"] = round(float(run_seconds(trained).sum()), 1)
         row["finished"] = own["end_time"].max()
         rows.append(row)
     return pd.DataFrame(rows)
