@@ -146,13 +146,13 @@ class Acquire(_Section):
     reconnect_s: NonNegative
     max_jump_counts: Positive
     max_attempts: Count
+    max_interruptions: Count
 
 
 class Soak(_Section):
     corrupt_fraction: Probability
     faults: Faults
     timeout_s: Positive
-    max_attempts: Count
     reconnect_s: NonNegative
     kill_at: list[_real(gt=0, lt=1)]
 

@@ -91,7 +91,7 @@ class SoakResult:
 
 
 def soak_params(params: Params, settings: Soak, fault_log: Path, scene: str) -> dict[str, Any]:
-    """The project's params (as written) with the soak's faults, timeouts and attempts, and
+    """The project's params (as written) with the soak's faults and timeouts, and
     ``scene`` alone, simulated. What the soak reads is the ``sim``, ``sim_board``,
     ``acquire``, ``ingest`` and ``soak`` sections and the scene's; the rest only makes a
     whole params file for `eskin acquire`."""
@@ -106,7 +106,6 @@ def soak_params(params: Params, settings: Soak, fault_log: Path, scene: str) -> 
     out["sim_board"]["faults"] = {**settings.faults.model_dump(exclude_unset=True),
                                   "log": str(fault_log)}
     out["acquire"].update(timeout_s=float(settings.timeout_s),
-                          max_attempts=int(settings.max_attempts),
                           reconnect_s=float(settings.reconnect_s))
     return out
 

@@ -6,9 +6,10 @@ the host is tested against a counterpart that does not share its mistakes. Its s
 has ``rows`` × ``columns`` terminals (the paper's 10 × 10 unless told): it announces
 ``terminals=rows+columns`` and sends that many readings, x1..xR then y1..yC.
 It speaks the simulated-board extension too (``SIM CLEAR``, ``SIM TRIAL n``,
-``SIM PRESS x y N``), so readings are a function of the trial, the stretch,
-the presses and the sample index: a condition asked again reads the same,
-and a run with misbehaviours can be compared row by row with an honest one.
+``SIM PRESS x y N``, ``SIM REPLAY i``), so readings are a function of the trial,
+the stretch, the presses and the sample index (from 0 at ``SIM TRIAL``, from i at
+``SIM REPLAY i``): a condition asked again reads the same, and a run with
+misbehaviours can be compared row by row with an honest one.
 
 Misbehaviours, each at the ``at``-th ``SAMPLE`` request (1-based):
 
@@ -27,6 +28,13 @@ Misbehaviours, each at the ``at``-th ``SAMPLE`` request (1-based):
 * ``silent``: no answer at all to that request (the host gives up on it and
   reconnects), then answers as before;
 * ``last_lost``: the answer's last frame damaged on the line (its CRC wrong);
+* ``restart_mid``: that request and the ``times`` - 1 after it are each cut short by a
+  restart half-way through the answer (its first n // 2 frames, then ``#HELLO``; the
+  stretch and presses forgotten, the sequence from 0), then it answers as before;
+* ``damage_each``: every answer in that request's trial (``SIM TRIAL`` of the same
+  number again included) goes out with every other frame damaged: those of even
+  sample index in the first answer, of odd index in the next, and so on, so no
+  answer is ever whole;
 * ``time_back``: the answer's first frame says ``t_ms`` 0, its CRC right (digits
   lost in a frame whose CRC-8 matched by chance); its seq goes in ``time_back``;
 * ``long_line``: a 1 MiB junk line, ended by a newline, before the answer;
@@ -92,13 +100,14 @@ LONG_LINE = b"~" * (1 << 20) + b"\n"  # 1 MiB of junk in one line
 
 class HostileBoard:
     def __init__(self, *, device_id: str = "hostile-0001", misbehaviour: str | None = None,
-                 at: int = 50, damage_first: bool = False, rows: int = 10,
-                 columns: int = 10) -> None:
+                 at: int = 50, times: int = 1, damage_first: bool = False,
+                 rows: int = 10, columns: int = 10) -> None:
         self.device_id = device_id
         self.rows = rows
         self.terminals = rows + columns
         self.misbehaviour = misbehaviour
         self.at = at
+        self.times = times           # restart_mid: how many requests in a row
         self.damage_first = damage_first
         self.greeted = False         # greeted since its last answer: damage_first is due
         self.cr_only = False         # its lines end in CR only
@@ -115,6 +124,8 @@ class HostileBoard:
         self.hijacked = False        # another board has taken over the line
         self.gone_wild = False       # trickle / flood: never answers again
         self.held = b""              # lagging: the frame held back for the next answer
+        self.damage_trial: int | None = None  # damage_each: the trial whose answers
+        self.damaged_answers = 0               # are damaged, and how many so far
         self.streaming = False
         self.streamed = 0
         self.sent: list[tuple[int, list[int]]] = []  # streamed frames: (seq, counts)
@@ -169,6 +180,8 @@ class HostileBoard:
                 self.trial, self.index = int(words[2]), 0
             elif sub == "PRESS":
                 self.presses.append((words[2], words[3], words[4]))
+            elif sub == "REPLAY":
+                self.index = int(words[2])
             return f"#OK SIM {sub}\n".encode()
         if name == "SAMPLE":
             return self.sample(int(words[1]))
@@ -185,6 +198,12 @@ class HostileBoard:
             return b""
         if cue == "cr_only":
             self.cr_only = True
+        if (self.misbehaviour == "restart_mid"
+                and self.at <= self.samples_asked < self.at + self.times):
+            half = b"".join(self.frame() for _ in range(n // 2))
+            self.stretch_mm, self.presses, self.trial, self.seq = "0", [], 0, 0
+            self.greeted = True
+            return half + self.hello()
         greeted, self.greeted = self.greeted, False
         if greeted and self.damage_first:
             first = damaged(self.frame())
@@ -192,6 +211,14 @@ class HostileBoard:
         if cue == "last_lost":
             frames = [self.frame() for _ in range(n)]
             return b"".join(frames[:-1]) + damaged(frames[-1]) + ok
+        if cue == "damage_each":
+            self.damage_trial = self.trial
+        if self.damage_trial is not None and self.trial == self.damage_trial:
+            parity = self.damaged_answers % 2
+            self.damaged_answers += 1
+            frames = [(self.index, self.frame()) for _ in range(n)]
+            return b"".join(damaged(line) if index % 2 == parity else line
+                            for index, line in frames) + ok
         if cue == "time_back":
             self.time_back.append(self.seq)
             first = time_fallen(self.frame())

@@ -144,27 +144,24 @@ def test_a_port_that_is_gone_is_named_once_in_each_notice_and_in_the_error(trans
 
 
 def test_a_damaged_frame_that_passes_its_crc_is_still_caught():
-    from eskin.device.link import jump_problem
+    from eskin.device.link import digits_lost
     from eskin.device.protocol import encode_frame, parse_line
 
-    def batch(rows, times=None):
-        times = times or [12 * i for i in range(len(rows))]
-        out = SampleBatch(len(rows))
-        out.frames = [parse_line(encode_frame(i, t, row)[:-1])
-                      for i, (t, row) in enumerate(zip(times, rows, strict=True))]
-        return out
+    def frames(rows):
+        return [parse_line(encode_frame(i, 12 * i, row)[:-1]) for i, row in enumerate(rows)]
 
     steady = [[512 + (i % 3)] * 20 for i in range(20)]
-    assert batch(steady).problem is None and jump_problem(batch(steady), 40) is None
+    assert digits_lost(frames(steady), 40) is None
     dropped_digit = [list(r) for r in steady]
     dropped_digit[7][4] = 52          # "512" lost its "1": valid shape, CRC recomputed
-    assert "sample 7 (seq 7) reads 52 on terminal 5, whose median is 513: fewer digits and " \
-        "461 counts away" in jump_problem(batch(dropped_digit), 40)
+    place, why = digits_lost(frames(dropped_digit), 40)
+    assert place == 7 and "sample 7 (seq 7) reads 52 on terminal 5, whose median is 513: " \
+        "fewer digits and 461 counts away" in why
     noisy = [[500 + 60 * (i % 2)] * 20 for i in range(20)]   # a noisy skin, σ ≈ 44
     noisy[3][0] = 99                                          # 2 digits but within 10 σ
-    assert jump_problem(batch(noisy), 40) is None
+    assert digits_lost(frames(noisy), 40) is None
     steady[5][2] = 1100 - 1000                                 # a real 3-digit reading
-    assert jump_problem(batch(steady), 40) is None, "far, but no digit lost"
+    assert digits_lost(frames(steady), 40) is None, "far, but no digit lost"
 
 
 def test_a_frame_whose_board_time_fell_is_never_credited_within_or_across_answers():

@@ -52,6 +52,7 @@ def acquire(name: str, scene: Scene, raw_dir: Path, *, acquire: Acquire, sim: Si
         faults=LinkFaults.from_mapping(board.faults.model_dump(exclude_unset=True)),
         frame_period_ms=int(board.frame_period_ms), timeout_s=float(acquire.timeout_s),
         max_attempts=int(acquire.max_attempts),
+        max_interruptions=int(acquire.max_interruptions),
         reconnect_s=float(acquire.reconnect_s),
         max_jump_counts=float(acquire.max_jump_counts),
         indenters=acquire.indenters, progress=progress)

@@ -14,7 +14,11 @@ One text file per scene, one record per line, fields separated by tabs::
 Every frame line is kept as it arrived, the rejected ones too (the first
 64 of each attempt: a board that floods junk cannot fill the disk; the
 acquisition summary counts them all), so the log is the evidence. Only
-attempts closed by ``E`` count. After a crash the last line may be torn;
+attempts closed by ``E`` count. A condition whose frames came from several
+attempts (each answer's valid frames kept, the rest asked again) is closed
+by a record of its own: ``B`` with ``"assembled_from"``, the attempts its frames
+came from, then those frames in their places, copied from those attempts'
+``F`` lines, then ``E``. After a crash the last line may be torn;
 reading ignores it and reopening for append cuts it off, so a restart
 resumes at the first incomplete condition and loses nothing that was flushed.
 
@@ -217,6 +221,14 @@ class RawLogWriter:
     def end(self, attempt: int, n_frames: int) -> None:
         self._write("E", attempt, n_frames)
         self.flush()
+
+    def assemble(self, condition: dict, frames: list[Frame], attempts: list[int]) -> int:
+        """Close a condition with ``frames``, its samples in order, taken from the (already
+        logged) ``attempts``: a record of its own, complete."""
+        attempt = self.begin({**condition, "assembled_from": attempts})
+        self.frames(attempt, frames)
+        self.end(attempt, len(frames))
+        return attempt
 
     def abandon(self, attempt: int, reason: str) -> None:
         self._write("X", attempt, _ascii_field(reason))

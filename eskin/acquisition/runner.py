@@ -3,14 +3,20 @@
 For each condition not yet recorded on this device it sets the stretch,
 has the indenters placed — by ``SIM`` commands on the simulated board, by a
 person prompted at the terminal on a real one — and asks for the samples. A
-condition is stored only whole: if any frame fails its CRC, is malformed or
-is missing from the sequence, or a reading jumps far from the rest of its
-condition (a damaged frame whose CRC-8 matched by chance), the attempt is
-logged as abandoned and the condition is asked again (the simulated board
-replays the same trial, so a faulty link still gives the clean run's data).
-A board that restarts mid-condition (``#HELLO``) gets its stretch and
-indenters again; a port that fails is reopened with backoff, and only the
-same board is accepted back.
+condition is stored only whole. A frame that fails its CRC, is malformed or
+never arrives leaves its place in the answer empty (the sequence number places
+the others); the attempt is logged as abandoned, its valid frames are kept, and
+the condition is asked again from its first missing frame on, the weights left
+where they lie (the simulated board replays those frames of the trial, so a
+faulty link still gives the clean run's data). Once every place is filled, the
+frames are stored: as the attempt that brought them, or, if several did, as a
+record assembled from them. A reading that jumps far from the rest of its
+condition (a damaged frame whose CRC-8 matched by chance) empties its place. A
+board that restarts mid-condition (``#HELLO``) gets its stretch and indenters
+again; a port that fails is reopened with backoff, and only the same board is
+accepted back. Those link faults do not count as attempts at the condition: it is
+given up on after ``max_attempts`` answers, or ``max_interruptions`` requests cut
+short.
 """
 
 from __future__ import annotations
@@ -34,8 +40,9 @@ from eskin.device.link import (
     ProtocolViolation,
     SampleBatch,
     SerialLink,
-    jump_problem,
+    digits_lost,
 )
+from eskin.device.protocol import Frame
 from eskin.errors import EskinError
 
 log = logging.getLogger(__name__)
@@ -77,11 +84,18 @@ def trial_seed(key: str) -> int:
 
 
 class Placer(Protocol):
+    """The bench's hands: they place a condition's weights (once per condition, and again
+    only for a board that may have forgotten them: a restart, a reconnect), and before a
+    condition is asked again, let the board answer again from frame ``first`` on."""
+
     def place(self, link: SerialLink, condition: Condition, key: str, repeat: bool) -> None: ...
+
+    def replay(self, link: SerialLink, first: int) -> None: ...
 
 
 class SimulatedPlacer:
-    """Places indenters on the simulated board with SIM commands."""
+    """Places indenters on the simulated board with SIM commands; the placements come from
+    the condition's trial (``SIM TRIAL``), so placing them again places them alike."""
 
     def place(self, link: SerialLink, condition: Condition, key: str, repeat: bool) -> None:
         link.command("SIM CLEAR")
@@ -89,6 +103,10 @@ class SimulatedPlacer:
         for contact in condition.contacts:
             if contact.touches:
                 link.command(f"SIM PRESS {contact.x} {contact.y} {contact.force!r}")
+
+    def replay(self, link: SerialLink, first: int) -> None:
+        """``SIM REPLAY``: the frames asked again read as in the trial's first answer."""
+        link.command(f"SIM REPLAY {first}")
 
 
 class EmulatedPlacer:
@@ -104,6 +122,9 @@ class EmulatedPlacer:
     def place(self, link: SerialLink, condition: Condition, key: str, repeat: bool) -> None:
         self.rig.place(trial_seed(condition.key(*self.simulated)),
                        [(c.x, c.y, c.force) for c in condition.contacts if c.touches])
+
+    def replay(self, link: SerialLink, first: int) -> None:
+        self.rig.replay(first)
 
 
 class OperatorPlacer:
@@ -130,6 +151,9 @@ class OperatorPlacer:
                 "everything recorded so far is kept, rerun to resume") from None
         self._on_skin = touching
 
+    def replay(self, link: SerialLink, first: int) -> None:
+        """Nothing: a real board reads on, the weights where they lie."""
+
 
 def for_terminal(text: str, stream) -> str:
     """``text`` as ``stream`` can show it: an ASCII-only terminal gets ``stretch=`` for
@@ -145,18 +169,25 @@ def for_terminal(text: str, stream) -> str:
 
 def acquire(plan: ScenePlan, link: SerialLink, writer: RawLogWriter, placer: Placer, *,
             completed: dict[str, int], rest_length_mm: float, max_attempts: int = 5,
-            reconnect_s: float = 30.0, max_jump_counts: float = 40.0,
+            max_interruptions: int = 20, reconnect_s: float = 30.0,
+            max_jump_counts: float = 40.0,
             progress: bool = True,
             notify: Callable[[str], object] | None = None) -> AcquisitionReport:
     """Acquire every condition of ``plan`` not yet recorded whole: its key is not in
     ``completed`` (key -> frames of its latest complete attempt), or with fewer frames
     than the plan's samples (a plan whose ``samples`` grew).
 
-    A damaged batch is asked again; a board that restarts gets its stretch and
-    indenters again; a link that fails (the port vanishes, the board falls
-    silent past the timeout) is reopened with backoff for up to
-    ``reconnect_s``. Every frame that arrived, in whole attempts or not, is in
-    the log before any error or Ctrl-C leaves this function.
+    A condition is given up on after ``max_attempts`` answers (requests the board
+    answered to the end, however damaged their frames) or ``max_interruptions``
+    requests cut short (a board restart, a port that failed, a silence past the link's
+    timeout): those are the link's faults, not attempts at the condition, and the
+    link already bounds each one's wait. The valid frames of each answer are kept in
+    their places, and an answer that lost frames is followed by a request for the
+    answer again from its first missing frame on (the simulated board replays them, a
+    real one reads on, the weights where they lie). A board that restarts gets its
+    stretch and indenters again; a link that fails is reopened with backoff for up to
+    ``reconnect_s``. Every frame that arrived, in whole attempts or not, is in the log
+    before any error or Ctrl-C leaves this function.
     """
     hello = link.hello
     if hello is None:
@@ -164,6 +195,7 @@ def acquire(plan: ScenePlan, link: SerialLink, writer: RawLogWriter, placer: Pla
     started = time.monotonic()
     report = AcquisitionReport(plan.name, link.port, len(plan.conditions), 0, 0, 0, 0, 0, 0.0)
     stretch_mm: str | None = None
+    n = plan.samples
     bar = tqdm(total=len(plan.conditions), desc=f"acquire {plan.name}", unit="cond",
                disable=not progress, leave=False)
     say = notify or (lambda message: tqdm.write(f"acquire {plan.name}: {message}",
@@ -177,23 +209,33 @@ def acquire(plan: ScenePlan, link: SerialLink, writer: RawLogWriter, placer: Pla
                 continue
             wanted_mm = f"{(condition.stretch - 1.0) * rest_length_mm:.3f}"
             record = {"key": key, "scene": plan.name, **condition.as_dict()}
+            kept: dict[int, tuple[int, Frame]] = {}  # place -> (attempt, its first valid copy)
+            placed = False  # the board holds this condition's weights
             problem = None
-            for attempt_no in range(max_attempts):
-                attempt = None
+            answers = interruptions = 0
+            while True:
+                asked_before = answers + interruptions > 0
+                first = min(set(range(n)) - kept.keys())
+                attempt = number = batch = None
+                cut_short = False  # a link fault ended the request, not the board's answer
                 try:
                     if wanted_mm != stretch_mm:
                         link.command(f"STRETCH {wanted_mm}")
                         stretch_mm = wanted_mm
-                    placer.place(link, condition, key, repeat=attempt_no > 0)
-                    attempt = writer.begin(record)
-                    batch = SampleBatch(plan.samples)
+                    if not placed:
+                        placer.place(link, condition, key, repeat=asked_before)
+                        placed = True
+                    if asked_before:
+                        placer.replay(link, first)
+                    attempt = number = writer.begin(record)
+                    batch = SampleBatch(n - first)
                     try:
                         link.sample(batch)
                     finally:  # an error or Ctrl-C mid-batch: what arrived is kept
                         writer.frames(attempt, batch.frames)
                         writer.rejected(attempt, batch.rejected)
                         report.frames_rejected += batch.rejected_count
-                    problem = batch.problem or jump_problem(batch, max_jump_counts)
+                    problem = batch.problem
                 except BoardRefused:
                     _close(writer, attempt, "the board refused a command")
                     raise
@@ -203,17 +245,21 @@ def acquire(plan: ScenePlan, link: SerialLink, writer: RawLogWriter, placer: Pla
                         f"{plan.name}: {err}. Nothing from it was stored; everything the "
                         f"session's board sent is in {writer.path}.") from err
                 except ProtocolViolation as err:
-                    problem = str(err)  # the next request is fenced; ask again
+                    problem = str(err)  # an answer all the same; the next request is fenced
                 except BoardReset as err:
                     problem = str(err)
+                    cut_short = True
                     report.resets += 1
                     stretch_mm = None  # a restarted board forgot where the clamp is
+                    placed = False     # and the indenters
                 except LinkError as err:
                     problem = str(err)
+                    cut_short = True
                     _close(writer, attempt, problem)
                     attempt = None
                     report.reconnects += 1
-                    stretch_mm = None
+                    stretch_mm = None  # the board may have restarted while the link was down
+                    placed = False
                     try:
                         link.reopen(budget_s=reconnect_s, notify=say)
                     except LinkError as lost:
@@ -223,23 +269,71 @@ def acquire(plan: ScenePlan, link: SerialLink, writer: RawLogWriter, placer: Pla
                 except BaseException:  # Ctrl-C, or a bug: the attempt is closed, then stop
                     _close(writer, attempt, "interrupted")
                     raise
-                if problem is None:
-                    writer.end(attempt, len(batch.frames))
-                    report.frames_stored += len(batch.frames)
-                    break
-                _close(writer, attempt, problem)
+                if cut_short:
+                    interruptions += 1
+                else:
+                    answers += 1
+                if batch is not None:
+                    _keep(kept, batch, first, number)
+                if len(kept) == n:
+                    frames = [kept[place][1] for place in range(n)]
+                    lost = digits_lost(frames, max_jump_counts)
+                    if lost is None:
+                        _store(writer, record, kept, attempt, frames)
+                        report.frames_stored += n
+                        break
+                    place, problem = lost
+                    del kept[place]  # asked again with what follows it
+                _close(writer, attempt, problem if len(kept) == 0 else
+                       f"{problem}; {len(kept)} of {n} frames kept")
+                if answers == max_attempts:
+                    raise AcquisitionError(
+                        f"{plan.name}: {condition.describe()} failed {max_attempts} times "
+                        f"(acquire.max_attempts) on {link.port} ({len(kept)} of its {n} "
+                        f"frames arrived valid), last: {problem}. Received data is in "
+                        f"{writer.path}; rerun to resume.")
+                if interruptions == max_interruptions:
+                    raise AcquisitionError(
+                        f"{plan.name}: {condition.describe()} was cut short {interruptions} "
+                        f"times (acquire.max_interruptions) on {link.port} by board "
+                        f"restarts, a failing port or silences past acquire.timeout_s "
+                        f"({answers} answer(s), {len(kept)} of its {n} frames valid), last: "
+                        f"{problem}. Check the board's supply and cable, or raise "
+                        f"acquire.max_interruptions; received data is in {writer.path}, "
+                        "rerun to resume.")
                 report.retries += 1
-                log.info("%s: %s; asking again", condition.describe(), problem)
-            else:
-                raise AcquisitionError(
-                    f"{plan.name}: {condition.describe()} failed {max_attempts} times on "
-                    f"{link.port}, last: {problem}. Received data is in {writer.path}; "
-                    "rerun to resume.")
-            completed[key] = len(batch.frames)
+                log.info("%s: %s; asking again (%d answer(s), %d interruption(s) so far)",
+                         condition.describe(), problem, answers, interruptions)
+            completed[key] = n
             report.acquired += 1
             bar.update()
     report.seconds = time.monotonic() - started
     return report
+
+
+def _keep(kept: dict[int, tuple[int, Frame]], batch: SampleBatch, first: int,
+          attempt: int) -> None:
+    """Keep the placed frames of ``batch``, an answer from place ``first`` on, where no
+    valid frame is kept yet; a whole answer from place 0 replaces what was kept, so that it
+    is stored as it came."""
+    placed = batch.placed()
+    if first == 0 and len(placed) == batch.requested:
+        kept.clear()
+    for index, frame in placed.items():
+        kept.setdefault(first + index, (attempt, frame))
+
+
+def _store(writer: RawLogWriter, record: dict, kept: dict[int, tuple[int, Frame]],
+           attempt: int | None, frames: list[Frame]) -> None:
+    """Close the condition: the attempt that brought all its frames, or, when they came
+    from several, a record of their own assembled from them."""
+    sources = sorted({number for number, _ in kept.values()})
+    if sources == [attempt]:
+        writer.end(attempt, len(frames))
+        return
+    _close(writer, attempt, "its frames complete the condition with those kept from "
+           f"attempt(s) {', '.join(map(str, sources))}: stored assembled, next")
+    writer.assemble(record, frames, sources)
 
 
 def _close(writer: RawLogWriter, attempt: int | None, reason: str) -> None:

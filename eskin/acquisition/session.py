@@ -99,8 +99,9 @@ def session_id(contents: LogContents | None, plan: ScenePlan, hello: Hello) -> s
 
 def run_session(plan: ScenePlan, raw_dir: Path, *, port: str, placer: Placer,
                 rest_length_mm: float, simulator: dict | None, timeout_s: float = 5.0,
-                max_attempts: int = 5, reconnect_s: float = 30.0,
-                max_jump_counts: float = 40.0, progress: bool = True) -> AcquisitionReport:
+                max_attempts: int = 5, max_interruptions: int = 20,
+                reconnect_s: float = 30.0, max_jump_counts: float = 40.0,
+                progress: bool = True) -> AcquisitionReport:
     """Connect to the board on ``port`` and acquire what the raw log still lacks."""
     source = ("emulated" if simulator and simulator.get("emulated") else
               "simulated" if simulator else "serial")
@@ -140,8 +141,8 @@ def run_session(plan: ScenePlan, raw_dir: Path, *, port: str, placer: Placer,
         try:
             return acquire(plan, link, writer, placer, completed=completed,
                            rest_length_mm=rest_length_mm, max_attempts=max_attempts,
-                           reconnect_s=reconnect_s, max_jump_counts=max_jump_counts,
-                           progress=progress)
+                           max_interruptions=max_interruptions, reconnect_s=reconnect_s,
+                           max_jump_counts=max_jump_counts, progress=progress)
         finally:
             writer.close()
 
@@ -149,7 +150,8 @@ def run_session(plan: ScenePlan, raw_dir: Path, *, port: str, placer: Placer,
 def acquire_scene(plan: ScenePlan, raw_dir: Path, *, source: str, sim: SkinParams,
                   rest_length_mm: float, port: str | None = None, corrupt_fraction: float = 0.0,
                   faults: LinkFaults | None = None, frame_period_ms: int = 12,
-                  timeout_s: float = 5.0, max_attempts: int = 5, reconnect_s: float = 30.0,
+                  timeout_s: float = 5.0, max_attempts: int = 5,
+                  max_interruptions: int = 20, reconnect_s: float = 30.0,
                   max_jump_counts: float = 40.0, ask: Callable[[str], object] = input,
                   indenters: str = "person", progress: bool = True,
                   emulated_faults: Mapping[int, str] | None = None) -> AcquisitionReport:
@@ -162,7 +164,8 @@ def acquire_scene(plan: ScenePlan, raw_dir: Path, *, source: str, sim: SkinParam
     (for ``faults.vanish_s``); see :class:`~eskin.device.emulated.EmulatedRig`.
     """
     options = {"rest_length_mm": rest_length_mm, "timeout_s": timeout_s,
-               "max_attempts": max_attempts, "reconnect_s": reconnect_s,
+               "max_attempts": max_attempts, "max_interruptions": max_interruptions,
+               "reconnect_s": reconnect_s,
                "max_jump_counts": max_jump_counts, "progress": progress}
     if source == "simulated":
         with simulated_board(sim, skin=plan.skin, rest_length_mm=rest_length_mm,

@@ -1,11 +1,14 @@
 """The simulated board's command handling, as pure code (bytes in, bytes out).
 
 It speaks wire protocol v1 exactly as the firmware does, plus the simulated-
-board commands ``SIM PRESS <x> <y> <newtons>``, ``SIM CLEAR`` and
-``SIM TRIAL <n>``. ``SIM TRIAL`` starts trial n: placements, drift and noise
-then come from a stream seeded by (sim seed, n), so re-requesting a trial
-after a corrupted frame yields the same readings, and a run with link faults
-gives the same dataset as a clean one. Transports live in ``simulate.py``.
+board commands ``SIM PRESS <x> <y> <newtons>``, ``SIM CLEAR``, ``SIM TRIAL <n>``
+and ``SIM REPLAY <from>``. ``SIM TRIAL`` starts trial n: placements, drift and
+noise then come from a stream seeded by (sim seed, n). ``SIM REPLAY`` rewinds
+the trial, its weights left where they lie, so that the next ``SAMPLE k``
+answers frames from .. from + k - 1 of the trial's first (from + k)-frame answer:
+the frames an answer lost on the line are asked again and read as they did, and
+a run with link faults gives the same dataset as a clean one. Transports live
+in ``simulate.py``.
 """
 
 from __future__ import annotations
@@ -136,6 +139,7 @@ class SimulatedBoard:
         self._stretch = 1.0
         self._trial = Trial(self.model, [0])
         self._indenters: list[Indenter] = []
+        self._replay_from = 0  # SIM REPLAY: the frames of the next answer to leave out
 
     @functools.cached_property
     def device_id(self) -> str:
@@ -149,8 +153,10 @@ class SimulatedBoard:
                 f"adc_bits={self.model.params.adc_bits} id={self.device_id}\n").encode()
 
     def frames(self, n: int) -> bytes:
-        """The next n frames at the current stretch and indenters."""
-        counts = self._trial.sample_counts(n, self._stretch, self._indenters)
+        """The next n frames at the current stretch and indenters (after ``SIM REPLAY
+        <from>``, frames from .. from + n - 1 of a (from + n)-frame answer)."""
+        skip, self._replay_from = self._replay_from, 0
+        counts = self._trial.sample_counts(skip + n, self._stretch, self._indenters)[skip:]
         lines = []
         for row in counts:
             lines.append(self._wire(encode_frame(self._seq, self._t_ms, row)))
@@ -211,7 +217,12 @@ class SimulatedBoard:
         if sub == "TRIAL" and len(args) == 1:
             n = _number(args[0], int, 0, 2**63 - 1)
             self._trial = Trial(self.model, [n])
+            self._replay_from = 0
             return f"#OK SIM TRIAL {n}\n".encode()
+        if sub == "REPLAY" and len(args) == 1:
+            self._replay_from = _number(args[0], int, 0, MAX_SAMPLE)
+            self._trial.rewind()
+            return f"#OK SIM REPLAY {self._replay_from}\n".encode()
         if sub == "PRESS" and len(args) == 3:
             x = _number(args[0], int, 1, self.skin.rows)  # a node of this skin only
             y = _number(args[1], int, 1, self.skin.columns)

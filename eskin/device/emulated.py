@@ -106,6 +106,7 @@ class EmulatedRig:
         self._trial = Trial(self.model, [0])
         self._indenters: list[Indenter] = []
         self._block: list[np.ndarray] = []
+        self._replay_from = 0  # replay(): the scans of the next block to leave out
         self._half_step = params.supply_v / (2**params.adc_bits - 1) / 2
 
     # ------------------------------------------------------------ the bench's hands
@@ -116,6 +117,16 @@ class EmulatedRig:
             self._trial = Trial(self.model, [trial])
             self._indenters = [self._trial.place(x, y, newtons) for x, y, newtons in contacts]
             self._block = []
+            self._replay_from = 0
+
+    def replay(self, first: int) -> None:
+        """Rewind the trial, the weights left where they lie: the scans from now on read
+        as its first block's from its scan ``first`` on (as the Python board's ``SIM
+        REPLAY``)."""
+        with self._lock:
+            self._trial.rewind()
+            self._block = []
+            self._replay_from = first
 
     # ------------------------------------------------------------ the harness's questions
 
@@ -125,7 +136,9 @@ class EmulatedRig:
         with self._lock:
             if not self._block:
                 stretch = 1.0 + steps / STEPS_PER_MM / self.rest_length_mm
-                self._block = list(self._trial.sample_pf(self.samples, stretch, self._indenters))
+                block = self._trial.sample_pf(self.samples, stretch, self._indenters)
+                self._block = list(block[self._replay_from:])
+                self._replay_from = 0
             capacitance = self._block.pop(0)
         supply = self.model.params.supply_v
         volts = cav424_volts(self.model, capacitance) + self._half_step

@@ -16,11 +16,17 @@ The accounting of frames to requests lives here and only here:
   ``#HELLO``: a replayed answer goes backwards and is a :class:`Violation`
   (and what was owed is forgotten: a count that went back may be a restart
   whose ``#HELLO`` was lost);
-* a ``SAMPLE n`` is :class:`SampleComplete` only with exactly n frames, in
-  one unbroken sequence, then ``#OK SAMPLE n``. An ``#OK`` before the n-th
-  frame, an n+1-th frame, a lost frame, a reply to another command: a
-  :class:`Violation`, and the request is closed, so everything the board
-  sends after it is stray until the next request;
+* a frame credited to a ``SAMPLE n`` is placed in its answer by its sequence
+  number: its index is its seq less the seq the answer begins at, so a frame
+  lost on the line leaves its place empty and the frames after it keep theirs
+  (the caller asks again for what is missing, and keeps what came);
+* a ``SAMPLE n`` is :class:`SampleComplete` with all n places filled (n frames
+  in one unbroken sequence), then ``#OK SAMPLE n``; an ``#OK SAMPLE n`` with
+  places empty is :class:`SampleIncomplete`: the board finished its answer, and
+  frames were lost on the way. A frame beyond the n-th place, an ``#OK`` for
+  another count, a reply to another command: a :class:`Violation`, and the
+  request is closed, so everything the board sends after it is stray until the
+  next request;
 * a ``#HELLO`` from the board the session began with is :class:`Restarted`
   (it forgot its state); from any other board it is :class:`OtherBoard`, and
   nothing that board sends is ever credited to a request; from a board of other
@@ -28,16 +34,21 @@ The accounting of frames to requests lives here and only here:
   at the greeting too, and its frames fail the parser;
 * the n sequence numbers of a ``SAMPLE n``'s answer are that request's, however
   it ended (an ``#OK`` before the n-th frame, a violation): its answer begins
-  after the last frame seen before it, or, when none was (after a connect or a
-  ``#HELLO``), at its first frame. A frame carrying one of them later is stray,
-  never the first frame of the next answer (a board that lags by a frame would
-  otherwise shift every later sample by one); one of them lost is that
-  request's loss, not the next one's (an answer whose last frame was damaged
-  costs one retry, not two);
-* with no sequence number to place an answer by, and a line that could not be
-  trusted before its first frame, the frames it lacks may have been its first:
-  nothing after its last frame is owed (owing it would cost every later answer
-  its first frame, and the condition its attempts);
+  after the last frame seen or owed before it, when every frame the board sent
+  since the sequence was known is one of those (the last answer was placed and
+  ended with its ``#OK``); else (after a connect, a ``#HELLO``, a violation, a
+  fence, a frame sent unasked, an answer not placed) at its first frame. A frame
+  carrying one of them later is stray, never the first frame of the next answer
+  (a board that lags by a frame would otherwise shift every later sample by
+  one); one of them lost is that request's loss, not the next one's (an answer
+  whose last frame was damaged costs one retry, not two);
+* with no sequence number to place an answer by, its first frame to arrive
+  begins it (a frame lost on the line leaves a line that could not be trusted);
+  but with such a line before that frame, the frames it lacks may have been its
+  first: its frames are not placed (``SampleFrame.placed`` False: their index
+  counts from the first that arrived) unless all n arrive, and nothing after its
+  last frame is owed (owing it would cost every later answer its first frame, and the
+  condition its attempts);
 * board time (``t_ms``) never falls from one frame to the next, within an answer
   or across answers, as the sequence never does: a frame whose time fell is a
   damaged frame whose CRC-8 matched by chance, a :class:`Violation` in a
@@ -86,11 +97,16 @@ class Refused:
 
 @dataclass(frozen=True)
 class SampleFrame:
-    """Frame ``index`` (0-based) of the answer to ``SAMPLE`` request ``request``."""
+    """Frame ``index`` (0-based) of the answer to ``SAMPLE`` request ``request``.
+
+    ``placed`` False: no seq placed the answer and a damaged line came before its first
+    frame to arrive, so ``index`` counts from that frame, which may not have been the
+    answer's first; only a :class:`SampleComplete` answer places such frames."""
 
     request: int
     index: int
     frame: Frame
+    placed: bool = True
 
 
 @dataclass(frozen=True)
@@ -99,6 +115,16 @@ class SampleComplete:
 
     request: int
     frames: int
+
+
+@dataclass(frozen=True)
+class SampleIncomplete:
+    """``#OK SAMPLE n`` after ``frames`` of the n: the others were lost on the line. The
+    request is closed; the frames credited keep their places."""
+
+    request: int
+    frames: int
+    requested: int
 
 
 @dataclass(frozen=True)
@@ -163,8 +189,9 @@ class Junk:
     error: ParseError
 
 
-HostEvent = (Greeted | Answered | Refused | SampleFrame | SampleComplete | Violation
-             | Restarted | OtherBoard | OtherSkin | Stray | StreamFrame | StreamGap | Junk)
+HostEvent = (Greeted | Answered | Refused | SampleFrame | SampleComplete | SampleIncomplete
+             | Violation | Restarted | OtherBoard | OtherSkin | Stray | StreamFrame
+             | StreamGap | Junk)
 
 
 @dataclass
@@ -175,8 +202,8 @@ class _Request:
     text: str
     n: int = 0         # SAMPLE: frames asked for
     got: int = 0       # SAMPLE: frames credited
-    start: int | None = None  # SAMPLE: the seq its answer begins at, if a seq came before
-    first: int | None = None  # SAMPLE: the seq of its first credited frame
+    start: int | None = None  # SAMPLE: the seq its answer begins at (index 0), once known
+    placed: bool = True       # SAMPLE: start is known to be the answer's first seq
     junk_first: bool = False  # SAMPLE: a line that could not be trusted came before it
 
 
@@ -213,6 +240,9 @@ class HostProtocol:
         self._last_seq: int | None = None   # of the last frame seen, any request
         self._last_t_ms: int | None = None  # its board time
         self._owed_up_to: int | None = None  # seqs that belong to an earlier SAMPLE's answer
+        # Every frame the board sent since the sequence was known is seen or owed, so its
+        # next frame's seq is known: a SAMPLE answer can be placed before it arrives.
+        self._next_seq_known = False
 
     # ------------------------------------------------------------ requests
 
@@ -238,6 +268,7 @@ class HostProtocol:
     def send_fence(self) -> bytes:
         """``STREAM OFF``: when its ``#OK`` arrives the board has sent all it owed."""
         self._start("fence", "STREAM", "STREAM OFF")
+        self._next_seq_known = False  # what it absorbs may have lost frames
         return b"STREAM OFF\n"
 
     def send_stream(self) -> bytes:
@@ -249,9 +280,10 @@ class HostProtocol:
             raise ProtocolStateError(f"SAMPLE asks for at least one frame, not {n}")
         request = self._start("sample", "SAMPLE", f"SAMPLE {n}")
         request.n = n
-        if self._last_seq is not None:
+        if self._next_seq_known:
+            last = self._last_seq if self._last_seq is not None else -1
             owed = self._owed_up_to if self._owed_up_to is not None else -1
-            request.start = max(self._last_seq, owed) + 1
+            request.start = max(last, owed) + 1
         return b"SAMPLE %d\n" % n
 
     def abandon(self) -> None:
@@ -261,6 +293,7 @@ class HostProtocol:
             self._owe(self._open)
             self._open = None
             self.needs_fence = True
+            self._next_seq_known = False
 
     def reset_link(self) -> None:
         """A new connection: partial lines and the sequence are forgotten."""
@@ -308,29 +341,19 @@ class HostProtocol:
             elif request is None or request.kind != "sample" or owed:
                 # An owed frame answers an earlier request (one whose #OK came too early,
                 # say): it is never credited to a later one, however continuous its seq.
+                # Any other was sent unasked: more like it may have been lost.
+                self._next_seq_known = self._next_seq_known and owed
                 self.stray_frames += 1
                 events.append(Stray(event))
             elif time_fell:
                 self._violate(events, time_fell, event.line)
-            elif request.got == request.n:
-                self._violate(events, f"more than the {request.n} frames asked for "
-                              f"(seq {event.seq})", event.line)
             else:
-                if request.got == 0:
-                    request.first = event.seq
-                events.append(SampleFrame(request.number, request.got, event))
-                request.got += 1
+                self._credit(request, event, events)
         elif isinstance(event, SequenceGap):
+            # In a SAMPLE answer a lost frame leaves its place empty (the seq places the
+            # rest): nothing to do here.
             if self.streaming and (request is None or request.kind != "sample"):
                 events.append(StreamGap(event.expected, event.got))
-            elif request is not None and request.kind == "sample":
-                # Seqs of an earlier answer (its last frame, damaged) are its loss, not
-                # this request's: only a missing seq after them is.
-                owed = self._owed_up_to if self._owed_up_to is not None else -1
-                expected = max(event.expected, owed + 1)
-                if expected < event.got:
-                    self._violate(events, f"frames lost: expected seq {expected}, "
-                                  f"got {event.got}")
         elif isinstance(event, ParseError):
             if event.reason.startswith(_BACKWARDS):
                 # The board's count started again (a restart whose #HELLO was lost) or an
@@ -411,18 +434,36 @@ class HostProtocol:
         if reply.details.strip() != str(request.n):
             self._violate(events, f"#OK SAMPLE {reply.details.strip()!r} answered "
                           f"SAMPLE {request.n}", reply.line, request)
-        elif request.got != request.n:
-            self._violate(events, f"#OK SAMPLE after {request.got} of {request.n} frames",
-                          reply.line, request)
-        else:
-            self._owe(request)
+            return
+        self._owe(request)
+        # The answer's n seqs are known only if it was placed: then the next follows them.
+        self._next_seq_known = request.start is not None and request.placed
+        if request.got == request.n:
             events.append(SampleComplete(request.number, request.got))
+        else:  # the board ended its answer in turn: no fence is needed
+            events.append(SampleIncomplete(request.number, request.got, request.n))
+
+    def _credit(self, request: _Request, frame: Frame, events: list[HostEvent]) -> None:
+        """Credit ``frame`` to the open ``SAMPLE`` at the place its seq gives it."""
+        if request.start is None:
+            # No seq came before the answer: its first frame to arrive begins it, surely
+            # only if no damaged line came before that frame.
+            request.start = frame.seq
+            request.placed = not request.junk_first
+        index = frame.seq - request.start
+        if index >= request.n:
+            self._violate(events, f"more than the {request.n} frames asked for "
+                          f"(seq {frame.seq})", frame.line)
+            return
+        request.got += 1
+        events.append(SampleFrame(request.number, index, frame, request.placed))
 
     def _violate(self, events: list[HostEvent], reason: str, line: bytes = b"",
                  request: _Request | None = None, *, owe: bool = True) -> None:
         request = request or self._open
         self._open = None
         self.needs_fence = True
+        self._next_seq_known = False  # the board may have sent frames beyond its answer
         if request is not None and owe:
             self._owe(request)
         events.append(Violation(request.number if request else 0, reason, line))
@@ -430,18 +471,15 @@ class HostProtocol:
     def _owe(self, request: _Request) -> None:
         """A closed ``SAMPLE``'s n seqs are its own, from where its answer began: the seq
         after the last frame seen before it, or else its first frame's."""
-        if request.kind != "sample":
-            return
-        if request.start is not None:
+        if request.kind == "sample" and request.start is not None and request.placed:
             self._owed_up_to = request.start + request.n - 1
-        elif request.first is not None and not request.junk_first:
-            self._owed_up_to = request.first + request.n - 1
         # Else no seq placed the answer and a damaged line came before its first frame:
         # that line may have been its first frame, so the seqs after its last frame are
         # not taken as its own (each later answer would lose its first frame as owed).
 
     def _forget_sequence(self) -> None:
         self._last_seq = self._last_t_ms = self._owed_up_to = None
+        self._next_seq_known = False
 
     def _time_fell(self, frame: Frame) -> str | None:
         """Why ``frame``'s board time cannot be right: it fell since the last frame (but for

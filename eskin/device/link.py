@@ -35,6 +35,7 @@ from eskin.device.host import (
     Restarted,
     SampleComplete,
     SampleFrame,
+    SampleIncomplete,
     StreamFrame,
     StreamGap,
     Violation,
@@ -88,10 +89,15 @@ class ProtocolViolation(LinkError):
 
 @dataclass
 class SampleBatch:
-    """What one ``SAMPLE n`` brought back."""
+    """What one ``SAMPLE n`` brought back: the frames credited to it as they arrived, each
+    with its place in the answer (``indexes``)."""
 
     requested: int
     frames: list[Frame] = field(default_factory=list)
+    indexes: list[int] = field(default_factory=list)
+    # An index counts from the first frame that arrived, which may not have been the
+    # answer's first (SampleFrame.placed): only a whole answer places them.
+    unplaced: bool = False
     rejected: list[ParseError] = field(default_factory=list)
     rejected_count: int = 0
     violation: str | None = None
@@ -101,6 +107,14 @@ class SampleBatch:
         self.rejected_count += 1
         if len(self.rejected) < MAX_EVIDENCE_LINES:
             self.rejected.append(error)
+
+    def placed(self) -> dict[int, Frame]:
+        """The frames whose place in the answer is known, by place: none if the board broke
+        the protocol in its answer (nothing in it is trusted), nor if no seq placed it and
+        it is not whole."""
+        if self.violation or (self.unplaced and self.problem):
+            return {}
+        return dict(zip(self.indexes, self.frames, strict=True))
 
     @property
     def problem(self) -> str | None:
@@ -438,9 +452,10 @@ class SerialLink:
 
     def sample(self, batch: SampleBatch) -> SampleBatch:
         """Request ``batch.requested`` frames and collect into ``batch`` those the
-        protocol credits to this request, and the rejected lines as evidence. Filled
-        as they arrive, so whatever came before an error or a Ctrl-C is in ``batch``;
-        a protocol violation ends the request with ``batch.violation`` set."""
+        protocol credits to this request, with their places in the answer, and the
+        rejected lines as evidence. Filled as they arrive, so whatever came before an
+        error or a Ctrl-C is in ``batch``; a protocol violation ends the request with
+        ``batch.violation`` set."""
         n = batch.requested
         self._prepare()
 
@@ -449,11 +464,13 @@ class SerialLink:
                                   "had arrived)")
             if isinstance(event, SampleFrame):
                 batch.frames.append(event.frame)
+                batch.indexes.append(event.index)
+                batch.unplaced = batch.unplaced or not event.placed
                 return False
             if isinstance(event, Junk):
                 batch.reject(event.error)
                 return None
-            if isinstance(event, SampleComplete):
+            if isinstance(event, SampleComplete | SampleIncomplete):
                 return True
             if isinstance(event, Violation):
                 batch.violation = event.reason
@@ -495,8 +512,9 @@ def _os_reason(err: BaseException) -> str:
     return str(err)
 
 
-def jump_problem(batch: SampleBatch, max_jump_counts: float) -> str | None:
-    """Why a whole batch still cannot be trusted: a reading that lost digits.
+def digits_lost(frames: list[Frame], max_jump_counts: float) -> tuple[int, str] | None:
+    """The frame among a condition's ``frames`` (by index) with a reading that lost
+    digits, and why; None if none did.
 
     CRC-8 passes 1 in 256 damaged lines that keep a frame's shape, and the only
     damage that keeps it is digits lost from one field (a lost comma leaves a
@@ -506,9 +524,9 @@ def jump_problem(batch: SampleBatch, max_jump_counts: float) -> str | None:
     further than ``max_jump_counts`` and than 10 robust standard deviations of
     that terminal in the condition, so a noisy skin is not mistaken for damage.
     """
-    if len(batch.frames) < 3:
+    if len(frames) < 3:
         return None
-    counts = np.array([f.counts for f in batch.frames], dtype=float)
+    counts = np.array([f.counts for f in frames], dtype=float)
     median = np.median(counts, axis=0)
     sigma = 1.4826 * np.median(np.abs(counts - median), axis=0)
     limit = np.maximum(max_jump_counts, 10 * sigma)
@@ -521,11 +539,12 @@ def jump_problem(batch: SampleBatch, max_jump_counts: float) -> str | None:
     if not jump.any():
         return None
     sample, channel = np.unravel_index(int(np.argmax(jump)), jump.shape)
-    return (f"sample {sample} (seq {batch.frames[sample].seq}) reads "
-            f"{counts[sample, channel]:g} on terminal {channel + 1}, whose median is "
-            f"{median[channel]:g}: fewer digits and {jump[sample, channel]:g} counts away "
-            f"(limit {limit[channel]:g}: acquire.max_jump_counts or 10 sigma): digits lost in a "
-            "frame whose CRC-8 matched by chance")
+    return int(sample), (
+        f"sample {sample} (seq {frames[sample].seq}) reads "
+        f"{counts[sample, channel]:g} on terminal {channel + 1}, whose median is "
+        f"{median[channel]:g}: fewer digits and {jump[sample, channel]:g} counts away "
+        f"(limit {limit[channel]:g}: acquire.max_jump_counts or 10 sigma): digits lost in a "
+        "frame whose CRC-8 matched by chance")
 
 
 def set_device_id(port: str, device_id: str, *, timeout_s: float = 5.0) -> Hello:

@@ -224,7 +224,8 @@ class Trial:
     """The readings of one trial: a noise and drift stream from its own seed.
 
     ``Trial(model, seed_words)`` is deterministic: the same words give the
-    same placements and the same frames, however the frames are requested.
+    same placements and the same frames when the frames are requested alike (a
+    request's n frames are drawn at once, so its noise depends on n).
     """
 
     def __init__(self, model: SkinModel, seed_words: Sequence[int]) -> None:
@@ -232,15 +233,27 @@ class Trial:
         self.rng = np.random.default_rng([model.params.seed, 1, *seed_words])
         p = model.params
         self._drift = p.drift_offset_pf * self.rng.standard_normal(model.skin.terminals)
+        self._first_sample: tuple[dict, np.ndarray] | None = None  # for rewind()
 
     def place(self, x: int, y: int, newtons: float) -> Indenter:
         """The indenter as it lands: off-centre, and more or less squarely seated."""
         offset = self.model.placement_offset(self.rng)
         seating = float(np.exp(self.model.params.seating_variation * self.rng.standard_normal()))
+        self._first_sample = None
         return Indenter(x, y, newtons, offset, seating)
+
+    def rewind(self) -> None:
+        """Back to the first frame sampled since the last placement, the placements kept:
+        what is sampled next reads as it did then."""
+        if self._first_sample is not None:
+            state, drift = self._first_sample
+            self.rng.bit_generator.state = state
+            self._drift = drift.copy()
 
     def sample_pf(self, n: int, stretch: float, indenters: Sequence[Indenter]) -> np.ndarray:
         """n noisy capacitance readings in pF, shape (n, terminals)."""
+        if self._first_sample is None:
+            self._first_sample = (self.rng.bit_generator.state, self._drift.copy())
         p = self.model.params
         terminals = self.model.skin.terminals
         clean = self.model.capacitance(stretch, indenters)
