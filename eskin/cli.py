@@ -94,7 +94,7 @@ def _live(args: argparse.Namespace) -> int:
     elif args.alias:
         from eskin.tracking.registry import stack_from_registry
 
-        stack = stack_from_registry(args.scene, args.alias)
+        stack = stack_from_registry(args.scene, args.alias, log=note)
     else:
         stack = SkinStack.from_workspace(args.scene)
     if args.record and scene_params.source == "import":
@@ -203,6 +203,8 @@ examples:
                                         the trained stack on a board's stream
   eskin compare --last 2                two variants' headline scores side by side
   eskin audit                           which dataset version trained which run
+  eskin promote single_force --experiment force-rf
+                                        alias champion on that experiment's stack
 
 eskin COMMAND --help describes a command."""
 
@@ -267,8 +269,8 @@ def build_parser() -> argparse.ArgumentParser:
                        help="start the simulated board (params.yaml's sim) and read it")
     which = live.add_mutually_exclusive_group()
     which.add_argument("--alias", metavar="NAME",
-                       help="the models registered in MLflow under this alias (e.g. champion) "
-                       "instead of the workspace's")
+                       help="the models registered in MLflow under this alias (e.g. champion, "
+                       "which `eskin promote` sets) instead of the workspace's")
     which.add_argument("--onnx", nargs="?", const="", metavar="FILE",
                        help="the stack exported as ONNX (default models/<scene>/stack.onnx, "
                        "which dvc repro writes), run by onnxruntime: under 1 ms a frame")
@@ -337,6 +339,22 @@ def build_parser() -> argparse.ArgumentParser:
     reproduce.add_argument("model", help="a registered model, e.g. single_force.force")
     reproduce.add_argument("--version", help="default: the newest")
     reproduce.set_defaults(run=_reproduce)
+
+    promote = commands.add_parser(
+        "promote", help="give an MLflow alias to every registered model of a scene's stack "
+        "in one pipeline run (what `eskin live --alias` loads)",
+        epilog="With neither --experiment nor --run: the pipeline run that logged the models "
+        "dvc.lock records (the workspace's stack).")
+    promote.add_argument("scene", help="a scene, e.g. single_force")
+    promote.add_argument("--alias", default="champion",
+                         help="the alias to set (default champion); taken from the scene's "
+                         "models outside the stack")
+    run_of = promote.add_mutually_exclusive_group()
+    run_of.add_argument("--experiment", metavar="NAME",
+                        help="the newest pipeline run of this name: a `dvc exp` name, or a "
+                        "repro-… variant (`eskin compare` lists them)")
+    run_of.add_argument("--run", dest="run_id", metavar="RUN_ID", help="this pipeline run")
+    promote.set_defaults(run=_promote)
     return parser
 
 
@@ -388,6 +406,15 @@ def _reproduce(args: argparse.Namespace) -> int:
                                 log=lambda message: print(message, file=sys.stderr))
     print(registry.render_reproduction(result), end="")
     return 0 if result["reproduced"] else 1
+
+
+def _promote(args: argparse.Namespace) -> int:
+    from eskin.tracking import registry
+
+    print(registry.render_promotion(registry.promote(
+        args.scene, args.alias, variant=args.experiment, run_id=args.run_id, root=Path.cwd())),
+        end="")
+    return 0
 
 
 def _learning_step(args: argparse.Namespace) -> int:

@@ -377,6 +377,97 @@ def test_eskin_live_loads_the_models_registered_under_an_alias(scratch):
     assert done.returncode == 1 and "has the alias 'nobody'" in done.stderr
 
 
+def test_eskin_promote_gives_the_alias_to_a_whole_stack_and_live_loads_it(scratch):
+    """`eskin promote`: the alias on every model of one pipeline run's stack of a scene, a
+    task DVC reused bringing the versions of the run that trained it, and taken from the
+    scene's models outside the stack; `eskin live --alias` then loads exactly those
+    versions. A scene, experiment or run that does not exist: one line naming what does."""
+    from mlflow import MlflowClient
+
+    root, env = scratch
+    client = MlflowClient(env["MLFLOW_TRACKING_URI"])
+    experiment = client.get_experiment_by_name("eskin").experiment_id
+    pipelines = {run.info.run_name: run for run in client.search_runs(
+        [experiment], "tags.`eskin.kind` = 'pipeline'")}
+    repro = next(run for name, run in pipelines.items() if name.startswith("repro-"))
+
+    def task_runs(pipeline):
+        return {run.data.tags["eskin.task"]: run for run in client.search_runs(
+            [experiment], f"tags.`mlflow.parentRunId` = '{pipeline.info.run_id}' and "
+                          "tags.`eskin.scene` = 'single_force' and tags.`eskin.kind` = 'task'")}
+
+    def registered_by(run):
+        return {v.name: v.version
+                for v in client.search_model_versions(f"run_id = '{run.info.run_id}'")}
+
+    def champions():
+        return {m.name: m.aliases["champion"]
+                for m in client.search_registered_models("name LIKE 'single_force.%'")
+                if "champion" in m.aliases}
+
+    repro_runs, rf_runs = task_runs(repro), task_runs(pipelines["force-rf"])
+    repro_stack = {name: version for run in repro_runs.values()
+                   for name, version in registered_by(run).items()}
+    assert set(repro_stack) == {"single_force.stretch", "single_force.force",
+                                "single_force.detect.contact", "single_force.localise.x",
+                                "single_force.localise.y"}
+    # force-rf trained the force model and reused the other three tasks
+    assert {t: r.data.tags["eskin.trained"] for t, r in rf_runs.items()} == {
+        "stretch": "reused", "force": "here", "detect": "reused", "localise": "reused"}
+    rf_force = registered_by(rf_runs["force"])
+    assert rf_force["single_force.force"] != repro_stack["single_force.force"]
+    # a model of the scene outside any stack, holding the alias: promote takes it away
+    client.copy_model_version("models:/single_force.force/1", "single_force.retired")
+    client.set_registered_model_alias("single_force.retired", "champion", "1")
+    try:
+        done = eskin_cli(["promote", "single_force", "--run", repro.info.run_id], root, env)
+        assert champions() == repro_stack
+        assert "  single_force.retired: alias 'champion' removed (not in this stack)" in \
+            done.stdout.splitlines()
+        done = eskin_cli(["promote", "single_force", "--experiment", "force-rf"], root, env)
+        assert champions() == {**repro_stack, **rf_force}
+        header, *lines, footer = done.stdout.splitlines()
+        assert pipelines["force-rf"].info.run_id in header and "(force-rf)" in header
+        printed = {line.split()[0]: line for line in lines}
+        force = printed["single_force.force"]
+        assert force.split()[1] == f"v{rf_force['single_force.force']}"
+        assert f"run {rf_runs['force'].info.run_id} (trained here)" in force
+        assert "grouped CV: force r2 " in force
+        assert f"run {repro_runs['stretch'].info.run_id} (reused)" in \
+            printed["single_force.stretch"]
+        assert len(lines) == len(repro_stack)  # one line per model
+        assert footer == "`eskin live single_force --alias champion` runs it"
+        # Neither --experiment nor --run: the workspace's stack, which force-rf left.
+        done = eskin_cli(["promote", "single_force"], root, env)
+        assert "(force-rf)" in done.stdout.splitlines()[0]
+        assert champions() == {**repro_stack, **rf_force}
+    finally:
+        client.delete_registered_model("single_force.retired")
+    done = eskin_cli(["live", "single_force", "--simulated", "--alias", "champion",
+                      "--frames", "5", "--tare-frames", "5"], root, env)
+    assert [json.loads(line)["seq"] for line in done.stdout.splitlines()[1:]] == [5, 6, 7, 8, 9]
+    loaded = next(line for line in done.stderr.splitlines() if "registry @champion:" in line)
+    assert sorted(loaded.split(": ", 2)[2].split(", ")) == sorted(
+        f"{name} v{version}" for name, version in {**repro_stack, **rf_force}.items())
+
+    for args, says in (
+            (["nowhere", "--experiment", "force-rf"], "logged no task of scene 'nowhere'; "
+                                                      "its scenes: single_force,two_force"),
+            (["nowhere"], "dvc.lock records no model of scene 'nowhere'; it has models of: "
+                          "single_force, two_force"),
+            (["single_force", "--experiment", "nothing"], "no pipeline run named 'nothing'"),
+            (["single_force", "--run", "0" * 32], f"no run {'0' * 32}"),
+            (["single_force", "--run", rf_runs["force"].info.run_id],
+             f"not a pipeline run: give its pipeline run, --run "
+             f"{pipelines['force-rf'].info.run_id}")):
+        done = eskin_cli(["promote", *args], root, env, check=False)
+        assert done.returncode == 1 and done.stdout == "", (args, done.stdout, done.stderr)
+        assert done.stderr.count("\n") == 1 and says in done.stderr, (args, done.stderr)
+    assert "force-rf" in eskin_cli(["promote", "single_force", "--experiment", "nothing"],
+                                   root, env, check=False).stderr  # names what exists
+    assert champions() == {**repro_stack, **rf_force}  # a refusal changes nothing
+
+
 def eskin_cli(args, root, env, check=True):
     done = subprocess.run([sys.executable, "-m", "eskin", *args], cwd=root, env=env, text=True,
                           capture_output=True, timeout=600)
@@ -504,20 +595,19 @@ def test_another_seed_is_a_second_dataset_version_and_the_audit_shows_both(scrat
 
 
 def test_postgres_gone_mid_run_fails_the_stage_in_one_line_naming_the_server(scratch, lab):
-    """The lab's PostgreSQL stops while a stage trains: the stage ends, exit 1, with one
-    line naming the tracking URI, within the tries eskin allows MLflow's client (not its
-    default minutes). A stage creates its runs only when it logs, after training, so none
-    is left RUNNING; one that a killed stage left open is marked FAILED by the next
-    (tests/test_stale_runs.py). Once the database is back, stages log again."""
+    """The lab's PostgreSQL stops while the tracking stage starts (the only stage that
+    talks to MLflow): it ends, exit 1, with one line naming the tracking URI, within the
+    tries eskin allows MLflow's client (not its default minutes). Runs that a killed
+    stage left open are marked FAILED by the next (tests/test_stale_runs.py). Once the
+    database is back, the stage logs again and leaves no run RUNNING."""
     import mlflow
 
     root, env = scratch
     database, tracking = lab
     started = time.monotonic()
-    stage = subprocess.Popen([sys.executable, "-m", "eskin", "train", "single_force", "stretch"],
-                             cwd=root, env=env, text=True, stdout=subprocess.PIPE,
-                             stderr=subprocess.PIPE)
-    time.sleep(0.5)  # importing, then training: nothing logged yet
+    stage = subprocess.Popen([sys.executable, "-m", "stages.track"], cwd=root, env=env,
+                             text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    time.sleep(0.5)  # importing: nothing logged yet
     database.stop()
     try:
         _, stderr = stage.communicate(timeout=300)
@@ -526,8 +616,8 @@ def test_postgres_gone_mid_run_fails_the_stage_in_one_line_naming_the_server(scr
     assert stage.returncode == 1, stderr
     errors = [line for line in stderr.splitlines() if line.startswith("eskin: error:")]
     assert len(errors) == 1 and f"MLflow tracking at {tracking.uri} failed" in errors[0], stderr
-    assert "while logging single_force/stretch" in errors[0]
+    assert "while logging the pipeline" in errors[0]
     assert "Traceback" not in stderr and time.monotonic() - started < 120
-    eskin_cli(["train", "single_force", "stretch"], root, env)
+    run_checked([sys.executable, "-m", "stages.track"], root, env)
     found = mlflow.search_runs(experiment_names=["eskin"])
     assert "RUNNING" not in set(found["status"])
