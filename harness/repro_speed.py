@@ -1,14 +1,25 @@
-"""How long the default pipeline's `dvc repro` takes from an empty cache, against a
-baseline revision's pipeline, both timed here, one after the other.
+"""The daily loop's speed (issue 38): the default pipeline's `dvc repro` from an empty
+cache, a one-knob experiment and a training stage's fixed cost, each against a baseline
+revision's pipeline, all timed here, one revision after the other; and the grouped-CV
+headline scores of both, beside their fold spreads.
 
-Each runs in a scratch copy: the project's files (the working tree's git-tracked files
-for the current pipeline, ``git archive <revision>`` for the baseline), a fresh git
-repository, no DVC cache and an MLflow store of its own (SQLite), and ``dvc repro --force``,
-so every stage runs: acquisition, training, scoring, export and the report (without
---force, a stage whose outputs are all in git, as the pairs scores are, and whose inputs
-came out the same is skipped, in one copy and not the other). A stage's time runs from DVC's
-"Running stage" line to the next stage's (or to the end). The ratio is the current
-pipeline's total over the baseline's: the same machine, the same load, minutes apart.
+Each revision runs in a scratch copy: the project's files (the working tree's git-tracked
+files for the current pipeline, ``git archive <revision>`` for the baseline), a fresh git
+repository, no DVC cache and an MLflow store of its own (SQLite). In that copy, in turn:
+
+1. ``dvc repro --force``, so every stage runs: acquisition, training, scoring, export, the
+   report (without --force, a stage whose outputs are all in git, as the pairs scores are,
+   and whose inputs came out the same is skipped, in one copy and not the other). A
+   stage's time runs from DVC's "Running stage" line to the next stage's (or to the end).
+   The headline scores are read now, before the experiment changes them.
+2. ``dvc exp run -S <knob>``: one force hyperparameter of the single-force scene's
+   default model, as a whole process, and the stages DVC ran for it.
+3. ``python -m stages.train single_force stretch`` (a linear regression: little but the
+   stage's fixed cost: starting Python, imports, reading, writing, and the baseline's
+   MLflow logging), as a whole process, the median of 3 runs.
+
+Each ratio is the current pipeline's over the baseline's: the same machine, the same load,
+minutes apart; the load average is recorded beside them.
 
     PYTHONPATH=. python -m harness.repro_speed <baseline revision> [--json FILE]
 """
@@ -20,8 +31,10 @@ import contextlib
 import json
 import os
 import re
+import shlex
 import shutil
 import signal
+import statistics
 import subprocess
 import sys
 import tarfile
@@ -32,7 +45,19 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 RUNNING = re.compile(r"^Running stage '([^']+)'")
-TARGET_SECONDS = 60.0  # issue 21, item 10
+# issue 38's targets on this machine (the full repro's is issue 21's, item 10), at most
+TARGETS = {"repro": 60.0, "experiment": 10.0, "fixed_cost": 1.5}
+# a force hyperparameter of the single-force scene's default model, in both revisions'
+# params.yaml (54c14f9's and after)
+KNOB = "train.force.physics_profile.max_iter=150"
+FIXED_COST_STAGE = ["python", "-m", "stages.train", "single_force", "stretch"]
+# The median of 3: on a machine shared with other work, one run in three caught by a
+# burst of load does not move it, and three runs of a stage that should take about a
+# second keep the bench short.
+FIXED_COST_RUNS = 3
+MEASUREMENTS = {"repro": "full `dvc repro --force`, empty cache",
+                "experiment": "one-knob experiment, `dvc exp run -S {knob}`",
+                "fixed_cost": "per-stage fixed cost, `{command}`, median of {runs}"}
 
 
 def tracked_copy(dest: Path, revision: str | None = None, *, root: Path = ROOT) -> None:
@@ -58,29 +83,30 @@ def tracked_copy(dest: Path, revision: str | None = None, *, root: Path = ROOT) 
 
 
 def scratch_env(project: Path) -> dict[str, str]:
-    """The environment a user's `dvc repro` has, with the project's own MLflow store;
-    none of the calling DVC stage's variables."""
+    """The environment a user's `dvc repro` has, with the project's own MLflow store and
+    its own code (PYTHONPATH: the venv's editable install would import another checkout's
+    eskin in any process not started in the copy); none of the calling DVC stage's
+    variables."""
     env = {k: v for k, v in os.environ.items() if not k.startswith(("DVC_", "MLFLOW_"))}
     bin_dir = str(Path(sys.executable).parent)  # dvc, and the python DVC's stages call
     return {**env, "PATH": f"{bin_dir}{os.pathsep}{env.get('PATH', '')}",
+            "PYTHONPATH": str(project),
             "DVC_NO_ANALYTICS": "1", "MLFLOW_ENABLE_TELEMETRY": "false", "DO_NOT_TRACK": "1",
             "MLFLOW_TRACKING_URI": f"sqlite:///{project / 'mlflow.db'}",
             "GIT_AUTHOR_NAME": "bench", "GIT_AUTHOR_EMAIL": "bench@localhost",
             "GIT_COMMITTER_NAME": "bench", "GIT_COMMITTER_EMAIL": "bench@localhost"}
 
 
-def timed_repro(project: Path, *, timeout: float, log=print) -> dict:
-    """`dvc repro --force` in ``project`` (committed to a fresh git repository first, as a
-    clone is): total seconds and each stage's, from DVC's own output."""
-    env = scratch_env(project)
-    for args in (["git", "init", "-q"], ["git", "add", "-A"], ["git", "commit", "-qm", "copy"]):
-        subprocess.run(args, cwd=project, env=env, check=True, capture_output=True, timeout=120)
+def timed_run(args: list[str], project: Path, *, timeout: float, log=print) -> dict:
+    """``args`` run in ``project`` as a whole process: its seconds, and each DVC stage's it
+    ran (from DVC's "Running stage" lines; none for a command that is not DVC's)."""
+    command = shlex.join(args)
     started = time.perf_counter()
     marks: list[tuple[str, float]] = []
     tail: list[str] = []
     # its own process group: at the deadline, DVC and the stage it runs are killed together
     # (the stage holds the output pipe open)
-    with subprocess.Popen(["dvc", "repro", "--force"], cwd=project, env=env, stdout=subprocess.PIPE,
+    with subprocess.Popen(args, cwd=project, env=scratch_env(project), stdout=subprocess.PIPE,
                           stderr=subprocess.STDOUT, text=True, start_new_session=True) as proc:
         def kill() -> None:
             with contextlib.suppress(ProcessLookupError):
@@ -102,49 +128,177 @@ def timed_repro(project: Path, *, timeout: float, log=print) -> dict:
         code = proc.wait(timeout=60)
     total = time.perf_counter() - started
     if total >= timeout:
-        raise TimeoutError(f"{project}: dvc repro still running after {timeout:.0f} s; killed")
+        raise TimeoutError(f"{project}: {command} still running after {timeout:.0f} s; killed")
     if code != 0:
-        raise RuntimeError(f"{project}: dvc repro exited {code}:\n" + "\n".join(tail))
-    ends = [t for _, t in marks[1:]] + [total]
+        raise RuntimeError(f"{project}: {command} exited {code}:\n" + "\n".join(tail))
+    ends = [t for _, t in marks[1:]] + [total] * bool(marks)  # a command not DVC's: none
     return {"seconds": total,
             "stages": {name: end - start for (name, start), end in zip(marks, ends, strict=True)}}
 
 
-def measure(baseline: str, *, timeout: float = 1800, root: Path = ROOT, log=print) -> dict:
-    """The baseline revision's pipeline, then the working tree's, each from scratch."""
+def timed_repro(project: Path, *, timeout: float, log=print) -> dict:
+    """`dvc repro --force` in ``project`` (committed to a fresh git repository first, as a
+    clone is): total seconds and each stage's, from DVC's own output."""
+    env = scratch_env(project)
+    for args in (["git", "init", "-q"], ["git", "add", "-A"], ["git", "commit", "-qm", "copy"]):
+        subprocess.run(args, cwd=project, env=env, check=True, capture_output=True, timeout=120)
+    return timed_run(["dvc", "repro", "--force"], project, timeout=timeout, log=log)
+
+
+def timed_experiment(project: Path, knob: str, *, timeout: float, log=print) -> dict:
+    """`dvc exp run -S <knob>` in ``project``, after its repro: seconds, and the stages
+    DVC ran (in order; each one's seconds)."""
+    return {"knob": knob,
+            **timed_run(["dvc", "exp", "run", "-S", knob], project, timeout=timeout, log=log)}
+
+
+def fixed_cost(project: Path, command: list[str], *, runs: int = FIXED_COST_RUNS,
+               timeout: float, log=print) -> dict:
+    """``command`` (one stage) run ``runs`` times in ``project``: the median seconds."""
+    seconds = [timed_run(command, project, timeout=timeout, log=log)["seconds"]
+               for _ in range(runs)]
+    log(f"  {shlex.join(command)}: " + ", ".join(f"{s:.2f} s" for s in seconds))
+    return {"command": shlex.join(command), "runs": seconds, "seconds": statistics.median(seconds)}
+
+
+def score_name(scene: str, task: str, target: str | None, score: str) -> str:
+    """``<scene>.<task>[.<target>].<score>``: the target left out where it is the task
+    (or, for pairs, where the scores have none), as reports/metrics.json names them."""
+    return ".".join([scene, task, *([target] if target not in (None, task) else []), score])
+
+
+def headline_keys(project: Path) -> list[tuple[str, str, str | None, str]]:
+    """Each grouped-CV headline score of ``project`` as (scene, task, target, score), from
+    its headline metrics: one reports/metrics.json (``<scene>.<task>[.<target>].<score>``)
+    or, before it, reports/metrics/<scene>/<task>.json (``grouped.[<target>.]<score>``).
+    A target None: the score sits in the task's scores without one (a single-target task
+    written without its target, or pairs)."""
+    def flatten(scene: str, task: str, entry: dict) -> list[tuple[str, str, str | None, str]]:
+        return [key for name, value in entry.items()
+                for key in ([(scene, task, name, score) for score in value]
+                            if isinstance(value, dict) else [(scene, task, None, name)])]
+
+    one_file = project / "reports" / "metrics.json"
+    if one_file.is_file():
+        return [key for scene, tasks in json.loads(one_file.read_text()).items()
+                for task, entry in tasks.items() for key in flatten(scene, task, entry)]
+    return [key for path in sorted((project / "reports" / "metrics").glob("*/*.json"))
+            for key in flatten(path.parent.name, path.stem,
+                               json.loads(path.read_text()).get("grouped", {}))]
+
+
+def fold_scores(project: Path) -> dict[str, dict[str, float]]:
+    """Each grouped-CV headline score of ``project`` (:func:`headline_keys`) with its fold
+    spread, from the scores files (reports/scores/<scene>/<task>.json, ``<score>_std``):
+    ``{name: {"mean": …, "std": …}}``."""
+    out = {}
+    for scene, task, target, score in headline_keys(project):
+        grouped = json.loads((project / "reports" / "scores" / scene / f"{task}.json")
+                             .read_text())["grouped"]
+        if target is None and isinstance(grouped.get(task), dict):
+            target = task
+        scores = grouped if target is None else grouped[target]
+        out[score_name(scene, task, target, score)] = {"mean": scores[score],
+                                                       "std": scores[f"{score}_std"]}
+    return out
+
+
+def compare_scores(baseline: dict[str, dict], current: dict[str, dict]) -> dict[str, dict]:
+    """Every headline score of either: whether the current mean lies within the baseline's
+    mean ± its fold spread (None where one revision lacks the score)."""
+    return {name: {"within": (abs(current[name]["mean"] - baseline[name]["mean"])
+                              <= baseline[name]["std"])
+                   if name in baseline and name in current else None}
+            for name in dict.fromkeys([*baseline, *current])}
+
+
+def measure_revision(project: Path, *, knob: str, stage: list[str], timeout: float,
+                     log=print) -> dict:
+    """One copy's measurements, in the order they must run: the repro (its scores read
+    before the experiment changes them), the experiment, then the stage alone."""
+    repro = timed_repro(project, timeout=timeout, log=log)
+    scores = fold_scores(project)
+    log(f"  dvc exp run -S {knob} …")
+    experiment = timed_experiment(project, knob, timeout=timeout / 3, log=log)
+    log(f"  {shlex.join(stage)} × {FIXED_COST_RUNS} …")
+    stage_cost = fixed_cost(project, stage, timeout=300, log=log)
+    return {"repro": repro, "experiment": experiment, "fixed_cost": stage_cost, "scores": scores}
+
+
+def measure(baseline: str, *, knob: str = KNOB, stage: list[str] = FIXED_COST_STAGE,
+            timeout: float = 3600, root: Path = ROOT, log=print) -> dict:
+    """The baseline revision's pipeline, then the working tree's, each from scratch.
+    ``timeout``: a repro's deadline, for a hang, not a target (on 2 cores at load
+    average 10, the baseline's repro took 22 minutes)."""
     commit = subprocess.run(["git", "rev-parse", "--verify", f"{baseline}^{{commit}}"],
                             cwd=root, capture_output=True, text=True, timeout=30)
     if commit.returncode != 0:
         raise ValueError(f"bench.repro_baseline: {baseline!r} is not a commit of this "
                          "repository (a shallow clone lacks history: git fetch --unshallow)")
-    result: dict = {"target_seconds": TARGET_SECONDS}
+    result: dict = {"targets": TARGETS, "cores": os.cpu_count(),
+                    "load_average": {"start": os.getloadavg()[0]}}
     with tempfile.TemporaryDirectory(prefix="eskin-repro-") as scratch:
         for name, revision in (("baseline", commit.stdout.strip()), ("current", None)):
             project = Path(scratch) / name
             tracked_copy(project, revision, root=root)
             log(f"{name} ({revision or 'working tree'}): dvc repro from an empty cache …")
             result[name] = {"revision": revision or "working tree",
-                            **timed_repro(project, timeout=timeout, log=log)}
-    result["ratio"] = result["current"]["seconds"] / result["baseline"]["seconds"]
-    result["met"] = result["current"]["seconds"] < TARGET_SECONDS
+                            **measure_revision(project, knob=knob, stage=stage,
+                                               timeout=timeout, log=log)}
+            result["load_average"][f"after {name}"] = os.getloadavg()[0]
+    result["ratios"] = {what: result["current"][what]["seconds"]
+                        / result["baseline"][what]["seconds"] for what in TARGETS}
+    result["met"] = {what: result["current"][what]["seconds"] <= target
+                     for what, target in TARGETS.items()}
+    result["scores"] = compare_scores(result["baseline"]["scores"], result["current"]["scores"])
     return result
 
 
 def render(result: dict) -> str:
     base, current = result["baseline"], result["current"]
-    names = list(dict.fromkeys([*current["stages"], *base["stages"]]))
-    lines = [f"The default pipeline's `dvc repro --force` from an empty cache: "
-             f"**{current['seconds']:.0f} s**, {result['ratio']:.2f}× the baseline "
-             f"({base['revision'][:7]}: {base['seconds']:.0f} s), run just before it; "
-             f"target under {result['target_seconds']:.0f} s: "
-             f"{'met' if result['met'] else 'MISSED'}.", "",
-             "| stage | baseline | current |", "|---|---|---|"]
+    load = ", ".join(f"{when} {value:.1f}" for when, value in result["load_average"].items())
+    lines = [f"The baseline ({base['revision'][:7]}) then the working tree, each in a scratch "
+             f"copy, minutes apart; load average (1 min) on {result['cores']} cores: {load}.",
+             "", "| measurement | target | baseline | current | current / baseline | |",
+             "|---|---|---|---|---|---|"]
+    for what, target in result["targets"].items():
+        label = MEASUREMENTS[what].format(knob=current["experiment"]["knob"],
+                                          command=current["fixed_cost"]["command"],
+                                          runs=len(current["fixed_cost"]["runs"]))
+        digits = 2 if target < 10 else 1
+        lines.append(f"| {label} | ≤ {target:g} s | {base[what]['seconds']:.{digits}f} s | "
+                     f"**{current[what]['seconds']:.{digits}f} s** | "
+                     f"{result['ratios'][what]:.2f}× | "
+                     f"{'met' if result['met'][what] else 'MISSED'} |")
+    lines += ["", "The fixed cost's runs: " + "; ".join(
+        f"{label} " + ", ".join(f"{s:.2f}" for s in run["fixed_cost"]["runs"]) + " s"
+        for label, run in (("baseline", base), ("current", current))) + "."]
+    lines += ["", "The stages the experiment ran:", ""]
+    lines += [f"- {label} ({len(run['experiment']['stages'])}): "
+              + ", ".join(f"{name} {s:.1f} s" for name, s in run["experiment"]["stages"].items())
+              for label, run in (("baseline", base), ("current", current))]
 
     def seconds(run: dict, name: str) -> str:
-        return f"{run['stages'][name]:.1f} s" if name in run["stages"] else "—"
+        return f"{run['repro']['stages'][name]:.1f} s" if name in run["repro"]["stages"] else "—"
 
+    names = list(dict.fromkeys([*current["repro"]["stages"], *base["repro"]["stages"]]))
+    lines += ["", "The full repro, stage by stage:", "",
+              "| stage | baseline | current |", "|---|---|---|"]
     lines += [f"| {name} | {seconds(base, name)} | {seconds(current, name)} |" for name in names]
-    lines.append(f"| **total** | **{base['seconds']:.1f} s** | **{current['seconds']:.1f} s** |")
+    lines.append(f"| **total** | **{base['repro']['seconds']:.1f} s** | "
+                 f"**{current['repro']['seconds']:.1f} s** |")
+
+    def spread(run: dict, name: str) -> str:
+        found = run["scores"].get(name)
+        return f"{found['mean']:.4f} ± {found['std']:.4f}" if found else "—"
+
+    verdict = {True: "yes", False: "**no**", None: "—"}
+    lines += ["", "The grouped-CV headline scores, mean ± standard deviation over the folds "
+              "(after the full repro, default params):", "",
+              "| score | baseline | current | current within the baseline's mean ± std |",
+              "|---|---|---|---|"]
+    lines += [f"| {name} | {spread(base, name)} | {spread(current, name)} | "
+              f"{verdict[compared['within']]} |" for name, compared in result["scores"].items()]
     return "\n".join(lines)
 
 

@@ -1,8 +1,10 @@
 """make bench's repro_speed (harness/repro_speed.py) on a small DVC project of its own:
-a baseline commit and a working tree whose stages sleep for known times."""
+a baseline commit and a working tree whose stages sleep for known times; and its reading
+of the two headline layouts and its report, on files written here (no repro)."""
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 import time
@@ -10,17 +12,43 @@ from pathlib import Path
 
 import pytest
 
-from harness.repro_speed import measure, render, timed_repro, tracked_copy
+from harness.repro_speed import (
+    compare_scores,
+    fold_scores,
+    measure,
+    render,
+    timed_repro,
+    tracked_copy,
+)
 
 STAGE = """  {name}:
     cmd: python -c "import time; time.sleep({seconds}); open('{name}.txt', 'w').write('x')"
     outs: [{name}.txt]
 """
+# the knob's stage: reruns when `dvc exp run -S knob=…` changes it, the others do not
+KNOB_STAGE = """  knobbed:
+    cmd: python -c "open('knobbed.txt', 'w').write('x')"
+    params: [knob]
+    outs: [knobbed.txt]
+"""
+SCORES = "reports/scores/one/{task}.json"
 
 
 def pipeline(root: Path, sleeps: dict[str, float]) -> None:
+    """A dvc.yaml of stages that sleep, the knob's stage, and the headline scores a
+    pipeline of the current layout leaves (reports/metrics.json and a scores file)."""
     (root / "dvc.yaml").write_text("stages:\n" + "".join(
-        STAGE.format(name=name, seconds=seconds) for name, seconds in sleeps.items()))
+        STAGE.format(name=name, seconds=seconds) for name, seconds in sleeps.items())
+        + KNOB_STAGE)
+    (root / "params.yaml").write_text("knob: 1\n")
+    write_json(root / "reports/metrics.json", {"one": {"force": {"r2": 0.9}}})
+    write_json(root / SCORES.format(task="force"),
+               {"grouped": {"force": {"r2": 0.9, "r2_std": 0.01}}})
+
+
+def write_json(path: Path, doc: dict) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(doc))
 
 
 @pytest.fixture
@@ -44,18 +72,27 @@ def project(tmp_path):
 
 def test_the_working_tree_is_timed_against_the_baseline_commit_stage_by_stage(project):
     root, baseline = project
-    result = measure(baseline, root=root, log=lambda line: None)
+    result = measure(baseline, knob="knob=2", stage=["python", "-c", "pass"], root=root,
+                     log=lambda line: None)
     base, current = result["baseline"], result["current"]
-    assert list(base["stages"]) == ["slow_start", "middle"]
-    assert list(current["stages"]) == ["slow_start", "middle", "added"]
-    assert 1.0 <= base["stages"]["middle"] < current["stages"]["middle"]
-    assert current["stages"]["middle"] >= 2.0
-    assert sum(current["stages"].values()) <= current["seconds"]
-    assert result["ratio"] == pytest.approx(current["seconds"] / base["seconds"])
-    assert result["ratio"] > 1 and result["met"] is True  # a few seconds: under 60
+    assert list(base["repro"]["stages"]) == ["slow_start", "middle", "knobbed"]
+    assert list(current["repro"]["stages"]) == ["slow_start", "middle", "added", "knobbed"]
+    assert 1.0 <= base["repro"]["stages"]["middle"] < current["repro"]["stages"]["middle"]
+    assert current["repro"]["stages"]["middle"] >= 2.0
+    assert sum(current["repro"]["stages"].values()) <= current["repro"]["seconds"]
+    assert result["ratios"]["repro"] == pytest.approx(
+        current["repro"]["seconds"] / base["repro"]["seconds"])
+    assert result["ratios"]["repro"] > 1 and result["met"]["repro"] is True  # under 60 s
+    # the experiment ran the knob's stage only, in each copy
+    assert list(base["experiment"]["stages"]) == list(current["experiment"]["stages"]) \
+        == ["knobbed"]
+    assert len(current["fixed_cost"]["runs"]) == 3
+    assert current["fixed_cost"]["seconds"] == sorted(current["fixed_cost"]["runs"])[1]
+    assert result["scores"] == {"one.force.r2": {"within": True}}
     table = render(result)
-    assert f"{result['ratio']:.2f}× the baseline ({baseline[:7]}" in table
+    assert f"baseline ({baseline[:7]})" in table
     assert "| added | — |" in table and "| **total** |" in table
+    assert "`dvc exp run -S knob=2`" in table
 
 
 def test_the_copy_holds_the_tracked_files_as_edited_and_nothing_untracked(project, tmp_path):
@@ -91,6 +128,75 @@ def test_a_failing_pipeline_says_so_with_dvc_s_last_lines(project, tmp_path):
     tracked_copy(copy, root=root)
     (copy / "dvc.yaml").write_text(
         "stages:\n  broken:\n    cmd: python -c \"raise SystemExit(3)\"\n")
-    with pytest.raises(RuntimeError, match="dvc repro exited") as caught:
+    with pytest.raises(RuntimeError, match="dvc repro --force exited") as caught:
         timed_repro(copy, timeout=60, log=lambda line: None)
     assert "broken" in str(caught.value)
+
+
+def test_the_baseline_s_headline_files_and_the_current_one_name_the_same_scores(tmp_path):
+    """The baseline's layout (reports/metrics/<scene>/<task>.json, the target written
+    even where it is the task) and the current one (reports/metrics.json, the target left
+    out there) give the same names, each score with its fold spread."""
+    then, now = tmp_path / "then", tmp_path / "now"
+    grouped = {"force": {"grouped": {"force": {"r2": 0.90, "r2_std": 0.02, "mae": 0.3}}},
+               "detect": {"grouped": {"contact": {"accuracy": 0.99, "accuracy_std": 0.001}}},
+               "pairs": {"grouped": {"pair_accuracy": 0.93, "pair_accuracy_std": 0.03}}}
+    for root in (then, now):
+        for task, doc in grouped.items():
+            write_json(root / SCORES.format(task=task), doc)
+    write_json(then / "reports/metrics/one/force.json", {"grouped": {"force": {"r2": 0.90}}})
+    write_json(then / "reports/metrics/one/detect.json",
+               {"grouped": {"contact": {"accuracy": 0.99}}})
+    write_json(then / "reports/metrics/one/pairs.json", {"grouped": {"pair_accuracy": 0.93}})
+    write_json(then / "reports/metrics/one/stretch.json", {})  # a skipped task
+    write_json(now / "reports/metrics.json", {"one": {
+        "force": {"r2": 0.90}, "detect": {"contact": {"accuracy": 0.99}},
+        "pairs": {"pair_accuracy": 0.93}}})
+    expected = {"one.force.r2": {"mean": 0.90, "std": 0.02},
+                "one.detect.contact.accuracy": {"mean": 0.99, "std": 0.001},
+                "one.pairs.pair_accuracy": {"mean": 0.93, "std": 0.03}}
+    assert fold_scores(then) == fold_scores(now) == expected
+
+
+def test_a_score_is_within_the_baseline_s_spread_or_not_and_missing_is_neither():
+    baseline = {"a": {"mean": 0.90, "std": 0.02}, "b": {"mean": 0.90, "std": 0.02},
+                "gone": {"mean": 0.5, "std": 0.1}}
+    current = {"a": {"mean": 0.885, "std": 0.05}, "b": {"mean": 0.93, "std": 0.001},
+               "new": {"mean": 0.5, "std": 0.1}}
+    assert compare_scores(baseline, current) == {
+        "a": {"within": True}, "b": {"within": False}, "gone": {"within": None},
+        "new": {"within": None}}
+
+
+def run(seconds: float, experiment: float, stage: list[float], stages: dict) -> dict:
+    return {"repro": {"seconds": seconds, "stages": stages},
+            "experiment": {"knob": "train.x=1", "seconds": experiment,
+                           "stages": {"train@one-force": experiment - 1}},
+            "fixed_cost": {"command": "python -m stages.train one stretch", "runs": stage,
+                           "seconds": sorted(stage)[1]},
+            "scores": {"one.force.r2": {"mean": 0.9, "std": 0.02}}}
+
+
+def test_the_report_gives_each_measurement_its_ratio_and_target_and_the_scores():
+    result = {"targets": {"repro": 60.0, "experiment": 10.0, "fixed_cost": 1.5}, "cores": 2,
+              "load_average": {"start": 3.0, "after baseline": 4.5, "after current": 4.0},
+              "baseline": {"revision": "54c14f9bcdb84e79", **run(200, 40, [3.0, 2.9, 9.0],
+                                                                 {"acquire": 5.0})},
+              "current": {"revision": "working tree", **run(50, 12, [1.4, 1.2, 1.3],
+                                                            {"acquire": 4.0, "folds": 1.0})},
+              "ratios": {"repro": 0.25, "experiment": 0.3, "fixed_cost": 1.3 / 3.0},
+              "met": {"repro": True, "experiment": False, "fixed_cost": True},
+              "scores": {"one.force.r2": {"within": True}}}
+    result["current"]["scores"]["one.force.r2"] = {"mean": 0.95, "std": 0.01}
+    text = render(result)
+    lines = text.splitlines()
+    assert "load average (1 min) on 2 cores: start 3.0, after baseline 4.5" in text
+    assert "| full `dvc repro --force`, empty cache | ≤ 60 s | 200.0 s | **50.0 s** | " \
+        "0.25× | met |" in lines
+    assert "| one-knob experiment, `dvc exp run -S train.x=1` | ≤ 10 s | 40.0 s | " \
+        "**12.0 s** | 0.30× | MISSED |" in lines
+    assert "| per-stage fixed cost, `python -m stages.train one stretch`, median of 3 | " \
+        "≤ 1.5 s | 3.00 s | **1.30 s** | 0.43× | met |" in lines
+    assert "- current (1): train@one-force 11.0 s" in lines
+    assert "| folds | — | 1.0 s |" in lines and "| **total** | **200.0 s** | **50.0 s** |" in lines
+    assert "| one.force.r2 | 0.9000 ± 0.0200 | 0.9500 ± 0.0100 | yes |" in lines
