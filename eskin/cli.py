@@ -409,8 +409,10 @@ def _reproduce(args: argparse.Namespace) -> int:
 
 
 def _promote(args: argparse.Namespace) -> int:
+    from eskin.config import get_scene, load_params
     from eskin.tracking import registry
 
+    get_scene(load_params(), args.scene)  # before the store: a typo is told at once
     print(registry.render_promotion(registry.promote(
         args.scene, args.alias, variant=args.experiment, run_id=args.run_id, root=Path.cwd())),
         end="")

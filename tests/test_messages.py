@@ -31,12 +31,14 @@ COMMANDS = {
     "live": ["live", TYPO, "--simulated", "--frames", "1"],
     "export": ["export", TYPO],
     "device": ["device", "simulate", "--scene", TYPO],
+    "promote": ["promote", TYPO],
 }
 
 # Every stage that takes a scene (python -m stages.<module> <scene> ...), by its main().
 STAGES = {
     "acquire": (TYPO,), "ingest": (TYPO,), "featurize": (TYPO,), "train": (TYPO, "force"),
-    "pairs": (TYPO,), "export": (TYPO,), "bench": ("summary", TYPO), "soak": (TYPO,),
+    "folds": (TYPO,), "pairs": (TYPO,), "export": (TYPO,), "bench": ("summary", TYPO),
+    "soak": (TYPO,),
     "stress": (TYPO,), "live_latency": (TYPO,), "dask_scaling": (TYPO,),
 }
 

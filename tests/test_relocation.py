@@ -12,16 +12,17 @@ from pathlib import Path
 
 from conftest import ROOT, run_checked
 
-# A stage's logging, as the report stage does it: a pipeline run and artifacts on it,
-# in the project's own store (the code under test: PYTHONPATH).
+# A pipeline's logging, as the tracking stage does it: a pipeline run and an artifact on
+# it (here a figure as its page), in the project's own store (the code under test:
+# PYTHONPATH).
 LOG_REPORT = """\
 from pathlib import Path
 from eskin.tracking import runs
 figures = Path("figures")
 figures.mkdir(exist_ok=True)
 (figures / "force.svg").write_text(f"<svg><!-- {Path.cwd()} --></svg>")  # who wrote it
-Path("report.html").write_text("<html/>")
-runs.log_report(figures_dir=figures, page_path=Path("report.html"), pipeline_params=None)
+runs.track_pipeline(params={"sim": {"seed": 1}}, scenes=[], tasks=[], headline={},
+                    page=figures / "force.svg")
 """
 
 
