@@ -568,12 +568,12 @@ def pipeline_tasks(scenes: Mapping[str, Any], train: Any, cv: Mapping[str, Any],
         run_record_path,
         scores_path,
     )
-    from eskin.config import scene_skin
+    from eskin.data.schema import dataset_skin
     from eskin.kinds import DATASET_KINDS
     from eskin.learning.estimators import model_for_skin, model_settings
 
     found = []
-    for scene, spec in scenes.items():
+    for scene in scenes:
         for task in SCORED_TASKS:
             path = scores_path(scene, task)
             if not path.exists():
@@ -587,9 +587,10 @@ def pipeline_tasks(scenes: Mapping[str, Any], train: Any, cv: Mapping[str, Any],
                 continue
             kind = DATASET_KINDS[scores["kind"]]
             task_models = getattr(train, task)
+            # the skin the features were taken on, as the train step reads it
             _, hyper, _ = model_for_skin(
                 task_models, *model_settings(task_models, train.configuration,
-                                             kind.scene_kind), scene_skin(spec))
+                                             kind.scene_kind), dataset_skin(features_path(scene)))
             figures = tuple(sorted(p for figure in kind.figures if figure.task == task
                                    for p in (FIGURES_DIR / scene).glob(f"{figure.id}_*.*")))
             found.append(TaskFiles(scene, task, scores, path, predictions_path(scene, task),
