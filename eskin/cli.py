@@ -84,7 +84,8 @@ def _live(args: argparse.Namespace) -> int:
 
     params = load_params(args.params)
     scene_params = get_scene(params, args.scene, args.params)
-    if args.tare_frames < 0 or args.frames < 0:
+    tare_frames = params.live.tare_frames if args.tare_frames is None else args.tare_frames
+    if tare_frames < 0 or args.frames < 0:
         raise ValueError("--tare-frames and --frames count frames: 0 or more")
     settings = params.acquire
     if args.onnx is not None:
@@ -130,7 +131,7 @@ def _live(args: argparse.Namespace) -> int:
         if not args.any_device:
             stack.check_board(hello.device_id)
         note(f"{args.scene} stack on {hello.device_id} ({port}); tare: keep the skin "
-             f"untouched for {args.tare_frames} frames")
+             f"untouched for {tare_frames} frames")
         events = resources.enter_context(contextlib.closing(stream_events(
             link, reconnect_s=float(settings.reconnect_s), notify=note)))
         recorder = None
@@ -161,9 +162,14 @@ def _live(args: argparse.Namespace) -> int:
                 note(f"the live view is at {view.url}")
         except OSError as err:  # the port is taken, say
             raise ValueError(f"cannot serve on 127.0.0.1 ({err.strerror or err})") from None
+        def requests() -> list[str]:  # re-tare from the page or a socket client
+            return [*(view.requests() if view else ()),
+                    *(broadcast.requests() if broadcast else ())]
+
         estimates = 0
         try:
-            for record in live_estimates(stack, events, tare_frames=args.tare_frames,
+            for record in live_estimates(stack, events, tare_frames=tare_frames,
+                                         settings=params.live, requests=requests,
                                          with_change=view is not None, notify=note):
                 if view is not None:
                     view.show(record)
@@ -274,17 +280,19 @@ def build_parser() -> argparse.ArgumentParser:
     which.add_argument("--onnx", nargs="?", const="", metavar="FILE",
                        help="the stack exported as ONNX (default models/<scene>/stack.onnx, "
                        "which dvc repro writes), run by onnxruntime: under 1 ms a frame")
-    live.add_argument("--tare-frames", type=int, default=100, metavar="N",
-                      help="frames with nothing pressed, taken as the tare at start "
-                      "(default 100, about 1.2 s; 0: no tare)")
+    live.add_argument("--tare-frames", type=int, metavar="N",
+                      help="frames with nothing pressed, taken as the tare at start and "
+                      "on request (default: live.tare_frames of params.yaml, 100, about "
+                      "1.2 s; 0: no tare)")
     live.add_argument("--frames", type=int, default=0, metavar="N",
                       help="stop after N estimates (default: run until Ctrl-C)")
     live.add_argument("--serve", type=int, metavar="PORT",
                       help="also send the JSON lines to every client of 127.0.0.1:PORT "
-                      "(0: a free port, printed)")
+                      "(0: a free port, printed); a client's line {\"command\": \"tare\"} "
+                      "re-tares")
     live.add_argument("--view", type=int, metavar="PORT",
                       help="show the estimates on a page at http://127.0.0.1:PORT/ "
-                      "(0: a free port, printed)")
+                      "(0: a free port, printed; its button, or key t, re-tares)")
     live.add_argument("--record", action="store_true",
                       help="also append the frames to the scene's raw log as a live session "
                       "(dvc repro then keeps them in data/processed/<scene>.live.parquet)")

@@ -513,6 +513,41 @@ class Stress(_Section):
     large_gp_rows: Annotated[int, Field(ge=0)]
 
 
+class LiveBaseline(_Section):
+    """How `eskin live` follows the untouched reading after the tare (eskin/deploy/live.py)."""
+
+    time_constant_s: NonNegative = 0.5   # 0: the tare's reading, never followed
+    gate_counts: Positive = 8.0          # a frame updates it only if no channel moved more
+    # in contact: freeze it, or follow the channels the contact leaves within the gate
+    in_contact: Literal["freeze", "quiet_channels"] = "quiet_channels"
+    reach_terminals: Annotated[int, Field(ge=0)] = 2  # quiet_channels: frozen each side of it
+
+
+class LiveContact(_Section):
+    """Contact with hysteresis, on the stack's contact probability (eskin/deploy/live.py)."""
+
+    enter_probability: _real(gt=0, le=1) = 0.8
+    leave_probability: _real(ge=0, lt=1) = 0.5
+    min_duration_ms: NonNegative = 50.0
+
+    @model_validator(mode="after")
+    def _ordered(self) -> LiveContact:
+        if self.leave_probability > self.enter_probability:
+            raise ValueError(f"leave_probability ({self.leave_probability}) is above "
+                             f"enter_probability ({self.enter_probability}): contact would "
+                             "end before it began")
+        return self
+
+
+class Live(_Section):
+    """`eskin live`'s knobs (and make bench's live hour): not read by `dvc repro`. The
+    defaults are params.yaml's, for the library's callers that pass none."""
+
+    tare_frames: Annotated[int, Field(ge=0)] = 100
+    baseline: LiveBaseline = LiveBaseline()
+    contact: LiveContact = LiveContact()
+
+
 class Params(_Section):
     """params.yaml: the pipeline's knobs, every one read by a stage of dvc.yaml (`dvc exp
     show` lists the whole file)."""
@@ -527,6 +562,21 @@ class Params(_Section):
     cv: CV
     train: Train  # type: ignore[valid-type]
     report: Report
+    live: Live
+
+
+class LiveHour(_Section):
+    """make bench's live hour (harness/live_hour.py): the script of the hour."""
+
+    seed: Seed
+    minutes: Positive
+    untouched_s: Positive        # between two events of the script
+    presses: Annotated[int, Field(ge=0)]
+    press_s: Positive
+    sustained_s: Positive
+    stretches_mm: list[NonNegative]
+    retare_after_sustained: bool
+    batch_frames: Count
 
 
 class BenchParams(_Section):
@@ -535,6 +585,7 @@ class BenchParams(_Section):
     bench: Bench
     soak: Soak
     fuzz: Fuzz
+    live_hour: LiveHour
 
 
 class StressParams(_Section):
@@ -553,7 +604,9 @@ SECTION_FILES = {name: path for path, schema in ((DEFAULT_PARAMS, Params),
 
 # The sections `dvc repro` reads, which are params.yaml's (make bench's and make stress's
 # have files of their own): the tracking stage logs these to the pipeline's MLflow run.
-PIPELINE_SECTIONS: tuple[str, ...] = tuple(Params.model_fields)
+# `live` is `eskin live`'s (and the bench's live hour's): no pipeline stage reads it.
+PIPELINE_SECTIONS: tuple[str, ...] = tuple(name for name in Params.model_fields
+                                           if name != "live")
 
 
 def pipeline_params(params: Params) -> dict[str, Any]:

@@ -130,6 +130,37 @@ def prepared_scene(params: dict, scene: str, root: Path) -> Path:
     return root / "processed" / f"{scene}.parquet"
 
 
+def small_stack(params: dict, root: Path):
+    """The repo's default models of the single-force scene, trained on ``params``' (the
+    small scene's) rows under ``root``: a SkinStack, as `eskin live` builds from the
+    workspace's models, for tests that cannot wait for the pipeline's."""
+    import joblib
+    import pandas as pd
+
+    from eskin.data.schema import read_dataset, read_metadata
+    from eskin.deploy.stack import SkinStack, rest_reading
+    from eskin.evaluation.crossval import fit_final
+    from eskin.learning.estimators import build_model, model_settings
+    from eskin.learning.tasks import get_task
+    from eskin.skin import PAPER_SKIN
+
+    processed = prepared_scene(params, "single_force", root)
+    featurize_step(params, "single_force", root / "processed", root / "features",
+                   root / "models")
+    features = read_dataset(root / "features" / "single_force.parquet")
+    models = {}
+    for name in ("stretch", "force", "detect", "localise"):
+        task = get_task("single_force", name)
+        model, hyper = model_settings(getattr(typed(params).train, name), "tuned",
+                                      "single_force")
+        models[name] = fit_final(task, features, build_model(task.role, model, hyper, PAPER_SKIN),
+                                 PAPER_SKIN)
+    featurizer = joblib.load(root / "models" / "single_force" / "featurizer.joblib")
+    return SkinStack("single_force", "single_force", PAPER_SKIN, featurizer, models,
+                     device=read_metadata(processed)["device"],
+                     rest=rest_reading(pd.read_parquet(processed), PAPER_SKIN))
+
+
 @pytest.fixture
 def small_params(repo_params):
     return small_scenes(repo_params)

@@ -11,13 +11,12 @@ import contextlib
 import threading
 import time
 
-import joblib
 import numpy as np
 import pandas as pd
 import pytest
 
 from eskin.acquisition.session import simulated_board
-from eskin.data.schema import read_dataset, read_metadata
+from eskin.config import Live
 from eskin.deploy.export import write_stack
 from eskin.deploy.live import (
     LineBroadcast,
@@ -27,51 +26,39 @@ from eskin.deploy.live import (
     live_estimates,
     stream_events,
 )
-from eskin.deploy.stack import ExportedStack, SkinStack, StackError, rest_reading
+from eskin.deploy.stack import ExportedStack, SkinStack, StackError
 from eskin.deploy.view import LiveView
 from eskin.device.host import HostProtocol, StreamFrame, StreamGap
 from eskin.device.link import SerialLink
 from eskin.device.physics import skin_params
 from eskin.device.protocol import encode_frame
-from eskin.evaluation.crossval import fit_final
-from eskin.learning.estimators import build_model, model_settings
-from eskin.learning.tasks import get_task
 from eskin.skin import PAPER_SKIN
 from tests.conftest import (
     acquire_step,
-    featurize_step,
     headless_chromium,
     ingest_step,
     needs_chromium,
     prepared_scene,
     small_scenes,
+    small_stack,
     typed,
 )
 from tests.hostile_board import HostileBoard, Served
 
 TARE = 50
+# Live as the batch stack: the tare's offset kept, the stack's own contact verdict. The
+# baseline tracking and the hysteresis (issue 39) are tests/test_live_ghosts.py's.
+AS_BATCH = Live.model_validate({"baseline": {"time_constant_s": 0, "gate_counts": 8},
+                                "contact": {"enter_probability": 0.5,
+                                            "leave_probability": 0.5,
+                                            "min_duration_ms": 0}})
 
 
 @pytest.fixture(scope="module")
 def stack(tmp_path_factory, repo_params):
     """The repo's default models, trained on the small single-force scene."""
     params = small_scenes(repo_params)
-    root = tmp_path_factory.mktemp("live")
-    processed = prepared_scene(params, "single_force", root)
-    featurize_step(params, "single_force", root / "processed", root / "features",
-                   root / "models")
-    features = read_dataset(root / "features" / "single_force.parquet")
-    models = {}
-    for name in ("stretch", "force", "detect", "localise"):
-        task = get_task("single_force", name)
-        model, hyper = model_settings(getattr(typed(params).train, name), "tuned",
-                                      "single_force")
-        models[name] = fit_final(task, features, build_model(task.role, model, hyper, PAPER_SKIN),
-                                 PAPER_SKIN)
-    featurizer = joblib.load(root / "models" / "single_force" / "featurizer.joblib")
-    return params, SkinStack("single_force", "single_force", PAPER_SKIN, featurizer, models,
-                             device=read_metadata(processed)["device"],
-                             rest=rest_reading(pd.read_parquet(processed), PAPER_SKIN))
+    return params, small_stack(params, tmp_path_factory.mktemp("live"))
 
 
 # (command sent once this many estimates are out, what it does). Estimates trail the
@@ -114,7 +101,8 @@ def run_live(params, stack, *, corrupt_fraction=0.0, estimates_wanted=320, recor
             stream = recorder.tap(stream)
         script = list(script)
         estimates = 0
-        for record in live_estimates(stack, kept(stream), tare_frames=TARE):
+        for record in live_estimates(stack, kept(stream), tare_frames=TARE,
+                                     settings=AS_BATCH):
             records.append(record)
             estimates += "seq" in record
             if script and estimates >= script[0][0]:
@@ -253,7 +241,8 @@ def live_on_hostile(skin, board: HostileBoard, wanted: int, record_to=None, *,
                 stack="test", chunk=100)
             try:
                 tapped = events if recorder is None else recorder.tap(events)
-                for record in live_estimates(skin, tapped, tare_frames=TARE):
+                for record in live_estimates(skin, tapped, tare_frames=TARE,
+                                             settings=AS_BATCH):
                     records.append(record)
                     if (sum("seq" in r for r in records) >= wanted
                             or time.monotonic() - started > wall_s):

@@ -20,29 +20,53 @@ from typing import Any
 
 import numpy as np
 
+from eskin.config import Live, LiveBaseline, LiveContact
 from eskin.deploy.stack import ExportedStack, SkinStack
 
-TARE_FRAMES = 100  # about 1.2 s of the stream at the board's 12 ms frame period
+TARE_FRAMES = Live().tare_frames  # about 1.2 s of the stream at the board's 12 ms frame period
+COMMANDS = ("tare",)  # what a client of the page or the JSON socket may ask for
 
 
 @dataclass
 class Tare:
     """A live board's offset from the training rest reading, taken with nothing pressed,
-    and taken off every frame after. ``drift`` is how far, in counts (the largest channel),
-    the untouched reading has moved since (a running average over ``drift_frames`` of the
-    frames without contact; a stretch moves it too). Without a tare (:meth:`none`) there
+    and taken off every frame after.
+
+    After the tare, :meth:`track` follows the untouched reading (``reading``), because a
+    capacitive skin's baseline wanders (temperature, humidity, the dielectric's creep):
+    a tare taken once goes stale and the stack starts seeing touches that are not there
+    (issue 39). It follows only frames that (a) live judges untouched, after hysteresis,
+    and (b) are close to the reading in channel space (every channel within
+    ``gate_counts``): the detector alone would let a light press it misses, or a press's
+    first frames before contact is declared, creep into the baseline. Under a press it is
+    frozen (``in_contact``: wholly, or the press's terminals only), so a sustained press
+    is never absorbed (iCub's skin zeroes long contacts out by following the baseline
+    through them). It follows with the time constant
+    ``time_constant_s`` of board time (0: never). ``drift`` is how far, in counts (the
+    largest channel), it has moved since the tare. Without a tare (:meth:`none`) there
     is nothing to measure drift or change from: both are None."""
 
     offset: np.ndarray
     reading: np.ndarray | None
-    drift_frames: int = 200
-    _recent: np.ndarray = None  # type: ignore[assignment]  # starts at the tare's reading
+    rest: np.ndarray | None = None
+    tared: np.ndarray | None = None  # the reading the tare took
+    time_constant_s: float = 0.0
+    gate_counts: float = np.inf
+    level: np.ndarray | None = None  # the change that is a stretch, not drift (:meth:`track`)
+    in_contact: str = "freeze"  # or quiet_channels (live.baseline.in_contact)
 
     @classmethod
-    def take(cls, frames: np.ndarray, rest: np.ndarray | None) -> Tare:
+    def take(cls, frames: np.ndarray, rest: np.ndarray | None, *,
+             baseline: LiveBaseline | None = None) -> Tare:
+        """The tare of ``frames``; with ``baseline`` (live.baseline), followed after."""
         reading = np.asarray(frames, dtype=np.float64).mean(axis=0)
         offset = reading - rest if rest is not None else np.zeros_like(reading)
-        return cls(offset, reading, _recent=reading.copy())
+        tare = cls(offset, reading, rest, reading.copy())
+        if baseline is not None:
+            tare.time_constant_s = float(baseline.time_constant_s)
+            tare.gate_counts = float(baseline.gate_counts)
+            tare.in_contact = baseline.in_contact
+        return tare
 
     @classmethod
     def none(cls, channels: int) -> Tare:
@@ -51,17 +75,102 @@ class Tare:
     def apply(self, counts: np.ndarray) -> np.ndarray:
         return np.asarray(counts, dtype=np.float64) - self.offset
 
-    def note_rest(self, counts: np.ndarray) -> None:
-        if self.reading is None:
-            return
-        weight = 1.0 / self.drift_frames
-        self._recent = (1 - weight) * self._recent + weight * np.asarray(counts, np.float64)
+    def track(self, counts: np.ndarray, elapsed_ms: float, *,
+              under_contact: np.ndarray | None = None) -> bool:
+        """Follow a frame ``elapsed_ms`` after the last; whether any of it was taken.
+
+        Untouched (``under_contact`` None): the whole frame, if every channel is within
+        the gate. In contact, with ``in_contact == "quiet_channels"``: the channels within
+        the gate, but where some channel is beyond it (a press), not those
+        ``under_contact`` (the terminals within reach of the contact's location, a
+        press's flanks included, whose change may be small); the rest stay frozen. Drift
+        goes on under a contact, and on today's simulator (an unbounded walk, issue 39) a
+        whole-frame freeze turned every phantom contact, once begun, into a permanent
+        one."""
+        if self.reading is None or self.time_constant_s <= 0:
+            return False
+        touching = under_contact is not None
+        if touching and self.in_contact == "freeze":
+            return False
+        change = np.asarray(counts, dtype=np.float64) - self.reading
+        # A stretch changes every channel at once, in a step (each by its own amount); a
+        # press raises a few channels; drift creeps, on each channel and in common. A
+        # step of the change common to all channels (its median, beyond the gate) is a
+        # stretch: that frame's whole change is kept in ``level`` for the stack to read,
+        # as it was trained across stretches, and only the creep from it is followed.
+        # The gate is on each channel's own creep, beyond the common one: a press is
+        # beyond it.
+        if self.level is None or abs(np.median(change) - np.median(self.level)) \
+                > self.gate_counts:
+            self.level = change if self.level is not None else np.zeros_like(change)
+        creep = change - self.level
+        own = creep - np.median(creep)
+        quiet = np.abs(own) <= self.gate_counts
+        if touching and not quiet.all():
+            # A press: a channel beyond the gate. Its terminals stay frozen, flanks too.
+            # A contact with every channel within the gate is no press the gate can tell
+            # from drift (and, on today's simulator, the drift is usually its cause):
+            # followed, so a phantom ends instead of freezing its own cause in place.
+            quiet &= ~under_contact
+        if not touching:
+            # Untouched: a channel raised beyond the gate may be a press not yet declared
+            # (or one the detector misses) and waits; one fallen beyond it is followed
+            # back, as no press lowers a reading (capacitive touch controllers' "anti-
+            # touch" recalibration): a whole-frame gate locked out for good once one
+            # channel had drifted past it.
+            quiet = own <= self.gate_counts
+        if not quiet.any():
+            return False
+        # an exponential average in board time: the same for any frame rate or lost frames
+        weight = -math.expm1(-max(elapsed_ms, 0.0) / 1000.0 / self.time_constant_s)
+        self.reading += np.where(quiet, weight * creep, 0.0)
+        if self.rest is not None:
+            self.offset = self.reading - self.rest
+        return True
 
     @property
     def drift(self) -> float | None:
         if self.reading is None:
             return None
-        return round(float(np.max(np.abs(self._recent - self.reading))), 3)
+        return round(float(np.max(np.abs(self.reading - self.tared))), 3)
+
+
+@dataclass
+class ContactHysteresis:
+    """Contact as live reports it, from the stack's contact probability frame by frame:
+    it begins once the probability has stayed at or above ``enter`` for
+    ``min_duration_ms`` of board time, and ends once it has stayed below ``leave`` as
+    long. Between the two thresholds, and for a shorter excursion, it stays as it was: a
+    detector near its threshold (noise, drift, a light or an edge press) does not make
+    contact flicker. Applied to the stack's outputs, so the scikit-learn and the ONNX
+    stacks behave the same."""
+
+    enter: float
+    leave: float
+    min_duration_ms: float
+    touching: bool = False
+    _since_ms: float | None = None  # board time the other verdict began, while it lasts
+
+    @classmethod
+    def of(cls, contact: LiveContact) -> ContactHysteresis:
+        return cls(float(contact.enter_probability), float(contact.leave_probability),
+                   float(contact.min_duration_ms))
+
+    def update(self, probability: float, t_ms: float) -> bool:
+        """The contact verdict after a frame at board time ``t_ms`` whose probability is
+        ``probability``."""
+        other = probability < self.leave if self.touching else probability >= self.enter
+        if not other:
+            self._since_ms = None
+        else:
+            if self._since_ms is None:
+                self._since_ms = t_ms
+            if t_ms - self._since_ms >= self.min_duration_ms:
+                self.touching, self._since_ms = not self.touching, None
+        return self.touching
+
+    def reset(self) -> None:
+        self.touching, self._since_ms = False, None
 
 
 def _number(value: Any) -> Any:
@@ -75,24 +184,49 @@ def _number(value: Any) -> Any:
 
 
 def live_estimates(stack: SkinStack | ExportedStack, batches: Iterable[list], *,
-                   tare_frames: int = TARE_FRAMES, with_change: bool = False,
+                   tare_frames: int | None = None, settings: Live | None = None,
+                   with_change: bool = False,
+                   requests: Callable[[], Iterable[str]] = tuple,
                    notify: Callable[[str], object] = lambda message: None
                    ) -> Iterator[dict[str, Any]]:
     """One record per stream event, in order: an estimate per frame (``seq``, ``t_ms``,
     the stack's columns and the drift since the tare), ``{"gap": ...}`` for lost frames,
     ``{"rejected": ...}`` for a line that failed its check. The first ``tare_frames``
-    frames are the tare (nothing may be pressed), reported once as ``{"tare": ...}``
-    (``tare_frames=0``: no tare). ``batches`` are the events as they arrived: a batch's
-    frames are predicted together, as a scikit-learn call costs milliseconds whatever
-    its rows, so the stack keeps up with the board. ``with_change``: each estimate also
-    carries ``change_counts``, every channel's change since the tare (the live view's
-    bars)."""
+    frames (default ``settings.tare_frames``) are the tare (nothing may be pressed),
+    reported once as ``{"tare": ...}`` (``tare_frames=0``: no tare). ``batches`` are the
+    events as they arrived: a batch's frames are predicted together, as a scikit-learn
+    call costs milliseconds whatever its rows, so the stack keeps up with the board.
+
+    ``settings`` (params.yaml's ``live``) are the baseline tracking (:class:`Tare`) and
+    the contact hysteresis (:class:`ContactHysteresis`) of a stack that detects contact:
+    an estimate's ``contact`` is the hysteresis' verdict, ``stack_contact`` the stack's
+    own on that frame; while in contact a frame the stack did not locate keeps the last
+    location and force, while untouched none is given. ``requests`` is asked before each
+    batch for commands (``"tare"``: the next tare's frames, ``settings.tare_frames`` or
+    100 without a start tare, are taken while estimates go on, and reported as the first
+    tare is). ``with_change``: each estimate also carries ``change_counts``, every
+    channel's change from the followed untouched reading (the live view's bars)."""
     from eskin.device.host import Junk, StreamFrame, StreamGap
     from eskin.device.link import StreamOverflow
 
-    taring: list[np.ndarray] = []
+    settings = Live() if settings is None else settings
+    tare_frames = settings.tare_frames if tare_frames is None else tare_frames
+    retare_frames = tare_frames or TARE_FRAMES
+    detects = "contact" in stack.columns
+    hysteresis = ContactHysteresis.of(settings.contact)
+    located = {name: None for name in stack.columns
+               if name not in ("stretch", "contact", "contact_probability")}
+    taring: list[np.ndarray] | None = [] if tare_frames > 0 else None
+    wanted, why = tare_frames, "start"
     tare = Tare.none(stack.skin.terminals) if tare_frames <= 0 else None
+    last_t_ms: float | None = None
     for batch in batches:
+        for command in requests():
+            if command == "tare" and taring is None:
+                taring, wanted, why = [], retare_frames, "request"
+                notify(f"re-taring on the next {wanted} frames: keep the skin untouched")
+            elif command not in COMMANDS:
+                notify(f"ignored the request {command!r} (known: {', '.join(COMMANDS)})")
         records: list[dict[str, Any] | None] = []
         pending: list[tuple[int, Any]] = []  # (index in records, frame) to predict
         for event in batch:
@@ -108,29 +242,84 @@ def live_estimates(stack: SkinStack | ExportedStack, batches: Iterable[list], *,
                 if tare is not None:
                     pending.append((len(records), event.frame))
                     records.append(None)
+                if taring is None:
                     continue
                 taring.append(counts)
-                if len(taring) == tare_frames:
-                    tare = Tare.take(np.array(taring), stack.rest)
-                    notify(f"tared on {tare_frames} frames")
-                    records.append({"tare": {"frames": tare_frames, "offset_counts":
+                if len(taring) == wanted:
+                    tare = Tare.take(np.array(taring), stack.rest, baseline=settings.baseline)
+                    taring = None
+                    hysteresis.reset()
+                    notify(f"tared on {wanted} frames" + (" (requested)" if why != "start"
+                                                          else ""))
+                    records.append({"tare": {"frames": wanted, "reason": why,
+                                             "at_seq": event.frame.seq, "offset_counts":
                                              [round(float(v), 3) for v in tare.offset]}})
         if pending:
             counts = np.array([frame.counts for _, frame in pending], dtype=np.float64)
-            estimates = stack.predict(tare.apply(counts))
-            contact = estimates["contact"].to_numpy() if "contact" in estimates else None
+            predicted = stack.predict(tare.apply(counts))
+            estimates = {name: predicted[name].to_numpy() for name in stack.columns}
             for row, (at, frame) in enumerate(pending):
-                if contact is not None and not contact[row]:
-                    tare.note_rest(counts[row])
                 record = {"seq": frame.seq, "t_ms": frame.t_ms}
-                record.update({name: _number(estimates[name].iloc[row])
-                               for name in stack.columns})
+                record.update({name: _number(estimates[name][row]) for name in stack.columns})
+                if detects:
+                    contact_of_frame(record, hysteresis, located)
+                    if taring is None and last_t_ms is not None:
+                        tare.track(counts[row], frame.t_ms - last_t_ms,
+                                   under_contact=terminals_under(
+                                       record, stack.skin, settings.baseline.reach_terminals)
+                                   if record["contact"] else None)
+                last_t_ms = frame.t_ms
                 record["drift_counts"] = tare.drift
                 if with_change:
                     record["change_counts"] = None if tare.reading is None else [
                         round(float(v), 1) for v in counts[row] - tare.reading]
                 records[at] = record
         yield from records
+
+
+def terminals_under(record: dict[str, Any], skin, reach: int) -> np.ndarray:
+    """Which of a row/column skin's terminals (x then y) are within ``reach`` of the
+    contact ``record`` locates; every one where it locates none."""
+    x, y = record.get("x"), record.get("y")
+    if x is None or y is None or not skin.row_column:
+        return np.ones(skin.terminals, dtype=bool)
+    rows = np.abs(np.arange(1, skin.rows + 1) - x) <= reach
+    columns = np.abs(np.arange(1, skin.columns + 1) - y) <= reach
+    return np.concatenate([rows, columns])
+
+
+def contact_of_frame(record: dict[str, Any], hysteresis: ContactHysteresis,
+                     located: dict[str, Any]) -> None:
+    """``record`` (one frame's estimate from a detecting stack) with the hysteresis'
+    contact in place of the stack's (kept as ``stack_contact``), and the location and
+    force made to agree with it: the last located ones held while in contact, none while
+    untouched. ``located`` keeps the last located values between frames."""
+    detected = bool(record["contact"])
+    probability = record.get("contact_probability")
+    if probability is None:  # a detector without probabilities (the paper's SVM)
+        probability = float(detected)
+    touching = hysteresis.update(probability, record["t_ms"])
+    record["stack_contact"], record["contact"] = detected, touching
+    if detected:
+        located.update({name: record[name] for name in located})
+    for name in located:
+        if touching and not detected:
+            record[name] = located[name]
+        elif not touching and detected:
+            record[name] = 0.0 if name.startswith("force") else None
+
+
+def _command(line: bytes) -> str:
+    """The command a client's line asks for (``{"command": "tare"}``), or why it is none."""
+    try:
+        message = json.loads(line)
+    except (ValueError, UnicodeDecodeError):
+        return f"not a JSON line: {line[:60]!r}"
+    command = message.get("command") if isinstance(message, dict) else None
+    if command in COMMANDS:
+        return command
+    return (f"unknown command {command!r}: send {{\"command\": \"tare\"}}" if command
+            else 'a command is {"command": "tare"}')
 
 
 def json_line(record: dict[str, Any]) -> str:
@@ -184,7 +373,11 @@ def stream_events(link, *, reconnect_s: float = 30.0, timeout_s: float | None = 
 class LineBroadcast:
     """JSON lines for other programs: a TCP server on 127.0.0.1 that sends every line to
     every connected client. Each client has a bounded backlog (``max_backlog`` bytes): one
-    that does not read is dropped, and the live loop never waits for anybody."""
+    that does not read is dropped, and the live loop never waits for anybody.
+
+    A client may send commands, one JSON line each: ``{"command": "tare"}``.
+    :meth:`requests` gives those received since it was last asked; a line that is not a
+    known command is answered to its client alone with ``{"error": ...}``."""
 
     def __init__(self, port: int = 0, *, max_backlog: int = 1 << 20,
                  notify: Callable[[str], object] = lambda message: None) -> None:
@@ -196,6 +389,7 @@ class LineBroadcast:
         self.max_backlog = max_backlog
         self.notify = notify
         self._clients: dict[Any, bytearray] = {}
+        self._received: dict[Any, bytearray] = {}
 
     def _accept(self) -> None:
         while True:
@@ -207,10 +401,47 @@ class LineBroadcast:
             self._clients[client] = bytearray()
             self.notify(f"client {address[0]}:{address[1]} connected")
 
+    def requests(self) -> list[str]:
+        """The commands clients sent since the last call, in order."""
+        self._accept()
+        commands = []
+        for client in list(self._clients):
+            try:
+                data = client.recv(4096)
+            except BlockingIOError:
+                continue
+            except OSError:
+                self._drop(client, "disconnected")
+                continue
+            if not data:  # the client closed its end
+                self._drop(client, "disconnected")
+                continue
+            pending = self._received.setdefault(client, bytearray())
+            pending += data
+            while (end := pending.find(b"\n")) >= 0:
+                line = bytes(pending[:end]).strip()
+                del pending[: end + 1]
+                if line:
+                    command = _command(line)
+                    if command in COMMANDS:
+                        commands.append(command)
+                    else:
+                        self._queue(client, json_line({"error": command}))
+            if len(pending) > 4096:  # no newline in sight: not a command line
+                pending.clear()
+                self._queue(client, json_line({"error": "a command line is one short "
+                                               "JSON object ending in a newline"}))
+        return commands
+
     def send(self, line: str) -> None:
         self._accept()
+        for client in list(self._clients):
+            self._queue(client, line)
+
+    def _queue(self, client, line: str) -> None:
         data = (line + "\n").encode()
-        for client, backlog in list(self._clients.items()):
+        backlog = self._clients.get(client)
+        if backlog is not None:
             backlog += data
             try:
                 sent = client.send(backlog)
@@ -219,12 +450,13 @@ class LineBroadcast:
                 pass
             except OSError:  # the client went away
                 self._drop(client, "disconnected")
-                continue
+                return
             if len(backlog) > self.max_backlog:
                 self._drop(client, f"dropped: more than {self.max_backlog} bytes unread")
 
     def _drop(self, client, why: str) -> None:
         self._clients.pop(client, None)
+        self._received.pop(client, None)
         try:
             self.notify(f"client {client.getpeername()[1]} {why}")
         except OSError:

@@ -3,10 +3,11 @@
 A person pressing the skin looks at it: the skin's map of nodes (size_x × size_y: R × C on
 a row/column skin, 10 × 10 on the paper's) with the estimated contact(s)
 (marked by force), the force, the location, the stretch, whether there is contact and
-how sure the detector is, the drift since the tare, every channel's change since the
-tare as bars, and the frame rate. The page holds an ``EventSource`` on ``/events``;
-every client is sent the newest state only (a slow browser skips frames, nothing queues),
-and ``/state`` answers it once as JSON.
+how sure the detector is, the drift since the tare, every channel's change from the
+untouched reading as bars, and the frame rate; a button (and the key t) asks for a
+re-tare (``POST /tare``). The page holds an ``EventSource`` on ``/events``; every client
+is sent the newest state only (a slow browser skips frames, nothing queues), and
+``/state`` answers it once as JSON.
 
 A page, not a terminal view: it draws the map as the skin is laid out, any machine on the
 bench can open it (through an SSH tunnel: it binds to 127.0.0.1 only), and it is tested
@@ -57,6 +58,9 @@ main {{ display: flex; gap: 2em; align-items: flex-start; }}
 <p><b>frame</b><span id="seq">–</span></p>
 <p><b>frames/s</b><span id="rate">–</span></p>
 <p><b>lost, damaged</b><span id="lost">0, 0</span></p>
+<p><b>tare</b><span id="tared">–</span></p>
+<p><button id="tare" title="the next frames become the untouched reading (key t)">
+re-tare (t)</button></p>
 </div>
 </main>
 <div id="bars"></div><div id="barlabels"></div>
@@ -84,6 +88,10 @@ const text = (id, value) => {{ document.getElementById(id).textContent = value; 
 const fixed = (v, digits) => v === null || v === undefined ? "–" : v.toFixed(digits);
 let marked = [], first = null;
 function show(state) {{
+  if (state.tare) text("tared", state.tare.reason === "request"
+    ? `again at frame ${{state.tare.at_seq}}, on ${{state.tare.frames}} frames`
+    : `${{state.tare.frames}} frames at start`);
+  if (state.taring) text("tared", "taring: keep the skin untouched");
   const e = state.estimate;
   if (!e) return;
   for (const cell of marked) {{ cell.style.background = ""; cell.textContent = ""; }}
@@ -127,6 +135,10 @@ function show(state) {{
     bar.title = `${{names[i]}}: ${{v.toFixed(1)}} counts`;
   }});
 }}
+// Re-tare: the next frames become the untouched reading (keep the skin untouched).
+const tare = () => fetch("/tare", {{method: "POST"}});
+document.getElementById("tare").onclick = tare;
+document.addEventListener("keydown", event => {{ if (event.key === "t") tare(); }});
 const events = new EventSource("/events");
 events.onmessage = message => show(JSON.parse(message.data));
 </script>
@@ -148,7 +160,9 @@ class LiveView:
         self.page = PAGE.format(scene=scene, kind=kind, device=device, size_x=skin.size_x,
                                 size_y=skin.size_y, terminals=skin.terminals,
                                 names=json.dumps(bar_names(skin))).encode()
-        self._state: dict[str, Any] = {"estimate": None, "lost": 0, "rejected": 0, "tare": None}
+        self._state: dict[str, Any] = {"estimate": None, "lost": 0, "rejected": 0, "tare": None,
+                                       "taring": False}
+        self._requests: list[str] = []
         self._version = 0
         self._changed = threading.Condition()
         self._closed = False
@@ -165,6 +179,13 @@ class LiveView:
                     self._send(200, "application/json", view.state_json().encode())
                 elif self.path == "/events":
                     self._events()
+                else:
+                    self._send(404, "text/plain", b"not found\n")
+
+            def do_POST(self) -> None:  # noqa: N802 - http.server's name
+                if self.path == "/tare":
+                    view.request("tare")
+                    self._send(202, "application/json", b'{"requested":"tare"}')
                 else:
                     self._send(404, "text/plain", b"not found\n")
 
@@ -204,6 +225,20 @@ class LiveView:
         self._thread = threading.Thread(target=self._server.serve_forever, daemon=True)
         self._thread.start()
 
+    def request(self, command: str) -> None:
+        """A command from the page (the re-tare button, key t), for :meth:`requests`."""
+        with self._changed:
+            self._requests.append(command)
+            self._state["taring"] = command == "tare" or self._state["taring"]
+            self._version += 1
+            self._changed.notify_all()
+
+    def requests(self) -> list[str]:
+        """The commands the page sent since the last call (live_estimates' ``requests``)."""
+        with self._changed:
+            out, self._requests = self._requests, []
+        return out
+
     def state_json(self) -> str:
         return json.dumps(self._state, separators=(",", ":"), allow_nan=False)
 
@@ -217,6 +252,7 @@ class LiveView:
                 self._state["rejected"] += 1
             elif "tare" in record:
                 self._state["tare"] = record["tare"]
+                self._state["taring"] = False
             self._version += 1
             self._changed.notify_all()
 
