@@ -216,9 +216,10 @@ def test_make_lab_server_names_the_training_view_of_its_experiment():
             made["tags"]
     finally:
         serving.send_signal(signal.SIGINT)
-        try:
-            serving.wait(timeout=60)
+        try:  # the stop's own deadlines: mlflow 30 s, pg_ctl 60 s, sshd 30 s
+            serving.wait(timeout=150)
         except subprocess.TimeoutExpired:
             serving.kill()
+            serving.wait(timeout=30)
         shutil.rmtree(home, ignore_errors=True)
     assert serving.returncode == 0, "".join(lines) + (serving.stdout.read() or "")

@@ -50,8 +50,8 @@ def lab_remote():
         yield commands, home / "dvc-remote"
     finally:
         serving.send_signal(signal.SIGINT)
-        try:
-            serving.wait(timeout=60)
+        try:  # the stop's own deadlines: mlflow 30 s, pg_ctl 60 s, sshd 30 s
+            serving.wait(timeout=150)
         except subprocess.TimeoutExpired:
             serving.kill()
             serving.wait(timeout=30)
