@@ -344,6 +344,9 @@ def main(argv: list[str] | None = None) -> int:
     serve.add_argument("--ssh-port", type=int, default=2222,
                        help="the DVC remote's SSH port (default 2222)")
     args = parser.parse_args(argv)
+    # Ctrl-C (SIGINT) stops the servers even where it came in ignored: a background job of
+    # a non-interactive shell starts with SIGINT ignored, and then never stopped.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
     def serve_until_stopped() -> int:
         with lab_server(args.dir, pg_port=args.pg_port, port=args.port) as (database, tracking), \
