@@ -110,7 +110,9 @@ class Sim(_Section):
     seating_variation: NonNegative
     noise_pf: NonNegative
     drift_offset_pf: NonNegative
-    drift_step_pf: NonNegative
+    drift_time_constant_s: Positive
+    creep_fraction: NonNegative
+    creep_time_s: Positive
     cav424_ref_pf: Positive
     cav424_gain_v: Positive
     cav424_gain_spread: NonNegative
@@ -514,12 +516,13 @@ class Stress(_Section):
 
 
 class LiveBaseline(_Section):
-    """How `eskin live` follows the untouched reading after the tare (eskin/deploy/live.py)."""
+    """How `eskin live` follows a board's offset from the training's untouched readings
+    after the tare (eskin/deploy/live.py)."""
 
-    time_constant_s: NonNegative = 0.5   # 0: the tare's reading, never followed
+    time_constant_s: NonNegative = 0.5   # 0: the tare's offset, never followed
     gate_counts: Positive = 8.0          # a frame updates it only if no channel moved more
     # in contact: freeze it, or follow the channels the contact leaves within the gate
-    in_contact: Literal["freeze", "quiet_channels"] = "quiet_channels"
+    in_contact: Literal["freeze", "quiet_channels"] = "freeze"
     reach_terminals: Annotated[int, Field(ge=0)] = 2  # quiet_channels: frozen each side of it
 
 
@@ -576,6 +579,7 @@ class LiveHour(_Section):
     sustained_s: Positive
     stretches_mm: list[NonNegative]
     retare_after_sustained: bool
+    press_ramp_ms: NonNegative
     batch_frames: Count
 
 

@@ -14,8 +14,10 @@ posterior over conditions (stretch, force, node) from that one reading:
   stage doubles every grid on a sample of rows and reports what moved (a
   converged bound moves no score by 0.001);
 * given the mean, a reading (in pF) is Gaussian per channel: white noise,
-  the trial's baseline offset, the random walk up to this sample's index,
-  and the ADC's quantisation step (as uniform noise);
+  the baseline's drift (stationary in board time, so the same variance at every
+  sample), and the ADC's quantisation step (as uniform noise). Creep is left out:
+  an acquisition reads its weights from the moment they land, and over a 20-frame
+  trial creep moves the strain by about 0.1 % (docs/simulator.md);
 * the prior is the plan's: each condition's share of the samples.
 
 The skin is the scene's (any row/column skin: ``skin``, the paper's by default), read
@@ -239,11 +241,12 @@ def counts_to_pf(model: SkinModel, counts: np.ndarray) -> np.ndarray:
 
 
 def reading_variance(model: SkinModel, sample_index: np.ndarray) -> np.ndarray:
-    """Per-sample, per-channel variance of a reading about its mean, in pF²."""
+    """Per-sample, per-channel variance of a reading about its mean, in pF² (the same at
+    every sample index: the drift is stationary)."""
     p = model.params
     step_pf = p.cav424_ref_pf * (p.supply_v / (2**p.adc_bits - 1)) / model.cav424_gain_v
-    walk = (np.asarray(sample_index, dtype=float)[:, None] + 1) * p.drift_step_pf**2
-    return p.noise_pf**2 + p.drift_offset_pf**2 + walk + step_pf[None, :] ** 2 / 12
+    every = np.zeros((len(np.asarray(sample_index)), 1))
+    return every + p.noise_pf**2 + p.drift_offset_pf**2 + step_pf[None, :] ** 2 / 12
 
 
 def _log_marginal(readings: np.ndarray, inverse_variance: np.ndarray, means: np.ndarray,

@@ -360,7 +360,7 @@ def stress(params: Any, settings: Any, scene: str, features_path, out_dir, *, sc
     for name, factor in (("noise_zero", 0.0), ("noise_x10", 10.0)) if simulated else ():
         sim = params.sim.model_copy(update={
             knob: getattr(params.sim, knob) * factor
-            for knob in ("noise_pf", "drift_offset_pf", "drift_step_pf")})
+            for knob in ("noise_pf", "drift_offset_pf")})
         noisy = params.scenes[scene].model_copy(update=settings.noise_scene.model_dump())
         root = Path(scratch) / name
         acquire.acquire(scene, noisy, root / "raw", acquire=params.acquire, sim=sim,

@@ -138,7 +138,7 @@ def small_stack(params: dict, root: Path):
     import pandas as pd
 
     from eskin.data.schema import read_dataset, read_metadata
-    from eskin.deploy.stack import SkinStack, rest_reading
+    from eskin.deploy.stack import SkinStack, rest_readings
     from eskin.evaluation.crossval import fit_final
     from eskin.learning.estimators import build_model, model_settings
     from eskin.learning.tasks import get_task
@@ -158,7 +158,7 @@ def small_stack(params: dict, root: Path):
     featurizer = joblib.load(root / "models" / "single_force" / "featurizer.joblib")
     return SkinStack("single_force", "single_force", PAPER_SKIN, featurizer, models,
                      device=read_metadata(processed)["device"],
-                     rest=rest_reading(pd.read_parquet(processed), PAPER_SKIN))
+                     rest=rest_readings(pd.read_parquet(processed), PAPER_SKIN))
 
 
 @pytest.fixture

@@ -17,7 +17,7 @@ from sklearn.base import BaseEstimator, RegressorMixin
 from sklearn.ensemble import HistGradientBoostingClassifier, HistGradientBoostingRegressor
 
 from eskin.deploy.export import ExportError, compare, stack_to_onnx, write_stack
-from eskin.deploy.stack import ExportedStack, SkinStack
+from eskin.deploy.stack import ExportedStack, RestTable, SkinStack
 from eskin.evaluation.crossval import channel_frame
 from eskin.learning.estimators import REGISTRY, ActiveTerminals, ForceProfile, build_model
 from eskin.learning.features import make_featurizer
@@ -73,11 +73,11 @@ def test_a_single_force_stack_exports_with_the_same_estimates(featurizer, tmp_pa
                                  max_iter=10)},
     }
     stack = SkinStack("synthetic", "single_force", PAPER_SKIN, transform, models,
-                      rest=X[~contact].mean(axis=0))
+                      rest=RestTable(np.array([1.0]), X[~contact].mean(axis=0)[None, :]))
     onnx_stack = exported(stack, tmp_path)
     assert_same(stack, onnx_stack, readings(800, seed=2))
     assert onnx_stack.columns == stack.columns and onnx_stack.kind == "single_force"
-    np.testing.assert_array_equal(onnx_stack.rest, stack.rest)
+    assert onnx_stack.rest.as_dict() == stack.rest.as_dict()
 
 
 def test_a_two_force_stack_exports_with_the_same_estimates(tmp_path):

@@ -159,7 +159,7 @@ def test_a_change_in_the_physics_source_changes_the_identity(tmp_path):
 def test_a_physics_parameter_changes_the_identity():
     base = simulator_identity(SIM, REST_MM)
     assert _recompute(dataclasses.replace(SIM, noise_pf=0.021)) != base
-    assert _recompute(dataclasses.replace(SIM, drift_step_pf=0.0051)) != base
+    assert _recompute(dataclasses.replace(SIM, drift_time_constant_s=301.0)) != base
     assert _recompute(dataclasses.replace(SIM, seed=1)) != base
     assert _recompute() == base
 
@@ -173,7 +173,8 @@ CHANGED = {
     "force_hill": 1.1, "stretch_stiffening": 1.6, "reach_nodes": 3,
     "placement_sd_nodes": 0.16, "node_sensitivity_spread": 0.21, "seating_force_n": 3.1,
     "seating_variation": 0.55, "noise_pf": 0.021, "drift_offset_pf": 0.021,
-    "drift_step_pf": 0.0055, "cav424_ref_pf": 16.2, "cav424_gain_v": 4.1,
+    "drift_time_constant_s": 310.0, "creep_fraction": 0.055, "creep_time_s": 11.0,
+    "cav424_ref_pf": 16.2, "cav424_gain_v": 4.1,
     "cav424_gain_spread": 0.06, "cav424_offset_v": 0.51, "supply_v": 5.1, "adc_bits": 11,
 }
 
@@ -202,7 +203,7 @@ def _unclipped_counts(self, capacitance_pf):
 
 BEHAVIOURS = {
     # a capacitance off by a hundred-thousandth (0.01 of an ADC count)
-    "capacitance": (SkinModel, "capacitance", lambda original: lambda self, *a, **k:
+    "capacitance": (SkinModel, "capacitance_of_strain", lambda original: lambda self, *a, **k:
                     original(self, *a, **k) * (1 + 1e-5)),
     # a press's strain (only a press shows it)
     "peak_strain": (SkinModel, "peak_strain", lambda original: lambda self, *a, **k:
@@ -211,8 +212,14 @@ BEHAVIOURS = {
     "spread_kernel": (physics, "spread_kernel", lambda original: lambda distance, reach:
                       original(np.asarray(distance) * 1.02, reach)),
     # the indenters land where asked (no placement error, squarely seated)
-    "place": (Trial, "place", lambda original: lambda self, x, y, newtons:
-              physics.Indenter(x, y, newtons)),
+    "place": (Trial, "place", lambda original: lambda self, x, y, newtons, ramp_s=0.0:
+              physics.Indenter(x, y, newtons, placed_s=self.t_s, ramp_s=ramp_s)),
+    # the drift 1 % stronger
+    "drift": (SkinModel, "drift_pf", lambda original: lambda self, *a, **k:
+              original(self, *a, **k) * 1.01),
+    # creep and relaxation a tenth faster
+    "creep": (Trial, "wait", lambda original: lambda self, seconds, *a:
+              original(self, seconds * 1.1, *a)),
     # the CAV424 no longer clipped to its supply (only a full-scale reading shows it)
     "to_counts": (SkinModel, "to_counts", lambda original: _unclipped_counts),
 }

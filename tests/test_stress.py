@@ -34,7 +34,7 @@ def small(tmp_path_factory, repo_params):
     frames = {"default": acquire_features(params, tmp_path_factory.mktemp("stress"))}
     for name, factor in (("noise_zero", 0.0), ("noise_x10", 10.0)):
         noisy = copy.deepcopy(params)
-        for knob in ("noise_pf", "drift_offset_pf", "drift_step_pf"):
+        for knob in ("noise_pf", "drift_offset_pf"):
             noisy["sim"][knob] *= factor
         noisy["scenes"]["single_force"].update(samples=3)
         frames[name] = acquire_features(noisy, tmp_path_factory.mktemp(name))

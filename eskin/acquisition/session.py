@@ -181,7 +181,8 @@ def acquire_scene(plan: ScenePlan, raw_dir: Path, *, source: str, sim: SkinParam
 
         with emulated_board(sim, skin=plan.skin, rest_length_mm=rest_length_mm,
                             samples=plan.samples, faults=emulated_faults,
-                            vanish_s=(faults or LinkFaults()).vanish_s) as (emulated_port, rig):
+                            vanish_s=(faults or LinkFaults()).vanish_s,
+                            frame_period_ms=frame_period_ms) as (emulated_port, rig):
             # Its EEPROM starts erased in every run: it is given its id, as a new board is.
             set_device_id(emulated_port, EMULATED_ID, timeout_s=timeout_s)
             placer = EmulatedPlacer(rig, simulator_identity(sim, rest_length_mm, plan.skin),

@@ -6,7 +6,7 @@ paper's) and gives one output per estimate,
 named as :attr:`eskin.deploy.stack.SkinStack.columns` (``contact`` is boolean, the rest float64),
 with the same gating as the scikit-learn stack (no contact: x and y NaN, force 0). Its
 metadata (``metadata_props``) carries the scene, its kind, the board the training data
-came from, the training rest reading a tare is taken against, the md5 of every model
+came from, the untouched readings (per stretch) a tare is taken against, the md5 of every model
 file it was made from, and the skin (``eskin.skin``, as params.yaml declares it) when it is
 not the paper's. Loading it takes onnxruntime and numpy only::
 
@@ -663,8 +663,8 @@ def metadata(stack, sources: dict[str, str]) -> dict[str, str]:
     return {"eskin.scene": stack.scene, "eskin.kind": stack.kind,
             "eskin.columns": json.dumps(stack.columns),
             "eskin.device": json.dumps(stack.device),
-            "eskin.rest_counts": json.dumps(None if stack.rest is None
-                                            else [float(v) for v in stack.rest]),
+            "eskin.rest_table": json.dumps(None if stack.rest is None
+                                           else stack.rest.as_dict()),
             "eskin.skipped": json.dumps(stack.skipped),
             "eskin.sources_md5": json.dumps(sources, sort_keys=True),
             **{f"eskin.{key}": json.dumps(value, sort_keys=True)

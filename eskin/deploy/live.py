@@ -21,52 +21,58 @@ from typing import Any
 import numpy as np
 
 from eskin.config import Live, LiveBaseline, LiveContact
-from eskin.deploy.stack import ExportedStack, SkinStack
+from eskin.deploy.stack import ExportedStack, RestTable, SkinStack
 
-TARE_FRAMES = Live().tare_frames  # about 1.2 s of the stream at the board's 12 ms frame period
 COMMANDS = ("tare",)  # what a client of the page or the JSON socket may ask for
 
 
 @dataclass
 class Tare:
-    """A live board's offset from the training rest reading, taken with nothing pressed,
-    and taken off every frame after.
+    """A live board's offset from the training data's untouched readings, taken with
+    nothing pressed, and taken off every frame after.
 
-    After the tare, :meth:`track` follows the untouched reading (``reading``), because a
-    capacitive skin's baseline wanders (temperature, humidity, the dielectric's creep):
-    a tare taken once goes stale and the stack starts seeing touches that are not there
-    (issue 39). It follows only frames that (a) live judges untouched, after hysteresis,
-    and (b) are close to the reading in channel space (every channel within
-    ``gate_counts``): the detector alone would let a light press it misses, or a press's
-    first frames before contact is declared, creep into the baseline. Under a press it is
-    frozen (``in_contact``: wholly, or the press's terminals only), so a sustained press
-    is never absorbed (iCub's skin zeroes long contacts out by following the baseline
-    through them). It follows with the time constant
-    ``time_constant_s`` of board time (0: never). ``drift`` is how far, in counts (the
-    largest channel), it has moved since the tare. Without a tare (:meth:`none`) there
-    is nothing to measure drift or change from: both are None."""
+    The stack was trained on the training board's readings; a live board reads them
+    plus an offset that wanders (temperature, humidity, the dielectric's creep), and a
+    tare taken once goes stale: the stack starts seeing touches that are not there
+    (issue 39). ``rest`` is what the training data read untouched at each stretch
+    (:class:`~eskin.deploy.stack.RestTable`). On a frame, less the offset, the channels
+    say which stretch the skin is at (their median, so that a press, which raises a few
+    channels, does not move it), and so which untouched reading it should show; what is
+    left is offset. The tare takes that offset, at whatever stretch the skin is, and
+    :meth:`track` follows it after, with time constant ``time_constant_s`` of board time
+    (0: never), on frames that (a) live judges untouched, after hysteresis, and (b) lie
+    close to the expected reading in channel space (no channel's own difference, beyond
+    the one common to all, above ``gate_counts``): the detector's verdict alone would
+    let a light press it misses, or a press's first frames, creep into the offset. Under
+    a press it is frozen (``in_contact``: wholly, or the press's terminals only), so a
+    sustained press is never absorbed (iCub's skin zeroes long contacts out by following
+    its baseline through them). The expected reading is worked out again on each frame,
+    not remembered from a stretch's step, so an error cannot outlive the frames that made
+    it. ``drift`` is how far, in counts (the largest channel), the offset has moved since
+    the tare. Without a tare (:meth:`none`) there is nothing to measure drift or change
+    from: both are None."""
 
     offset: np.ndarray
-    reading: np.ndarray | None
-    rest: np.ndarray | None = None
-    tared: np.ndarray | None = None  # the reading the tare took
+    rest: RestTable | None
+    tared: np.ndarray | None = None  # the offset the tare took
     time_constant_s: float = 0.0
     gate_counts: float = np.inf
-    level: np.ndarray | None = None  # the change that is a stretch, not drift (:meth:`track`)
     in_contact: str = "freeze"  # or quiet_channels (live.baseline.in_contact)
 
     @classmethod
-    def take(cls, frames: np.ndarray, rest: np.ndarray | None, *,
-             baseline: LiveBaseline | None = None) -> Tare:
-        """The tare of ``frames``; with ``baseline`` (live.baseline), followed after."""
-        reading = np.asarray(frames, dtype=np.float64).mean(axis=0)
-        offset = reading - rest if rest is not None else np.zeros_like(reading)
-        tare = cls(offset, reading, rest, reading.copy())
-        if baseline is not None:
-            tare.time_constant_s = float(baseline.time_constant_s)
-            tare.gate_counts = float(baseline.gate_counts)
-            tare.in_contact = baseline.in_contact
-        return tare
+    def take(cls, frames: np.ndarray, rest: RestTable | None, *,
+             baseline: LiveBaseline | None = None, before: Tare | None = None) -> Tare:
+        """The tare of ``frames`` (the stretch they are at read from them, less the offset
+        of the tare ``before``, if any); with ``baseline`` (live.baseline), followed after."""
+        mean = np.asarray(frames, dtype=np.float64).mean(axis=0)
+        offset = np.zeros_like(mean)
+        if rest is not None:
+            drift = before.offset if before is not None and before.rest is not None else 0.0
+            offset = mean - rest.at(rest.stretch_of(mean - drift))
+        follow = {} if baseline is None else {
+            "time_constant_s": float(baseline.time_constant_s),
+            "gate_counts": float(baseline.gate_counts), "in_contact": baseline.in_contact}
+        return cls(offset, rest, None if rest is None else offset.copy(), **follow)
 
     @classmethod
     def none(cls, channels: int) -> Tare:
@@ -75,64 +81,51 @@ class Tare:
     def apply(self, counts: np.ndarray) -> np.ndarray:
         return np.asarray(counts, dtype=np.float64) - self.offset
 
+    def expected(self, counts: np.ndarray) -> np.ndarray | None:
+        """What this board should read untouched at the stretch ``counts`` are at."""
+        if self.rest is None:
+            return None
+        return self.rest.at(self.rest.stretch_of(self.apply(counts))) + self.offset
+
     def track(self, counts: np.ndarray, elapsed_ms: float, *,
               under_contact: np.ndarray | None = None) -> bool:
         """Follow a frame ``elapsed_ms`` after the last; whether any of it was taken.
 
-        Untouched (``under_contact`` None): the whole frame, if every channel is within
-        the gate. In contact, with ``in_contact == "quiet_channels"``: the channels within
-        the gate, but where some channel is beyond it (a press), not those
-        ``under_contact`` (the terminals within reach of the contact's location, a
-        press's flanks included, whose change may be small); the rest stay frozen. Drift
-        goes on under a contact, and on today's simulator (an unbounded walk, issue 39) a
-        whole-frame freeze turned every phantom contact, once begun, into a permanent
-        one."""
-        if self.reading is None or self.time_constant_s <= 0:
+        Untouched (``under_contact`` None): every channel not raised beyond the gate (a
+        channel raised further may be a press not yet declared, or one the detector
+        misses, and waits; one fallen below is followed back, as no press lowers a
+        reading: capacitive touch controllers' "anti-touch" recalibration). In contact,
+        with ``in_contact == "quiet_channels"``: the channels within the gate, but where
+        some channel is beyond it (a press), not those ``under_contact`` (the terminals
+        within reach of the contact's location, a press's flanks included); the rest stay
+        frozen. A contact with every channel within the gate is no press the gate can
+        tell from drift: it is followed, so that a phantom ends instead of freezing its
+        own cause in place."""
+        if self.rest is None or self.time_constant_s <= 0:
             return False
         touching = under_contact is not None
         if touching and self.in_contact == "freeze":
             return False
-        change = np.asarray(counts, dtype=np.float64) - self.reading
-        # A stretch changes every channel at once, in a step (each by its own amount); a
-        # press raises a few channels; drift creeps, on each channel and in common. A
-        # step of the change common to all channels (its median, beyond the gate) is a
-        # stretch: that frame's whole change is kept in ``level`` for the stack to read,
-        # as it was trained across stretches, and only the creep from it is followed.
-        # The gate is on each channel's own creep, beyond the common one: a press is
-        # beyond it.
-        if self.level is None or abs(np.median(change) - np.median(self.level)) \
-                > self.gate_counts:
-            self.level = change if self.level is not None else np.zeros_like(change)
-        creep = change - self.level
-        own = creep - np.median(creep)
-        quiet = np.abs(own) <= self.gate_counts
-        if touching and not quiet.all():
-            # A press: a channel beyond the gate. Its terminals stay frozen, flanks too.
-            # A contact with every channel within the gate is no press the gate can tell
-            # from drift (and, on today's simulator, the drift is usually its cause):
-            # followed, so a phantom ends instead of freezing its own cause in place.
-            quiet &= ~under_contact
-        if not touching:
-            # Untouched: a channel raised beyond the gate may be a press not yet declared
-            # (or one the detector misses) and waits; one fallen beyond it is followed
-            # back, as no press lowers a reading (capacitive touch controllers' "anti-
-            # touch" recalibration): a whole-frame gate locked out for good once one
-            # channel had drifted past it.
+        error = np.asarray(counts, dtype=np.float64) - self.expected(counts)
+        own = error - np.median(error)
+        if touching:
+            quiet = np.abs(own) <= self.gate_counts
+            if not quiet.all():
+                quiet &= ~under_contact
+        else:
             quiet = own <= self.gate_counts
         if not quiet.any():
             return False
         # an exponential average in board time: the same for any frame rate or lost frames
         weight = -math.expm1(-max(elapsed_ms, 0.0) / 1000.0 / self.time_constant_s)
-        self.reading += np.where(quiet, weight * creep, 0.0)
-        if self.rest is not None:
-            self.offset = self.reading - self.rest
+        self.offset = self.offset + np.where(quiet, weight * error, 0.0)
         return True
 
     @property
     def drift(self) -> float | None:
-        if self.reading is None:
+        if self.tared is None:
             return None
-        return round(float(np.max(np.abs(self.reading - self.tared))), 3)
+        return round(float(np.max(np.abs(self.offset - self.tared))), 3)
 
 
 @dataclass
@@ -211,7 +204,7 @@ def live_estimates(stack: SkinStack | ExportedStack, batches: Iterable[list], *,
 
     settings = Live() if settings is None else settings
     tare_frames = settings.tare_frames if tare_frames is None else tare_frames
-    retare_frames = tare_frames or TARE_FRAMES
+    retare_frames = tare_frames or Live().tare_frames
     detects = "contact" in stack.columns
     hysteresis = ContactHysteresis.of(settings.contact)
     located = {name: None for name in stack.columns
@@ -246,7 +239,8 @@ def live_estimates(stack: SkinStack | ExportedStack, batches: Iterable[list], *,
                     continue
                 taring.append(counts)
                 if len(taring) == wanted:
-                    tare = Tare.take(np.array(taring), stack.rest, baseline=settings.baseline)
+                    tare = Tare.take(np.array(taring), stack.rest, baseline=settings.baseline,
+                                     before=tare)
                     taring = None
                     hysteresis.reset()
                     notify(f"tared on {wanted} frames" + (" (requested)" if why != "start"
@@ -271,8 +265,9 @@ def live_estimates(stack: SkinStack | ExportedStack, batches: Iterable[list], *,
                 last_t_ms = frame.t_ms
                 record["drift_counts"] = tare.drift
                 if with_change:
-                    record["change_counts"] = None if tare.reading is None else [
-                        round(float(v), 1) for v in counts[row] - tare.reading]
+                    expected = tare.expected(counts[row])
+                    record["change_counts"] = None if expected is None else [
+                        round(float(v), 1) for v in counts[row] - expected]
                 records[at] = record
         yield from records
 

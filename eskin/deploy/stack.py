@@ -31,7 +31,7 @@ import yaml
 from threadpoolctl import ThreadpoolController
 
 from eskin.catalog import TASK_NAMES, features_path, featurizer_path, model_path, processed_path
-from eskin.data.schema import dataset_kind, dataset_skin, read_metadata
+from eskin.data.schema import contact_mask, dataset_kind, dataset_skin, read_metadata
 from eskin.errors import EskinError
 from eskin.kinds import get_kind
 from eskin.learning.saved import load_models
@@ -61,7 +61,7 @@ class SkinStack:
     models: dict[str, dict[str, Any]]          # task → target → fitted estimator
     skipped: dict[str, str] = field(default_factory=dict)  # task → why it has no model
     device: dict | None = None                 # the board the training data came from
-    rest: np.ndarray | None = None             # training rest reading (counts), for a tare
+    rest: RestTable | None = None              # training rest readings (counts), for a tare
 
     # ------------------------------------------------------------ loading
 
@@ -98,7 +98,7 @@ class SkinStack:
         rest = None
         processed = root / processed_path(scene)
         if processed.exists():
-            rest = rest_reading(pd.read_parquet(processed), skin)
+            rest = rest_readings(pd.read_parquet(processed), skin)
         return cls(scene, dataset_kind(features).name, skin, featurizer, models, skipped,
                    meta.get("device"), rest)
 
@@ -210,7 +210,7 @@ class ExportedStack:
     kind: str
     skin: AnySkin
     device: dict | None
-    rest: np.ndarray | None
+    rest: RestTable | None
     columns: list[str]
     session: Any
 
@@ -232,11 +232,15 @@ class ExportedStack:
         meta = session.get_modelmeta().custom_metadata_map
         if "eskin.scene" not in meta:
             raise StackError(f"{path} is not an eskin stack (it has no eskin.scene metadata)")
-        rest = json.loads(meta["eskin.rest_counts"])
+        rest = json.loads(meta.get("eskin.rest_table", "null"))
+        lowest = json.loads(meta.get("eskin.rest_counts", "null"))
+        if rest is None and lowest is not None:
+            # a stack exported before the table: its lowest stretch's reading alone
+            rest = {"stretch": [1.0], "counts": [lowest]}
         skin = skin_from_dict(json.loads(meta.get("eskin.skin", "null")))
         return cls(meta["eskin.scene"], meta["eskin.kind"], skin,
                    json.loads(meta["eskin.device"]),
-                   None if rest is None else np.asarray(rest, dtype=np.float64),
+                   None if rest is None else RestTable.from_dict(rest),
                    json.loads(meta["eskin.columns"]), session)
 
     def predict(self, counts) -> pd.DataFrame:
@@ -251,16 +255,65 @@ class ExportedStack:
         check_board(self.scene, self.device, device_id)
 
 
-def rest_reading(frame: pd.DataFrame, skin: AnySkin) -> np.ndarray | None:
-    """The training data's reading (of ``skin``'s channels) with nothing pressed, at the
-    lowest stretch: what a tare takes a live board's offset from. None for a scene without
-    such samples."""
-    from eskin.learning.features import baseline_rows
+@dataclass(frozen=True)
+class RestTable:
+    """The training data's readings with nothing pressed, one row per stretch the scene was
+    recorded at (ascending): what a tare takes a live board's offset from, and what live
+    expects an untouched skin to read at a stretch (between two recorded stretches,
+    interpolated channel by channel; beyond them, extrapolated from the nearest two)."""
 
-    rows = baseline_rows(frame)
-    if not rows.any():
+    stretch: np.ndarray  # (k,)
+    counts: np.ndarray   # (k, channels)
+
+    def at(self, stretch: float | None = None) -> np.ndarray:
+        """The untouched reading at ``stretch`` (None, NaN or one row: the lowest's); beyond
+        the recorded stretches, the nearest segment's line."""
+        if stretch is None or not np.isfinite(stretch) or len(self.stretch) == 1:
+            return self.counts[0]
+        at = int(np.clip(np.searchsorted(self.stretch, stretch) - 1, 0, len(self.stretch) - 2))
+        share = (stretch - self.stretch[at]) / (self.stretch[at + 1] - self.stretch[at])
+        return self.counts[at] + share * (self.counts[at + 1] - self.counts[at])
+
+    def stretch_of(self, reading: np.ndarray) -> float | None:
+        """The stretch an untouched ``reading`` is at: each channel whose untouched reading
+        rises with stretch says its own (inverting :meth:`at`), and the median of them is
+        taken, so that a press, which raises a few channels, does not move it. None with
+        one row, or no channel that rises."""
+        if len(self.stretch) == 1:
+            return None
+        rising = np.flatnonzero(np.all(np.diff(self.counts, axis=0) > 0, axis=0))
+        if not len(rising):
+            return None
+        reading = np.asarray(reading, dtype=np.float64)
+        estimates = []
+        for channel in rising:
+            column = self.counts[:, channel]
+            at = int(np.clip(np.searchsorted(column, reading[channel]) - 1, 0,
+                             len(column) - 2))
+            share = (reading[channel] - column[at]) / (column[at + 1] - column[at])
+            estimates.append(self.stretch[at]
+                             + share * (self.stretch[at + 1] - self.stretch[at]))
+        return float(np.median(estimates))
+
+    def as_dict(self) -> dict[str, list]:
+        return {"stretch": [float(v) for v in self.stretch],
+                "counts": [[float(v) for v in row] for row in self.counts]}
+
+    @classmethod
+    def from_dict(cls, values: dict[str, list]) -> RestTable:
+        return cls(np.asarray(values["stretch"], dtype=np.float64),
+                   np.asarray(values["counts"], dtype=np.float64))
+
+
+def rest_readings(frame: pd.DataFrame, skin: AnySkin) -> RestTable | None:
+    """The training data's readings (of ``skin``'s channels) with nothing pressed, at each
+    stretch recorded. None for a scene without such samples."""
+    free = frame.loc[~contact_mask(frame)]
+    if free.empty:
         return None
-    return frame.loc[rows, skin.channels].to_numpy(dtype=np.float64).mean(axis=0)
+    means = free.groupby("stretch", sort=True)[skin.channels].mean()
+    return RestTable(means.index.to_numpy(dtype=np.float64),
+                     means.to_numpy(dtype=np.float64))
 
 
 def featurizer_for(scene: str, meta: dict, features: Path, skin: AnySkin, root: Path):

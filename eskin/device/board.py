@@ -1,14 +1,14 @@
 """The simulated board's command handling, as pure code (bytes in, bytes out).
 
 It speaks wire protocol v1 exactly as the firmware does, plus the simulated-
-board commands ``SIM PRESS <x> <y> <newtons>``, ``SIM CLEAR``, ``SIM TRIAL <n>``
-and ``SIM REPLAY <from>``. ``SIM TRIAL`` starts trial n: placements, drift and
-noise then come from a stream seeded by (sim seed, n). ``SIM REPLAY`` rewinds
-the trial, its weights left where they lie, so that the next ``SAMPLE k``
-answers frames from .. from + k - 1 of the trial's first (from + k)-frame answer:
-the frames an answer lost on the line are asked again and read as they did, and
-a run with link faults gives the same dataset as a clean one. Transports live
-in ``simulate.py``.
+board commands ``SIM PRESS <x> <y> <newtons> [<ramp_ms>]``, ``SIM CLEAR``, ``SIM TRIAL
+<n>``, ``SIM WAIT <ms>`` and ``SIM REPLAY <from>``. ``SIM TRIAL`` starts trial n:
+placements, noise and its start in board time come from streams seeded by (sim seed, n),
+drift and creep from the skin in board time. ``SIM REPLAY`` rewinds the trial, its
+weights left where they lie, so that the next ``SAMPLE k`` answers frames from .. from +
+k - 1 of the trial's first (from + k)-frame answer: the frames an answer lost on the line
+are asked again and read as they did, and a run with link faults gives the same dataset
+as a clean one. Transports live in ``simulate.py``.
 """
 
 from __future__ import annotations
@@ -27,6 +27,9 @@ from eskin.skin import PAPER_SKIN, AnySkin, Skin, skin_from_dict
 MAX_EXTENSION_MM = 40.0
 MAX_NEWTONS = 50.0
 MAX_SAMPLE = 100_000
+MAX_RAMP_MS = 10_000
+MAX_WAIT_MS = 3_600_000
+STEPPER_MS = 500  # board time a STRETCH takes
 FIRMWARE = f"sim-{__version__}"
 
 
@@ -35,10 +38,11 @@ FIRMWARE = f"sim-{__version__}"
 # beyond rest (through the rig's rest length), a seated weight on a node, a light one not
 # seated (its placement and tilt), two at once (one at an edge, one heavy), two on
 # neighbouring nodes (saturating), three on one row at full stretch (the CAV424 clipped to
-# its supply), and a new trial's stream for each. 100 frames, 2000 readings: a shift of a
-# hundredth of an ADC count in every reading moves about twenty of them. HELLO is left
-# out: its line carries the identity itself. Written for the paper's 10 × 10 skin; on
-# another, a press beyond its last row or column lands on that row or column (probe()).
+# its supply), a ramped press held a minute and released, and a new trial's stream for
+# each. 124 frames, 2480 readings: a shift of a hundredth of an ADC count in every reading
+# moves about twenty of them. HELLO is left out: its line carries the identity itself.
+# Written for the paper's 10 × 10 skin; on another, a press beyond its last row or column
+# lands on that row or column (probe()).
 PROBE = (
     "STRETCH 0", "SIM TRIAL 1", "SAMPLE 16",
     "SIM TRIAL 2", "SIM PRESS 6 6 5.2136", "SAMPLE 16",
@@ -49,8 +53,14 @@ PROBE = (
     "SAMPLE 16",
     "SIM CLEAR", "STRETCH 40", "SIM TRIAL 6", "SIM PRESS 2 6 50", "SIM PRESS 5 6 50",
     "SIM PRESS 8 6 50", "SAMPLE 4",
+    # in board time: a hand press's ramp, creep under a minute's load, relaxation after it
+    "SIM CLEAR", "STRETCH 0", "SIM TRIAL 7", "SIM PRESS 5 5 5.2136 200", "SAMPLE 8",
+    "SIM WAIT 60000", "SAMPLE 8", "SIM CLEAR", "SIM WAIT 5000", "SAMPLE 8",
 )
-PROBE_FRAME_PERIOD_MS = 12  # fixed: the link's timing (sim_board) is not the skin's
+# Fixed: the link's timing (sim_board) is not the skin's. A board's frame period decides
+# when within the drift its frames fall, as a real board's does; it is the same skin, and
+# the same device, whatever its rate.
+PROBE_FRAME_PERIOD_MS = 12
 
 
 def probe(skin: Skin) -> tuple[str, ...]:
@@ -58,8 +68,8 @@ def probe(skin: Skin) -> tuple[str, ...]:
     def on_skin(command: str) -> str:
         if not command.startswith("SIM PRESS "):
             return command
-        x, y, newtons = command.split()[2:]
-        return f"SIM PRESS {min(int(x), skin.rows)} {min(int(y), skin.columns)} {newtons}"
+        x, y, *load = command.split()[2:]
+        return f"SIM PRESS {min(int(x), skin.rows)} {min(int(y), skin.columns)} {' '.join(load)}"
 
     return tuple(on_skin(command) for command in PROBE)
 
@@ -137,7 +147,7 @@ class SimulatedBoard:
         self._seq = 0
         self._t_ms = 0
         self._stretch = 1.0
-        self._trial = Trial(self.model, [0])
+        self._trial = Trial(self.model, [0], frame_period_s=frame_period_ms / 1000)
         self._indenters: list[Indenter] = []
         self._replay_from = 0  # SIM REPLAY: the frames of the next answer to leave out
 
@@ -207,7 +217,8 @@ class SimulatedBoard:
     def _stretch_to(self, text: str) -> bytes:
         mm = _number(text, float, 0.0, MAX_EXTENSION_MM)
         self._stretch = 1.0 + mm / self.rest_length_mm
-        self._t_ms = (self._t_ms + 500) & SEQ_MAX  # the stepper takes its time
+        self._t_ms = (self._t_ms + STEPPER_MS) & SEQ_MAX  # the stepper takes its time
+        self._trial.wait(STEPPER_MS / 1000, self._stretch, self._indenters)
         return f"#OK STRETCH {text}\n".encode()
 
     def _sim(self, sub: str, args: list[str]) -> bytes:
@@ -216,19 +227,25 @@ class SimulatedBoard:
             return b"#OK SIM CLEAR\n"
         if sub == "TRIAL" and len(args) == 1:
             n = _number(args[0], int, 0, 2**63 - 1)
-            self._trial = Trial(self.model, [n])
+            self._trial = Trial(self.model, [n], frame_period_s=self.frame_period_ms / 1000)
             self._replay_from = 0
             return f"#OK SIM TRIAL {n}\n".encode()
+        if sub == "WAIT" and len(args) == 1:  # board time passes unread: drift, creep
+            ms = _number(args[0], int, 0, MAX_WAIT_MS)
+            self._trial.wait(ms / 1000, self._stretch, self._indenters)
+            self._t_ms = (self._t_ms + ms) & SEQ_MAX
+            return f"#OK SIM WAIT {ms}\n".encode()
         if sub == "REPLAY" and len(args) == 1:
             self._replay_from = _number(args[0], int, 0, MAX_SAMPLE)
             self._trial.rewind()
             return f"#OK SIM REPLAY {self._replay_from}\n".encode()
-        if sub == "PRESS" and len(args) == 3:
+        if sub == "PRESS" and len(args) in (3, 4):
             x = _number(args[0], int, 1, self.skin.rows)  # a node of this skin only
             y = _number(args[1], int, 1, self.skin.columns)
             newtons = _number(args[2], float, 0.0, MAX_NEWTONS)
-            self._indenters.append(self._trial.place(x, y, newtons))
-            return f"#OK SIM PRESS {x} {y} {args[2]}\n".encode()
+            ramp_ms = _number(args[3], float, 0.0, MAX_RAMP_MS) if len(args) == 4 else 0.0
+            self._indenters.append(self._trial.place(x, y, newtons, ramp_s=ramp_ms / 1000))
+            return f"#OK SIM PRESS {' '.join([str(x), str(y), *args[2:]])}\n".encode()
         raise ValueError(f"unknown SIM command {sub!r} with {len(args)} argument(s)")
 
 

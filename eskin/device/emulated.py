@@ -84,12 +84,15 @@ class EmulatedRig:
     Use :func:`emulated_board`, which starts and stops it. ``faults`` maps a scan number
     (counted from 1) to a fault dealt as that scan begins: ``reset`` (the board resets
     mid-request) or ``vanish`` (the USB link drops for ``vanish_s`` and comes back on a new
-    pty, the board reset as an Uno is when its port is opened).
+    pty, the board reset as an Uno is when its port is opened). ``frame_period_ms`` is the
+    board time between two scans as the skin model reads it (drift and creep): the Python
+    board's, so that the two read the same trial alike (the firmware's own pace under
+    simavr is the host's to bear, not the skin's).
     """
 
     def __init__(self, params: SkinParams, *, skin: AnySkin, rest_length_mm: float,
                  samples: int, faults: Mapping[int, str] | None = None,
-                 vanish_s: float = 0.5) -> None:
+                 vanish_s: float = 0.5, frame_period_ms: int = 12) -> None:
         if samples < 1:
             raise ValueError(f"samples must be ≥ 1, got {samples}")
         self.faults = dict(faults or {})
@@ -103,7 +106,8 @@ class EmulatedRig:
         self.samples = samples
         self._scans = 0
         self._lock = threading.Lock()
-        self._trial = Trial(self.model, [0])
+        self.frame_period_s = frame_period_ms / 1000
+        self._trial = Trial(self.model, [0], frame_period_s=self.frame_period_s)
         self._indenters: list[Indenter] = []
         self._block: list[np.ndarray] = []
         self._replay_from = 0  # replay(): the scans of the next block to leave out
@@ -114,7 +118,7 @@ class EmulatedRig:
     def place(self, trial: int, contacts: Sequence[tuple[int, int, float]]) -> None:
         """Start trial ``trial`` (its placements, drift and noise) with these weights on."""
         with self._lock:
-            self._trial = Trial(self.model, [trial])
+            self._trial = Trial(self.model, [trial], frame_period_s=self.frame_period_s)
             self._indenters = [self._trial.place(x, y, newtons) for x, y, newtons in contacts]
             self._block = []
             self._replay_from = 0
@@ -195,12 +199,13 @@ def build_firmware(skin: AnySkin, timeout_s: float = BUILD_TIMEOUT_S) -> None:
 @contextlib.contextmanager
 def emulated_board(params: SkinParams, *, skin: AnySkin, rest_length_mm: float,
                    samples: int, faults: Mapping[int, str] | None = None,
-                   vanish_s: float = 0.5, start_timeout_s: float = 30.0
+                   vanish_s: float = 0.5, frame_period_ms: int = 12,
+                   start_timeout_s: float = 30.0
                    ) -> Iterator[tuple[str, EmulatedRig]]:
     """Build the firmware for ``skin`` and run it under simavr; yield its port (a link that
     follows its pty) and the rig that places the weights."""
     rig = EmulatedRig(params, skin=skin, rest_length_mm=rest_length_mm, samples=samples,
-                      faults=faults, vanish_s=vanish_s)
+                      faults=faults, vanish_s=vanish_s, frame_period_ms=frame_period_ms)
     build_firmware(skin)
     with tempfile.TemporaryDirectory(prefix="eskin-emulator-") as scratch, child_board(
             [str(harness(skin)), str(firmware_elf(skin)), str(Path(scratch) / "tty")],

@@ -210,6 +210,18 @@ def accelerated_stream(board: SimulatedBoard, *, batch_frames: int) -> Iterator[
                for _ in range(batch_frames)]
 
 
+def live_board(params, skin) -> SimulatedBoard:
+    """The board `eskin live --simulated` streams, in this process: params.yaml's ``sim``,
+    ``sim_board`` frame period and the rig's rest length (``params``, an
+    :class:`eskin.config.Params`), on ``skin`` (the stack's). For the live hour and the
+    tests, with :func:`accelerated_stream`."""
+    from eskin.device.physics import skin_params
+
+    return SimulatedBoard(skin_params(params.sim), skin=skin,
+                          rest_length_mm=float(params.acquire.rest_length_mm),
+                          frame_period_ms=int(params.sim_board.frame_period_ms))
+
+
 def announce_stdout(port: str) -> None:
     """First stdout line is the port: what a parent process reads to connect."""
     sys.stdout.write(port + "\n")

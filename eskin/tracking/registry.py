@@ -37,7 +37,7 @@ from eskin.deploy.stack import (
     StackError,
     featurizer_for,
     locked_md5s,
-    rest_reading,
+    rest_readings,
 )
 from eskin.evaluation.crossval import cross_validate
 from eskin.evaluation.folds import assign_folds
@@ -191,7 +191,7 @@ def stack_from_registry(scene: str, alias: str, root: Path = Path("."),
     return SkinStack(scene, dataset_kind(features).name, skin,
                      featurizer_for(scene, meta, features, skin, root),
                      models, skipped, meta.get("device"),
-                     rest_reading(pd.read_parquet(processed), skin))
+                     rest_readings(pd.read_parquet(processed), skin))
 
 
 # ---------------------------------------------------------------- promote
