@@ -1,13 +1,15 @@
-"""make bench's live hour (issue 39): the live stack on the simulated board for an hour
-of board time, streamed faster than real time, scored against the script's ground truth.
+"""make bench's live hour (issue 39): the live stack on an hour of the simulated board's
+stream, faster than real time, scored against the script's ground truth.
 
-The script (:func:`script`, seeded) is untouched minutes; single presses at random nodes
-and forces (the scene's force levels); one sustained press; stretch changes. The board is
-the one `eskin live --simulated` starts (params.yaml's sim and sim_board), streamed in
+The script (:func:`script`, seeded) is untouched minutes; presses drawn from the scene's
+own plan (a node or, for a two-contact scene, a pair, at its forces), each ramping up as a
+hand press does; one sustained press; stretch changes. The board is the one `eskin live
+--simulated` starts (params.yaml's sim and sim_board), streamed in
 :func:`eskin.device.simulate.accelerated_stream`'s batches as the live loop reads them; the
 stack is the workspace's exported one (models/<scene>/stack.onnx), with params.yaml's
-``live`` knobs. A two-contact stack detects no contact (it reports two on every frame):
-its scene has no hour to score, and the stage says so.
+``live`` knobs. A one-contact scene is scored on phantoms, misses, location and force
+(:func:`score`); a two-contact stack reports two contacts on every frame and detects none,
+so its pressed frames are scored as the batch pairs are (:func:`score_pairs`).
 """
 
 from __future__ import annotations
@@ -21,53 +23,73 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from eskin.acquisition.plan import ScenePlan, plan_from_params
 from eskin.catalog import stack_path
 from eskin.config import get_scene, load_params
 from eskin.deploy.live import live_estimates
 from eskin.deploy.stack import ExportedStack
 from eskin.device.board import SimulatedBoard
-from eskin.device.physics import skin_params
-from eskin.device.simulate import accelerated_stream
+from eskin.device.simulate import accelerated_stream, live_board
 
 GRACE_MS = 100  # a press's first 100 ms (and a release's) are not scored: hysteresis' time
 
 
+Press = tuple[tuple[int, int, float], ...]  # the indenters: (x, y, newtons) each
+
+
 @dataclass(frozen=True)
 class Step:
-    """From ``at_ms`` of board time on: the indenter (x, y, newtons; none: untouched) and
-    the stretch (mm); ``tare``: ask live for a re-tare there."""
+    """From ``at_ms`` of board time on: the indenters (none: untouched) and the stretch
+    (mm); ``tare``: ask live for a re-tare there."""
 
     at_ms: int
-    press: tuple[int, int, float] | None
+    press: Press
     stretch_mm: float
     kind: str  # untouched | press | sustained | stretch
     tare: bool = False
 
 
-def script(settings, forces: list[float], rows: int, columns: int) -> list[Step]:
-    """The hour: ``settings`` is bench/params.yaml's ``live_hour``."""
+def scene_presses(plan: ScenePlan) -> list[Press]:
+    """The presses of the scene's own plan (its nodes or pairs, at its forces), each once."""
+    presses = {tuple((c.x, c.y, c.force) for c in condition.contacts if c.touches)
+               for condition in plan.conditions}
+    return sorted(presses - {()})
+
+
+def script(settings, plan: ScenePlan, rest_length_mm: float) -> list[Step]:
+    """The hour: ``settings`` is bench/params.yaml's ``live_hour``; the presses are drawn
+    from the scene's plan (one or two contacts, as its kind), the stretches are the
+    bench's that the scene was trained on. The sustained press is one of the plan's
+    heaviest: it checks that following the baseline does not absorb a long contact, which
+    a press the stack cannot see at all would not show (light presses are among the
+    single ones)."""
     rng = np.random.default_rng(settings.seed)
     gap, press = int(settings.untouched_s * 1000), int(settings.press_s * 1000)
+    trained_mm = [(float(s) - 1.0) * rest_length_mm for s in {c.stretch for c in plan.conditions}]
+    stretches = [mm for mm in settings.stretches_mm
+                 if any(abs(mm - known) < 1e-3 for known in trained_mm)]
     events: list[tuple[str, Any]] = [("press", None)] * settings.presses
-    events += [("stretch", mm) for mm in settings.stretches_mm] + [("sustained", None)]
+    events += [("stretch", mm) for mm in stretches] + [("sustained", None)]
     order = rng.permutation(len(events))
-    steps, t, stretch = [Step(0, None, 0.0, "untouched")], gap, 0.0
-    forces = [f for f in forces if f > 0]
+    steps, t, stretch = [Step(0, (), 0.0, "untouched")], gap, 0.0
+    presses = scene_presses(plan)
+    heaviest = max(sum(f for _, _, f in p) for p in presses)
+    sustained = [p for p in presses if sum(f for _, _, f in p) == heaviest]
     for i in order:
         kind, mm = events[i]
         if kind == "stretch":
             stretch = float(mm)
-            steps.append(Step(t, None, stretch, "stretch"))
+            steps.append(Step(t, (), stretch, "stretch"))
             t += gap
             continue
-        node = (int(rng.integers(1, rows + 1)), int(rng.integers(1, columns + 1)))
-        newtons = float(rng.choice(forces))
+        choices = sustained if kind == "sustained" else presses
+        chosen = choices[int(rng.integers(len(choices)))]
         held = int(settings.sustained_s * 1000) if kind == "sustained" else press
-        steps.append(Step(t, (*node, newtons), stretch, kind))
+        steps.append(Step(t, chosen, stretch, kind))
         t += held
-        steps.append(Step(t, None, stretch, "untouched"))
+        steps.append(Step(t, (), stretch, "untouched"))
         if kind == "sustained" and settings.retare_after_sustained:
-            steps.append(Step(t + 1000, None, stretch, "untouched", tare=True))
+            steps.append(Step(t + 1000, (), stretch, "untouched", tare=True))
         t += gap
     return steps
 
@@ -75,14 +97,15 @@ def script(settings, forces: list[float], rows: int, columns: int) -> list[Step]
 def run(scene: str, settings, params_path: Path = Path("params.yaml")) -> pd.DataFrame:
     """One row per estimate: the live record beside the script's truth at its frame."""
     params = load_params(params_path)
-    scene_params = get_scene(params, scene, params_path)
+    plan = plan_from_params(scene, get_scene(params, scene, params_path))
     stack = ExportedStack.from_file(stack_path(scene))
-    board = SimulatedBoard(skin_params(params.sim), skin=stack.skin,
-                           rest_length_mm=float(params.acquire.rest_length_mm),
-                           frame_period_ms=int(params.sim_board.frame_period_ms))
-    steps = script(settings, list(scene_params.forces), stack.skin.rows, stack.skin.columns)
+    board = live_board(params, stack.skin)
+    rest_length_mm = float(params.acquire.rest_length_mm)
+    steps = script(settings, plan, rest_length_mm)
     end_ms = int(settings.minutes * 60_000)
-    state = {"step": 0, "now": steps[0], "tare": False}
+    # A step acts from the first frame the board reads after it was given (between two
+    # batches): the truth, and a step's "since", follow the board, not the script's clock.
+    state = {"step": 0, "now": steps[0], "began": 0, "tare": False, "pending": False}
     seconds: list[float] = []
 
     def batches():
@@ -90,25 +113,29 @@ def run(scene: str, settings, params_path: Path = Path("params.yaml")) -> pd.Dat
             t_ms = events[0].frame.t_ms
             if t_ms >= end_ms:
                 return
-            while state["step"] < len(steps) and steps[state["step"]].at_ms <= t_ms:
+            if state["pending"]:
+                state["began"], state["pending"] = t_ms, False
+            truth.extend((f.frame.t_ms, (state["now"], state["began"])) for f in events)
+            yield events
+            ahead = events[-1].frame.t_ms + board.frame_period_ms  # the next frame's time
+            while state["step"] < len(steps) and steps[state["step"]].at_ms <= ahead:
                 step = steps[state["step"]]
                 before = state["now"]
                 if step.stretch_mm != before.stretch_mm:
                     board.handle(f"STRETCH {step.stretch_mm:g}".encode())
                 if step.press != before.press:
                     board.handle(b"SIM CLEAR")
-                    if step.press is not None:
-                        board.handle("SIM PRESS {} {} {}".format(*step.press).encode())
+                    for x, y, newtons in step.press:
+                        board.handle(f"SIM PRESS {x} {y} {newtons} "
+                                     f"{settings.press_ramp_ms:g}".encode())
                 state["tare"] |= step.tare
-                state["now"], state["step"] = step, state["step"] + 1
-            truth.extend((f.frame.t_ms, state["now"]) for f in events)
-            yield events
+                state["now"], state["step"], state["pending"] = step, state["step"] + 1, True
 
     def requests():
         asked, state["tare"] = ["tare"] if state["tare"] else [], False
         return asked
 
-    truth: list[tuple[int, Step]] = []
+    truth: list[tuple[int, tuple[Step, int]]] = []
     predict = stack.predict
 
     def timed(counts):
@@ -122,19 +149,27 @@ def run(scene: str, settings, params_path: Path = Path("params.yaml")) -> pd.Dat
                                          requests=requests) if "seq" in r]
     stack.predict = predict  # type: ignore[method-assign]
     at = dict(truth)
+    estimated = [c for c in ("contact", "x", "y", "force", "x1", "y1", "x2", "y2", "force1",
+                             "force2", "stretch") if c in stack.columns or c == "contact"]
     rows = []
     for r in records:
-        step = at[r["t_ms"]]
-        rows.append({**{k: r[k] for k in ("t_ms", "contact", "x", "y", "force", "stretch")},
-                     "kind": step.kind, "since_ms": r["t_ms"] - step.at_ms,
-                     "true_x": step.press[0] if step.press else None,
-                     "true_y": step.press[1] if step.press else None,
-                     "true_force": step.press[2] if step.press else 0.0,
-                     "true_stretch": 1 + step.stretch_mm / float(params.acquire.rest_length_mm)})
+        step, began = at[r["t_ms"]]
+        truths = {}
+        if len(plan.conditions[0].contacts) == 1:
+            (x, y, newtons), = step.press or ((None, None, 0.0),)
+            truths = {"true_x": x, "true_y": y, "true_force": newtons}
+        else:
+            for i, (x, y, newtons) in enumerate(step.press or ((None, None, 0.0),) * 2, 1):
+                truths.update({f"true_x{i}": x, f"true_y{i}": y, f"true_force{i}": newtons})
+        rows.append({**{k: r.get(k) for k in estimated}, "t_ms": r["t_ms"],
+                     "kind": step.kind, "since_ms": r["t_ms"] - began,
+                     "pressed": bool(step.press), **truths,
+                     "true_stretch": 1 + step.stretch_mm / rest_length_mm})
     frame = pd.DataFrame(rows)
     single = [float(np.median(_single_frame_latency(stack, board)))]
     frame.attrs.update(batch_seconds=seconds, single_frame_seconds=single,
-                       steps=len(steps))
+                       steps=len(steps),
+                       stretches_mm=[s.stretch_mm for s in steps if s.kind == "stretch"])
     return frame
 
 
@@ -152,8 +187,8 @@ def _single_frame_latency(stack: ExportedStack, board: SimulatedBoard) -> list[f
 
 def score(frame: pd.DataFrame, batch_scores: dict[str, Any]) -> dict[str, Any]:
     """The hour's scores (issue 39's targets beside them)."""
-    untouched = frame[frame["true_x"].isna() & (frame["since_ms"] >= GRACE_MS)]
-    pressed = frame[frame["true_x"].notna() & (frame["since_ms"] >= GRACE_MS)]
+    untouched = frame[~frame["pressed"] & (frame["since_ms"] >= GRACE_MS)]
+    pressed = frame[frame["pressed"] & (frame["since_ms"] >= GRACE_MS)]
     found = pressed[pressed["contact"]]
     sustained = frame[frame["kind"] == "sustained"]
     end = sustained[sustained["since_ms"] >= sustained["since_ms"].max() - 1000]
@@ -164,7 +199,7 @@ def score(frame: pd.DataFrame, batch_scores: dict[str, Any]) -> dict[str, Any]:
     found_flat = pressed_flat[pressed_flat["contact"]]
     before = frame[(frame["t_ms"] < stretched_at)]
     untouched_before = untouched[untouched["t_ms"] < stretched_at]
-    pressed_before = before[before["true_x"].notna() & (before["since_ms"] >= GRACE_MS)]
+    pressed_before = before[before["pressed"] & (before["since_ms"] >= GRACE_MS)]
     return {
         "frames": len(frame),
         "hours": round(float(frame["t_ms"].max() - frame["t_ms"].min()) / 3.6e6, 3),
@@ -198,6 +233,42 @@ def score(frame: pd.DataFrame, batch_scores: dict[str, Any]) -> dict[str, Any]:
     }
 
 
+def score_pairs(frame: pd.DataFrame, batch_scores: dict[str, Any]) -> dict[str, Any]:
+    """A two-contact scene's hour: its stack reports two contacts on every frame (it
+    detects none), so only the pressed frames are scored, as the batch pairs are
+    (:mod:`eskin.evaluation.pairs`: a pair right as a set, each contact's force against
+    the force predicted for the contact matched to it)."""
+    from eskin.evaluation.pairs import CONTACTS, pair_outcomes, pair_scores
+
+    pressed = frame[frame["pressed"] & (frame["since_ms"] >= GRACE_MS)]
+    named = pd.DataFrame({
+        **{f"{a}{i}_true": pressed[f"true_{a}{i}"].astype(float) for a in ("x", "y", "force")
+           for i in CONTACTS},
+        **{f"{a}{i}_pred": pressed[f"{a}{i}"].astype(float) for a in ("x", "y", "force")
+           for i in CONTACTS}})
+    scores = pair_scores(pair_outcomes(named)) if len(named) else {}
+    sustained = pressed[pressed["kind"] == "sustained"]
+    sustained_scores = pair_scores(pair_outcomes(named.loc[sustained.index])) \
+        if len(sustained) else {}
+    return {
+        "frames": len(frame),
+        "hours": round(float(frame["t_ms"].max() - frame["t_ms"].min()) / 3.6e6, 3),
+        "pressed_frames": len(pressed),
+        "pair_accuracy": _round(scores.get("pair_accuracy")),
+        "contact_accuracy": _round(scores.get("contact_accuracy")),
+        "force_mae_n": _round(scores.get("force_mae")),
+        "sustained_pair_accuracy": _round(sustained_scores.get("pair_accuracy")),
+        "sustained_force_mae_n": _round(sustained_scores.get("force_mae")),
+        "onnx_latency_ms_median": round(frame.attrs["single_frame_seconds"][0] * 1000, 3),
+        "onnx_batch_ms_median": round(float(np.median(frame.attrs["batch_seconds"])) * 1000, 3),
+        "batch_cv": batch_scores,
+    }
+
+
+def _round(value) -> float | None:
+    return None if value is None else round(float(value), 5)
+
+
 def _share(values) -> float | None:
     values = np.asarray(values, dtype=bool)
     return round(float(values.mean()), 5) if len(values) else None
@@ -206,6 +277,12 @@ def _share(values) -> float | None:
 def batch_cv_scores(scene: str, scores_dir: Path = Path("reports/scores")) -> dict[str, Any]:
     """The trained stack's grouped-CV scores (mean ± fold sd), to set the live ones beside."""
     out: dict[str, Any] = {}
+    pairs = scores_dir / scene / "pairs.json"
+    if pairs.exists():
+        grouped = json.loads(pairs.read_text()).get("grouped", {})
+        for name in ("pair_accuracy", "force_mae"):
+            if name in grouped:
+                out[name] = [round(grouped[name], 4), round(grouped[f"{name}_std"], 4)]
     for task, metric, targets in (("localise", "accuracy", ("x", "y")),
                                   ("force", "mae", ("force",))):
         path = scores_dir / scene / f"{task}.json"
@@ -222,6 +299,8 @@ def batch_cv_scores(scene: str, scores_dir: Path = Path("reports/scores")) -> di
 def render(scene: str, result: dict[str, Any]) -> str:
     """The markdown table (reports/live_hour/<scene>.md)."""
     cv = result["batch_cv"]
+    if "pair_accuracy" in result:
+        return _render_pairs(scene, result)
 
     def pct(value):
         return "–" if value is None else f"{100 * value:.2f} %"
@@ -262,4 +341,37 @@ def render(scene: str, result: dict[str, Any]) -> str:
     lines += ["", f"{result['untouched_frames']} untouched and {result['pressed_frames']} "
               f"pressed frames scored (a press's first {GRACE_MS} ms, and a release's, "
               "are not); script: " + result["script"] + "."]
+    return "\n".join(lines)
+
+
+def _render_pairs(scene: str, result: dict[str, Any]) -> str:
+    cv = result["batch_cv"]
+
+    def pct(value):
+        return "–" if value is None else f"{100 * value:.2f} %"
+
+    def spread(name, scale=1.0, unit=""):
+        if name not in cv:
+            return "–"
+        mean, sd = cv[name]
+        return f"grouped CV {mean * scale:.3g} ± {sd * scale:.2g}{unit}"
+
+    rows = [
+        ("pairs right (both contacts, as a set), pressed frames",
+         pct(result["pair_accuracy"]), spread("pair_accuracy", 100, " %")),
+        ("contacts right", pct(result["contact_accuracy"]), ""),
+        ("force error (MAE), per contact", f"{result['force_mae_n']} N",
+         spread("force_mae", 1, " N")),
+        ("sustained press: pairs right", pct(result["sustained_pair_accuracy"]), ""),
+        ("sustained press: force error", f"{result['sustained_force_mae_n']} N", ""),
+        ("ONNX latency, one frame, median", f"{result['onnx_latency_ms_median']} ms", "≤ 1 ms"),
+    ]
+    lines = [f"# Live hour: {scene}, {result['hours']} h of board time, "
+             f"{result['frames']} frames", "",
+             "Two contacts: the stack reports two on every frame and detects none, so "
+             "phantoms and misses are not scored; the pressed frames are.", "",
+             "| | live | batch |", "|---|---|---|"]
+    lines += [f"| {name} | {value} | {target} |" for name, value, target in rows]
+    lines += ["", f"{result['pressed_frames']} pressed frames scored (a press's first "
+              f"{GRACE_MS} ms is not); script: " + result["script"] + "."]
     return "\n".join(lines)
