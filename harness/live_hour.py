@@ -298,18 +298,12 @@ def batch_cv_scores(scene: str, scores_dir: Path = Path("reports/scores")) -> di
 
 def render(scene: str, result: dict[str, Any]) -> str:
     """The markdown table (reports/live_hour/<scene>.md)."""
-    cv = result["batch_cv"]
     if "pair_accuracy" in result:
         return _render_pairs(scene, result)
-
-    def pct(value):
-        return "–" if value is None else f"{100 * value:.2f} %"
+    pct = _pct
 
     def spread(name, scale=1.0, unit=""):
-        if name not in cv:
-            return "–"
-        mean, sd = cv[name]
-        return f"{mean * scale:.3g} ± {sd * scale:.2g}{unit}"
+        return _spread(result["batch_cv"], name, scale, unit)
 
     rows = [
         ("phantom contacts, untouched frames", pct(result["phantom_share"]), "≤ 0.1 %"),
@@ -344,17 +338,24 @@ def render(scene: str, result: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def _render_pairs(scene: str, result: dict[str, Any]) -> str:
-    cv = result["batch_cv"]
+def _pct(value) -> str:
+    return "–" if value is None else f"{100 * value:.2f} %"
 
-    def pct(value):
-        return "–" if value is None else f"{100 * value:.2f} %"
+
+def _spread(cv: dict[str, Any], name: str, scale: float = 1.0, unit: str = "",
+            prefix: str = "") -> str:
+    """A batch score from :func:`batch_cv_scores` as mean ± fold sd, or – without it."""
+    if name not in cv:
+        return "–"
+    mean, sd = cv[name]
+    return f"{prefix}{mean * scale:.3g} ± {sd * scale:.2g}{unit}"
+
+
+def _render_pairs(scene: str, result: dict[str, Any]) -> str:
+    pct = _pct
 
     def spread(name, scale=1.0, unit=""):
-        if name not in cv:
-            return "–"
-        mean, sd = cv[name]
-        return f"grouped CV {mean * scale:.3g} ± {sd * scale:.2g}{unit}"
+        return _spread(result["batch_cv"], name, scale, unit, prefix="grouped CV ")
 
     rows = [
         ("pairs right (both contacts, as a set), pressed frames",
