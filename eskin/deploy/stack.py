@@ -284,15 +284,15 @@ class RestTable:
         rising = np.flatnonzero(np.all(np.diff(self.counts, axis=0) > 0, axis=0))
         if not len(rising):
             return None
-        reading = np.asarray(reading, dtype=np.float64)
-        estimates = []
-        for channel in rising:
-            column = self.counts[:, channel]
-            at = int(np.clip(np.searchsorted(column, reading[channel]) - 1, 0,
-                             len(column) - 2))
-            share = (reading[channel] - column[at]) / (column[at + 1] - column[at])
-            estimates.append(self.stretch[at]
-                             + share * (self.stretch[at + 1] - self.stretch[at]))
+        # every rising channel at once (live calls this on each frame): its segment is the
+        # one np.searchsorted(column, value) - 1 names, kept within the table
+        columns = self.counts[:, rising]
+        values = np.asarray(reading, dtype=np.float64)[rising]
+        at = np.clip((columns < values).sum(axis=0) - 1, 0, len(self.stretch) - 2)
+        channel = np.arange(len(rising))
+        low, high = columns[at, channel], columns[at + 1, channel]
+        share = (values - low) / (high - low)
+        estimates = self.stretch[at] + share * (self.stretch[at + 1] - self.stretch[at])
         return float(np.median(estimates))
 
     def as_dict(self) -> dict[str, list]:
