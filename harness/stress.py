@@ -259,36 +259,46 @@ def run_suite(frames: Mapping[str, pd.DataFrame], params: Any, skin: AnySkin, *,
     other dataset a case names (``noise_zero``, ``noise_x10``); ``params``: the
     :class:`eskin.config.Params` (its ``train`` and ``sim`` sections); ``skin``: the one
     the frames were taken on."""
-    from joblib.externals.loky import get_reusable_executor
+    # A pool of our own, not loky's process-wide reusable one: joblib would later take
+    # that one for its own Parallel and fail on it (it lacks joblib's temp-folder manager).
+    from joblib.externals.loky import ProcessPoolExecutor
 
     from eskin.learning.tasks import get_task
 
     models = models or models_under_test(params.train, skin)
     context = {"sim": params.sim.model_dump(), "skin": skin}
     rows, references = [], {}
-    for case in cases:
-        if case.dataset not in frames:
-            continue
-        frame = frames[case.dataset]
-        if case.transform is not None:
-            frame = case.transform(frame, context)
-        for task, model, hyper in models:
-            executor = get_reusable_executor(max_workers=1, timeout=60)
-            try:
-                outcome = executor.submit(fit_case, frame, task, model, hyper, folds,
-                                          seed, skin).result()
-            except Exception as err:  # the worker died (a segfault): an outcome, not the end
-                outcome = {"error": f"{type(err).__name__}: {err}", "warnings": {},
-                           "seconds": 0.0}
-            key = (task, model)
-            if case.name == "counts":
-                references[key] = outcome
-            verdict = judge(case, outcome, references.get(key) if case.dataset == "default"
-                            else None, get_task(KIND, task))
-            rows.append({"case": case.name, "what": case.what, "expect": case.expect,
-                         "task": task, "model": model, **verdict})
-            log(f"  {case.name:<18} {task:<9} {model:<23} {verdict['outcome']}"
-                + (f" ({verdict['error'][:90]})" if "error" in verdict else ""))
+    executor = None
+    try:
+        for case in cases:
+            if case.dataset not in frames:
+                continue
+            frame = frames[case.dataset]
+            if case.transform is not None:
+                frame = case.transform(frame, context)
+            for task, model, hyper in models:
+                if executor is None:
+                    executor = ProcessPoolExecutor(max_workers=1, timeout=60)
+                try:
+                    outcome = executor.submit(fit_case, frame, task, model, hyper, folds,
+                                              seed, skin).result()
+                except Exception as err:  # the worker died (a segfault): an outcome, not the end
+                    outcome = {"error": f"{type(err).__name__}: {err}", "warnings": {},
+                               "seconds": 0.0}
+                    executor.shutdown(wait=True, kill_workers=True)
+                    executor = None
+                key = (task, model)
+                if case.name == "counts":
+                    references[key] = outcome
+                verdict = judge(case, outcome, references.get(key) if case.dataset == "default"
+                                else None, get_task(KIND, task))
+                rows.append({"case": case.name, "what": case.what, "expect": case.expect,
+                             "task": task, "model": model, **verdict})
+                log(f"  {case.name:<18} {task:<9} {model:<23} {verdict['outcome']}"
+                    + (f" ({verdict['error'][:90]})" if "error" in verdict else ""))
+    finally:
+        if executor is not None:
+            executor.shutdown(wait=True)
     return rows
 
 

@@ -135,3 +135,11 @@ def test_any_positive_rescaling_leaves_the_default_models_predictions(default_fi
             assert np.max(np.abs(after - before)) / spread <= 1e-6, (task_name, name)
         else:
             assert np.array_equal(after, before), (task_name, name)
+
+
+def test_joblib_gets_a_working_pool_after_the_suite(suite):
+    # The suite's worker pool is its own: joblib's Parallel in the same process (as the
+    # next test on a pytest worker) must not be handed it.
+    from joblib import Parallel, delayed
+
+    assert Parallel(n_jobs=2, backend="loky")(delayed(abs)(-k) for k in range(4)) == [0, 1, 2, 3]
