@@ -15,7 +15,13 @@ from pathlib import Path
 # Every kind has the same tasks (eskin/learning/tasks.py says what each means for each kind), so
 # the stage graph is scenes × tasks; a task a scene's data cannot support is skipped.
 TASK_NAMES: tuple[str, ...] = ("stretch", "force", "detect", "localise")
-SCHEMES: tuple[str, ...] = ("stratified", "grouped")
+# CV schemes, by what a test fold holds out (eskin.evaluation.folds): samples (the paper's),
+# conditions, or trials of conditions training has seen (a scene recorded twice or more).
+SCHEMES: tuple[str, ...] = ("stratified", "grouped", "trials")
+# What each scheme holds out, as the page, the figures and the results say it.
+SCHEME_NOTES = {"stratified": "the paper's: stratified on the node",
+                "grouped": "whole conditions held out",
+                "trials": "new trials of conditions seen in training"}
 # Where a scene's readings come from: the Python board, the firmware under simavr, a
 # board on a port, or a file another lab wrote.
 SOURCES: tuple[str, ...] = ("simulated", "emulated", "serial", "import")

@@ -212,7 +212,7 @@ Source = Literal[SOURCES]  # type: ignore[valid-type]
 # directory and an MLflow tag: letters, digits and underscores, starting with a letter.
 SCENE_NAME = r"^[A-Za-z][A-Za-z0-9_]*$"
 # The plan: what an acquired scene records; an import's labels come from its files.
-PLAN_KEYS = ("stretches", "forces", "samples", "nodes_x", "nodes_y")
+PLAN_KEYS = ("stretches", "forces", "samples", "repeats", "nodes_x", "nodes_y")
 
 # What an import's columns may give, in the kinds' own words: every kind's forces and
 # nodes, each node also as a position in mm (``x_mm``: placed on the skin's grid).
@@ -318,6 +318,9 @@ class AcquiredScene(Scene):
     stretches: Annotated[list[_real(ge=1)], Field(min_length=1)]
     forces: Annotated[list[NonNegative], Field(min_length=1)]
     samples: Count
+    # Trials per condition: the whole plan recorded this many times, each time a new trial
+    # (weights placed anew). 1 is the paper's protocol.
+    repeats: Count = 1
     nodes_x: list[Annotated[int, Field(ge=1)]] | None = None
     nodes_y: list[Annotated[int, Field(ge=1)]] | None = None
 

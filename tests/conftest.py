@@ -2,8 +2,10 @@ import contextlib
 import copy
 import os
 import shutil
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -232,6 +234,24 @@ def scratch_project(root: Path, params: dict, tracking_uri: str, *,
     for args in (["git", "add", "-A"], ["git", "commit", "-qm", "scratch"]):
         run_checked(args, root, env)
     return env
+
+
+def acquire_until(params, root, *, complete):
+    """`eskin acquire single_force` in its own process, once ``complete`` conditions are in
+    the log: (the still running process, the log)."""
+    write_params(root, params)
+    log = root / "data" / "raw" / "single_force" / "acquisition.log"
+    # SIGINT as in a terminal: a shell starting a job in the background (as CI may run
+    # `make test`) leaves SIGINT ignored, and Python then never raises KeyboardInterrupt.
+    process = subprocess.Popen([sys.executable, "-m", "eskin", "acquire", "single_force",
+                                "--no-progress"], cwd=root, stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True,
+                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    from harness.soak import wait_for_conditions
+
+    done = wait_for_conditions(log, complete, process, time.monotonic() + 60)
+    assert done is not None, f"the acquisition ended before {complete} conditions were complete"
+    return process, log
 
 
 def eskin(args, cwd, **kwargs):

@@ -4,20 +4,17 @@ import copy
 import os
 import re
 import signal
-import subprocess
-import sys
-import time
 
 import pandas as pd
 import pytest
 from conftest import (
     acquire_step,
+    acquire_until,
     eskin,
     ingest_step,
     prepared_scene,
     small_scenes,
     typed,
-    write_params,
 )
 
 from eskin.acquisition.plan import plan_from_params
@@ -27,7 +24,7 @@ from eskin.config import Soak
 from eskin.data.schema import LABELS, DatasetError, read_metadata
 from eskin.device.physics import skin_params
 from eskin.skin import PAPER_SKIN
-from harness.soak import run_soak, wait_for_conditions
+from harness.soak import run_soak
 
 # What a sample is, independent of how the link delivered it (seq and t_ms count wire
 # traffic, and a retried condition uses more of it).
@@ -39,22 +36,6 @@ def acquire_and_ingest(params, root, scene="single_force"):
     summary = acquire_step(params, scene, root / "raw" / scene, progress=False).summary
     ingest_step(params, scene, root / "raw" / scene, root / "processed")
     return summary, pd.read_parquet(root / "processed" / f"{scene}.parquet")
-
-
-def acquire_until(params, root, *, complete):
-    """`eskin acquire single_force` in its own process, once ``complete`` conditions are in
-    the log: (the still running process, the log)."""
-    write_params(root, params)
-    log = root / "data" / "raw" / "single_force" / "acquisition.log"
-    # SIGINT as in a terminal: a shell starting a job in the background (as CI may run
-    # `make test`) leaves SIGINT ignored, and Python then never raises KeyboardInterrupt.
-    process = subprocess.Popen([sys.executable, "-m", "eskin", "acquire", "single_force",
-                                "--no-progress"], cwd=root, stdout=subprocess.PIPE,
-                               stderr=subprocess.PIPE, text=True,
-                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
-    done = wait_for_conditions(log, complete, process, time.monotonic() + 60)
-    assert done is not None, f"the acquisition ended before {complete} conditions were complete"
-    return process, log
 
 
 @pytest.fixture(scope="module")

@@ -170,8 +170,10 @@ def test_the_firmware_reads_what_the_python_board_sends_for_the_same_trials(boar
 
 
 def test_a_scene_acquired_from_the_firmware_matches_the_python_boards(sim, tmp_path):
-    """The unchanged host code (run_session) on both boards, a small two-force plan."""
-    plan = two_force_plan("pairs", [1.0], [1.2936, 5.2136], [1, 10], [1, 10], samples=4)
+    """The unchanged host code (run_session) on both boards, a small two-force plan
+    recorded twice (``repeats``: each repetition a new trial, on both boards alike)."""
+    plan = two_force_plan("pairs", [1.0], [1.2936, 5.2136], [1, 10], [1, 10], samples=4,
+                          repeats=2)
     logs = {}
     for source in ("emulated", "simulated"):
         report = acquire_scene(plan, tmp_path / source, source=source, sim=sim,
@@ -193,6 +195,12 @@ def test_a_scene_acquired_from_the_firmware_matches_the_python_boards(sim, tmp_p
         assert np.abs(a - b).max() <= 1, condition
         differ.append((a != b).mean())
     assert np.mean(differ) < 0.03
+    once = len(plan.conditions) // 2
+    for first, again in zip(plan.conditions[:once], plan.conditions[once:], strict=True):
+        assert (first.repeat, again.repeat) == (0, 1) and first.contacts == again.contacts
+        a, b = (np.array([f.counts for f in emulated.completed[c.key(
+            device["id"], device["firmware"])].frames]) for c in (first, again))
+        assert (a != b).any(), f"repetition 2 of {first.describe()} read as its first"
 
 
 def test_link_faults_mid_request_cost_nothing(sim, tmp_path):

@@ -192,10 +192,10 @@ BAD_SCENES = {
         "scenes.lab.import: {d}/two.csv: 26 columns, but the single_force layout has 24 "
         "— that is the two_force layout (the skin's 20 channels, then force, x, y, "
         "stretch); for another instrument's files, name their columns in import.columns"),
-    "too few trials": (lambda d: {"kind": "two_force", "source": "simulated",
+    "too few conditions": (lambda d: {"kind": "two_force", "source": "simulated",
                                   "stretches": [1.0], "forces": [1.0], "nodes_x": [1, 6],
                                   "nodes_y": [1], "samples": 4},
-                       "scenes.lab: 1 trials (conditions), but grouped CV with cv.folds = 10 "
+                       "scenes.lab: 1 condition(s), but grouped CV with cv.folds = 10 "
                        "needs at least 10; add stretches, forces or nodes, or lower cv.folds"),
 }
 

@@ -94,9 +94,9 @@ def test_two_force_strata_are_the_pair_of_nodes(project):
     assert set(pairs[folds == 0]) == set(np.unique(pairs))
 
 
-def test_grouped_cv_with_too_few_trials_is_a_clear_error(project):
+def test_grouped_cv_with_too_few_conditions_is_a_clear_error(project):
     frame = features(project).iloc[:15]  # three trials
-    with pytest.raises(ValueError, match="needs at least 10 trials; this dataset has 3"):
+    with pytest.raises(ValueError, match="needs at least 10 conditions; this dataset has 3"):
         assign_folds(frame, "single_force", "grouped", 10, seed=0, skin=PAPER_SKIN)
 
 

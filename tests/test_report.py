@@ -10,11 +10,11 @@ import pytest
 from conftest import headless_chromium, needs_chromium
 from PIL import Image
 
-from eskin.catalog import SCHEMES
+from eskin.catalog import SCHEME_NOTES, SCHEMES
 from eskin.config import Report
 from eskin.kinds import DETECTION, FORCE_PARITY, LOCALISATION_CONFUSION, STRETCH_PARITY, get_kind
 from eskin.reporting import report
-from eskin.reporting.page import SCHEME_NOTES, Provenance, headline_rows, render_page
+from eskin.reporting.page import Provenance, headline_markdown, headline_rows, render_page
 
 # The commit the fixture's report says it ran on top of (a plain `dvc repro`).
 COMMIT = "0123456789abcdef0123456789abcdef01234567"
@@ -164,6 +164,20 @@ def test_missing_and_skipped_tasks_say_so_in_the_table():
     assert by_label["force R²"][1:3] == ["missing", "missing"]
 
 
+def test_a_scene_scored_under_trials_gets_its_column_and_others_do_not():
+    force = {"model": "m", "stratified": {"force": {"r2": 0.9, "r2_std": 0.01}},
+             "grouped": {"force": {"r2": 0.8, "r2_std": 0.02}}}
+    once = headline_markdown("single_force", {"force": force}).splitlines()[0]
+    assert once == ("| metric | stratified CV (the paper's) | grouped CV (whole conditions out) "
+                    "| paper |")
+    twice = {"force": {**force, "trials": {"force": {"r2": 0.85, "r2_std": 0.03}}}}
+    table = headline_markdown("single_force", twice).splitlines()
+    assert table[0].endswith("| trials CV (new trials of seen conditions) | paper |")
+    assert table[1] == "|---|---|---|---|---|"
+    row = next(line for line in table if line.startswith("| force R²"))
+    assert "| 0.900 ± 0.010 | 0.800 ± 0.020 | 0.850 ± 0.030 |" in row
+
+
 @needs_chromium
 def test_the_page_loads_every_image_in_headless_chromium(built):
     root, _ = built
@@ -195,7 +209,8 @@ HEADLINE = {("single_force", STRETCH_PARITY): ("stretch", "stretch R² {r2}"),
             ("two_force", FORCE_PARITY): ("force", "R²: force1 {r2}, force2 {r2}")}
 SCORES = {"stratified": {"r2": "0.900 ± 0.010", "acc": "0.960 ± 0.010"},
           "grouped": {"r2": "0.800 ± 0.010", "acc": "0.930 ± 0.010"}}
-NOTES = {"stratified": "the paper's: stratified on the node", "grouped": "whole trials held out"}
+NOTES = {"stratified": "the paper's: stratified on the node",
+         "grouped": "whole conditions held out"}
 
 
 def svg_metadata(path):

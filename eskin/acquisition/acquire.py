@@ -76,8 +76,9 @@ def check_scenes(scenes: Mapping[str, Scene], cv: CV) -> None:
         if scene.source == "import":
             check_import(name, scene)
             continue
-        trials = len(plan_from_params(name, scene).conditions)
-        if "grouped" in cv.schemes and trials < int(cv.folds):
-            raise ValueError(f"scenes.{name}: {trials} trials (conditions), but grouped CV "
+        plan = plan_from_params(name, scene)
+        conditions = len(plan.conditions) // plan.repeats
+        if "grouped" in cv.schemes and conditions < int(cv.folds):
+            raise ValueError(f"scenes.{name}: {conditions} condition(s), but grouped CV "
                              f"with cv.folds = {cv.folds} needs at least {cv.folds}; "
                              "add stretches, forces or nodes, or lower cv.folds")

@@ -3,9 +3,14 @@
 * ``stratified`` — the paper's ``StratifiedKFold(10, shuffle=True)`` on the
   pressed node (single force) or on the pair of nodes (two forces): every
   fold holds every node in its share.
-* ``grouped`` — whole trials held out (``StratifiedGroupKFold`` on the same
-  strata, grouped by trial): a trial's 20 samples are near-duplicates, so
-  a fold that trains on 18 of them and tests on 2 flatters the score.
+* ``grouped`` — whole conditions held out (``StratifiedGroupKFold`` on the same
+  strata, grouped by condition: stretch and contacts, every trial of them): a trial's
+  20 samples are near-duplicates, so a fold that trains on 18 of them and tests on 2
+  flatters the score. With one trial per condition (the paper's plan) a held-out trial
+  is a condition training never saw: the harder question of the two below.
+* ``trials`` — whole trials held out, each of a condition that training has seen in its
+  other trials (a scene with ``repeats`` ≥ 2): how well a new recording of a known
+  condition is read.
 
 Folds are drawn on the whole scene; a task that uses only some rows (say,
 localisation on contacts) keeps their fold numbers, so every task and every
@@ -24,6 +29,8 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 from sklearn.model_selection import (
     BaseCrossValidator,
     PredefinedSplit,
@@ -42,6 +49,68 @@ def strata(frame: pd.DataFrame, kind: str, skin: AnySkin) -> np.ndarray:
     return get_kind(kind).strata(frame, skin)
 
 
+def conditions(frame: pd.DataFrame, kind: str) -> np.ndarray:
+    """Each row's condition (0, 1, ...): its labels (stretch and every contact's force and
+    node), which every sample of a planned trial shares."""
+    return frame.groupby(get_kind(kind).labels, sort=False, dropna=False).ngroup().to_numpy()
+
+
+def condition_groups(frame: pd.DataFrame, kind: str) -> np.ndarray:
+    """Each row's group under the ``grouped`` scheme: the rows linked by a shared trial or
+    a shared condition, named by their first trial (so a trial is never split, an
+    imported trial of several conditions included, and with one trial per condition the
+    groups are the trials, in their order)."""
+    trial_codes, trials = pd.factorize(frame["trial"], sort=True)
+    condition_codes = conditions(frame, kind)
+    n_trials = len(trials)
+    graph = coo_matrix((np.ones(len(frame)), (trial_codes, n_trials + condition_codes)),
+                       shape=(n_trials + condition_codes.max() + 1,) * 2)
+    _, component = connected_components(graph, directed=False)
+    # The first (smallest) trial of each component names it.
+    first = pd.Series(trials[trial_codes]).groupby(component[trial_codes]).transform("min")
+    return first.to_numpy()
+
+
+def _trial_folds(frame: pd.DataFrame, kind: str, n_splits: int, seed: int) -> np.ndarray:
+    """The ``trials`` scheme: each condition's trials dealt to distinct folds in turn, from
+    a seeded fold, in a seeded order; so no fold holds every trial of a condition."""
+    table = pd.DataFrame({"trial": frame["trial"].to_numpy(),
+                          "condition": conditions(frame, kind)}).drop_duplicates()
+    mixed = table["trial"].duplicated(keep=False)
+    if mixed.any():
+        raise ValueError(f"trials CV: trial {table['trial'][mixed].iloc[0]} holds several "
+                         "conditions (stretch and contacts); each trial must be one condition")
+    trials_per_condition = table.groupby("condition").size()
+    single = int((trials_per_condition < 2).sum())
+    if single:
+        raise ValueError(f"trials CV holds out trials of conditions that training has seen: "
+                         f"{single} of {len(trials_per_condition)} conditions have one "
+                         "trial; record each at least twice (scenes.<scene>.repeats: 2)")
+    rng = np.random.default_rng(seed)
+    table = table.sort_values(["condition", "trial"]).reset_index(drop=True)
+    table["order"] = rng.random(len(table))
+    table = table.sort_values(["condition", "order"])
+    start = rng.integers(n_splits, size=table["condition"].max() + 1)
+    dealt = (start[table["condition"]] + table.groupby("condition").cumcount()) % n_splits
+    fold_of_trial = pd.Series(dealt.to_numpy(), index=table["trial"].to_numpy())
+    return fold_of_trial[frame["trial"].to_numpy()].to_numpy(dtype=np.int64)
+
+
+def repeated_conditions(frame: pd.DataFrame, kind: str) -> bool:
+    """Whether every trial of ``frame`` is one condition and every condition has two trials
+    or more: what the ``trials`` scheme needs."""
+    table = pd.DataFrame({"trial": frame["trial"].to_numpy(),
+                          "condition": conditions(frame, kind)}).drop_duplicates()
+    return (bool(len(table)) and not table["trial"].duplicated().any()
+            and int(table.groupby("condition").size().min()) >= 2)
+
+
+def applicable_schemes(frame: pd.DataFrame, kind: str, schemes: list[str]) -> list[str]:
+    """``schemes`` (cv.schemes) less ``trials`` where a condition was recorded only once: a
+    scene of the paper's plan (``repeats: 1``) is scored under the others, not refused."""
+    return [s for s in schemes if s != "trials" or repeated_conditions(frame, kind)]
+
+
 def assign_folds(frame: pd.DataFrame, kind: str, scheme: str, n_splits: int,
                  seed: int, *, skin: AnySkin) -> np.ndarray:
     """Fold number (0..n_splits-1) of every row (on ``skin``), where it is a test sample."""
@@ -49,12 +118,14 @@ def assign_folds(frame: pd.DataFrame, kind: str, scheme: str, n_splits: int,
         raise ValueError(f"cv scheme must be one of {SCHEMES}, got {scheme!r}")
     if n_splits < 2:
         raise ValueError(f"cv.folds must be at least 2, got {n_splits}")
+    if scheme == "trials":
+        return _trial_folds(frame, kind, n_splits, seed)
     labels = strata(frame, kind, skin)
-    groups = frame["trial"].to_numpy()
+    groups = condition_groups(frame, kind) if scheme == "grouped" else frame["trial"].to_numpy()
     n_groups = len(np.unique(groups))
     if scheme == "grouped" and n_groups < n_splits:
-        raise ValueError(f"grouped CV with {n_splits} folds needs at least {n_splits} trials; "
-                         f"this dataset has {n_groups}")
+        raise ValueError(f"grouped CV with {n_splits} folds needs at least {n_splits} "
+                         f"conditions; this dataset has {n_groups}")
     if scheme == "stratified" and len(frame) < n_splits:
         raise ValueError(f"{n_splits}-fold CV needs at least {n_splits} samples; "
                          f"this dataset has {len(frame)}")
@@ -145,7 +216,8 @@ def write_scene_folds(features: Path, out: Path, *, schemes: list[str], n_splits
     frame = read_dataset(features)
     kind, skin = dataset_kind(features).name, dataset_skin(features)
     columns = {"trial": frame["trial"].to_numpy()}
-    for scheme in schemes:
+    drawn = applicable_schemes(frame, kind, schemes)
+    for scheme in drawn:
         try:
             columns[scheme] = assign_folds(frame, kind, scheme, n_splits, seed, skin=skin)
         except ValueError as err:
@@ -153,8 +225,12 @@ def write_scene_folds(features: Path, out: Path, *, schemes: list[str], n_splits
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     pd.DataFrame(columns).to_parquet(out, index=False)
+    left = [s for s in schemes if s not in drawn]
     return (f"{scene}: {n_splits} folds of {len(frame):,} rows, "
-            f"{len(np.unique(columns['trial'])):,} trials, for {', '.join(schemes)} CV")
+            f"{len(np.unique(columns['trial'])):,} trials, for {', '.join(drawn)} CV"
+            + (f"; not {', '.join(left)}: a condition has only one trial (or a trial "
+               f"several conditions); scenes.{scene}.repeats: 2 or more allows it"
+               if left else ""))
 
 
 def read_scene_folds(path: Path, frame: pd.DataFrame) -> dict[str, np.ndarray]:

@@ -11,17 +11,17 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
-from eskin.catalog import SCHEMES
+from eskin.catalog import SCHEME_NOTES, SCHEMES
 from eskin.kinds import Headline, get_kind
 from eskin.skin import PAPER_SKIN, AnySkin
 
 # (scene, kind, skin, {task: scores document}) for each scene of params.yaml, in its order.
 Scenes = list[tuple[str, str, AnySkin, Mapping[str, Mapping]]]
 
-
-# What each CV scheme holds out, as the page and the figures say it.
-SCHEME_NOTES = {"stratified": "the paper's: stratified on the node",
-                "grouped": "whole trials held out"}
+# The headline tables' column of each scheme.
+SCHEME_HEADINGS = {"stratified": "stratified CV (the paper's)",
+                   "grouped": "grouped CV (whole conditions out)",
+                   "trials": "trials CV (new trials of seen conditions)"}
 
 
 def score_text(scores: Mapping[str, Mapping], row: Headline, scheme: str) -> str:
@@ -44,10 +44,23 @@ def score_text(scores: Mapping[str, Mapping], row: Headline, scheme: str) -> str
     return f"{fmt.format(mean)} ± {fmt.format(std)}" if math.isfinite(std) else fmt.format(mean)
 
 
+def scored_schemes(scores: Mapping[str, Mapping]) -> list[str]:
+    """The schemes a scene's tasks were scored under, in :data:`SCHEMES`' order: always the
+    paper's and grouped; ``trials`` where the scene's data allowed it (repeats ≥ 2)."""
+    return [s for s in SCHEMES if s in ("stratified", "grouped")
+            or any(s in (document or {}) for document in scores.values())]
+
+
+def headline_columns(scores: Mapping[str, Mapping]) -> list[str]:
+    """The headline table's heading: metric, a column per scored scheme, paper."""
+    return ["metric", *(SCHEME_HEADINGS[s] for s in scored_schemes(scores)), "paper"]
+
+
 def headline_rows(kind: str, scores: Mapping[str, Mapping]) -> list[list[str]]:
-    """[metric, stratified, grouped, paper] per headline of a ``kind`` scene whose scores
-    documents are ``scores`` (by task), as display strings."""
-    return [[_label(scores, row), *(score_text(scores, row, s) for s in SCHEMES), row.paper]
+    """[metric, each scored scheme (:func:`scored_schemes`), paper] per headline of a
+    ``kind`` scene whose scores documents are ``scores`` (by task), as display strings."""
+    schemes = scored_schemes(scores)
+    return [[_label(scores, row), *(score_text(scores, row, s) for s in schemes), row.paper]
             for row in get_kind(kind).headlines if not row.optional or _scored(scores, row)]
 
 
@@ -71,8 +84,8 @@ def _label(scores: Mapping[str, Mapping], row: Headline) -> str:
 
 
 def headline_markdown(kind: str, scores: Mapping[str, Mapping]) -> str:
-    lines = ["| metric | stratified CV (the paper's) | grouped CV (whole trials out) | paper |",
-             "|---|---|---|---|"]
+    columns = headline_columns(scores)
+    lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
     lines += ["| " + " | ".join(cells) + " |" for cells in headline_rows(kind, scores)]
     return "\n".join(lines)
 
@@ -210,7 +223,8 @@ def render_page(scenes: Scenes, figures: Mapping[str, list[FigureRow]],
         "name": scene, "kind": get_kind(kind).label, "skin": skin_note(skin),
         "dataset": dict(zip(("md5", "rows", "source"), data, strict=True)) if (
             data := dataset(scores)) else None,
-        "headline": headline_rows(kind, scores), "skipped": skipped(scores),
+        "headline": headline_rows(kind, scores), "columns": headline_columns(scores),
+        "skipped": skipped(scores),
         "figures": [{"id": row.id, "title": row.title, "caption": row.caption,
                      "schemes": [{"scheme": scheme, "id": f"{row.id}_{scheme}",
                                   "file": f"{figures_href}/{scene}/{row.file}_{scheme}",

@@ -20,13 +20,12 @@ from typing import Any
 import matplotlib.pyplot as plt
 import pandas as pd
 
-from eskin.catalog import HEADLINE_SCHEME, PAIRS, PAIRS_HEADLINE, SCORED_TASKS
+from eskin.catalog import HEADLINE_SCHEME, PAIRS, PAIRS_HEADLINE, SCHEME_NOTES, SCORED_TASKS
 from eskin.config import Report, Scene, scene_kind, scene_skin
 from eskin.data.schema import force_columns, node_columns
 from eskin.kinds import Figure, Headline, get_kind
 from eskin.reporting import figures as fig
 from eskin.reporting.page import (
-    SCHEME_NOTES,
     FigureRow,
     Provenance,
     render_page,
@@ -235,6 +234,8 @@ def report(*, report: Report, scenes: Mapping[str, Scene], scores_dir: Path,
                             caption=spec.caption)
             for scheme in settings.schemes:
                 oof = frame[frame["scheme"] == scheme]
+                if oof.empty:  # a scheme the scene's data did not allow (trials: repeats 1)
+                    continue
                 about = identity(scene, spec, scheme, oof, scores[scene].get(spec.task))
                 figure = draw(spec, oof, skins[scene])
                 fig.identify(figure, about.heading)

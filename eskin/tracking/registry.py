@@ -40,7 +40,7 @@ from eskin.deploy.stack import (
     rest_readings,
 )
 from eskin.evaluation.crossval import cross_validate
-from eskin.evaluation.folds import assign_folds
+from eskin.evaluation.folds import applicable_schemes, assign_folds
 from eskin.learning.saved import load_models
 from eskin.learning.tasks import get_task
 from eskin.tracking.compare import NoRunsError, dvc_cache_path, parse_param
@@ -100,7 +100,8 @@ def reproduce(name: str, version: str | None = None, *, root: Path = Path("."),
     saved = versioned_file(root, model_path(scene, task_name), model_md5, f"model {name}")
     model = load_models(saved, model_md5)[target]
     params = run.data.params
-    schemes = parse_param(params["cv.schemes"])
+    # As the folds stage drew them: cv.schemes less any the data do not allow.
+    schemes = applicable_schemes(frame, kind, parse_param(params["cv.schemes"]))
     out: dict[str, Any] = {"model": name, "version": entry.version, "run": entry.run_id,
                            "features": str(path), "features md5": tags["eskin.features_md5"],
                            "estimator": type(model).__name__, "schemes": {}}

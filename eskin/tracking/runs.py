@@ -49,6 +49,7 @@ from mlflow.entities import Metric, Param  # noqa: E402
 from mlflow.models import infer_signature  # noqa: E402
 from mlflow.tracking import MlflowClient  # noqa: E402
 
+from eskin.catalog import SCHEMES  # noqa: E402
 from eskin.errors import EskinError  # noqa: E402
 from eskin.tracking import store  # noqa: E402
 
@@ -425,15 +426,13 @@ def task_params(files: TaskFiles) -> dict[str, str]:
 
 def _scores_metrics(scores: Mapping[str, Any]) -> dict[str, float]:
     """Every scheme's scores and spreads, ``<scheme>.<target>.<score>``."""
-    from eskin.catalog import SCHEMES
-
     return {k: float(v) for k, v in flatten({s: scores[s] for s in SCHEMES if s in scores}).items()
             if isinstance(v, (int, float)) and not isinstance(v, bool)}
 
 
 def _task_tags(files: TaskFiles, common: Mapping[str, str], trained: str) -> dict[str, str]:
     s = files.scores
-    schemes = [k for k in ("stratified", "grouped") if k in s]
+    schemes = [k for k in SCHEMES if k in s]
     return {**common, "eskin.scene": files.scene, "eskin.task": files.task, "eskin.kind": "task",
             "eskin.model": s.get("model", ""), "eskin.model_md5": s.get("model_md5", ""),
             "eskin.dataset_digest": s.get("dataset_md5", ""),
