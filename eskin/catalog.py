@@ -55,6 +55,7 @@ FIGURES_DIR = Path("reports/figures")
 PLOTS_DIR = Path("reports/plots")
 BENCH_DIR = Path("reports/benchmark")
 BOUND_DIR = Path("bench/bound")  # in bench/'s own DVC project, so in DVC's cache (not git)
+LEARNING_CURVE_DIR = Path("reports/learning_curve")
 SOAK_DIR = Path("reports/soak")
 STRESS_DIR = Path("reports/stress")
 EXPORT_DIR = Path("reports/export")
@@ -121,6 +122,12 @@ def bench_dir(scene: str) -> Path:
 def bayes_bound_path(scene: str) -> Path:
     """The simulator's Bayes bound for every sample of one scene (`make bench`)."""
     return BOUND_DIR / f"{scene}.parquet"
+
+
+def learning_curve_path(scene: str) -> Path:
+    """`make bench`'s learning curves of one scene (JSON; the markdown beside it), which
+    `eskin plan` reads."""
+    return LEARNING_CURVE_DIR / f"{scene}.json"
 
 
 def task_outputs(scene: str, task: str) -> dict[str, Path]:

@@ -341,6 +341,17 @@ def build_parser() -> argparse.ArgumentParser:
     _table_options(audit)
     audit.set_defaults(run=_audit)
 
+    plan = commands.add_parser(
+        "plan", help="how many trials per condition a target score needs, and the bench "
+        "time they take, from make bench's learning curves",
+        epilog="Targets are <task>_<metric>: force_r2, localise_accuracy, detect_accuracy, "
+        "stretch_r2. An answer says impossible where the Bayes bound forbids the target, and "
+        "beyond the floor where the model levels off below it.")
+    plan.add_argument("scene", help="a scene, e.g. single_force")
+    plan.add_argument("--target", required=True, metavar="TASK_METRIC=VALUE",
+                      help="the score to reach, e.g. force_r2=0.95")
+    plan.set_defaults(run=_plan)
+
     reproduce = commands.add_parser(
         "reproduce", help="rerun a registered model's cross-validation on its dataset "
         "version and compare with its run's out-of-fold predictions")
@@ -404,6 +415,26 @@ def _audit(args: argparse.Namespace) -> int:
     versions["committed"] = versions["dataset md5"].map(
         compare.commit_dates(root, list(versions["dataset md5"])))
     _emit(compare.render_versions(runs, versions, args.format), args.output)
+    return 0
+
+
+def _plan(args: argparse.Namespace) -> int:
+    from eskin.catalog import learning_curve_path
+    from eskin.config import BENCH_PARAMS, BenchParams, get_scene, load_params
+    from eskin.tracking import planning
+
+    get_scene(load_params(), args.scene)
+    name, equals, value = args.target.partition("=")
+    try:
+        wanted = float(value) if equals else None
+    except ValueError:
+        wanted = None
+    if wanted is None:
+        raise ValueError(f"--target {args.target!r}: give it as <task>_<metric>=<value>, "
+                         "e.g. force_r2=0.95")
+    settings = load_params(BENCH_PARAMS, BenchParams).learning_curve
+    curves = planning.read_curves(learning_curve_path(args.scene), args.scene)
+    print(planning.describe(planning.plan(curves, name.strip(), wanted, settings), settings))
     return 0
 
 

@@ -34,6 +34,7 @@ from pydantic import (
     ValidationError,
     WrapValidator,
     create_model,
+    field_validator,
     model_validator,
 )
 
@@ -586,6 +587,21 @@ class LiveHour(_Section):
     batch_frames: Count
 
 
+class LearningCurve(_Section):
+    """make bench's learning curves (harness/learning_curve.py) and `eskin plan`'s costs."""
+
+    repeats: Annotated[list[Count], Field(min_length=1)]  # trials per condition trained on
+    placement_s: NonNegative    # an operator's time to place one trial's weights
+    frames_per_s: Positive      # the board's frame rate (the firmware's, measured)
+
+    @field_validator("repeats")
+    @classmethod
+    def _increasing(cls, value: list[int]) -> list[int]:
+        if value != sorted(set(value)):
+            raise ValueError(f"must be increasing, without repeats: {value}")
+        return value
+
+
 class BenchParams(_Section):
     """bench/params.yaml: `make bench`'s knobs (bench/dvc.yaml)."""
 
@@ -593,6 +609,7 @@ class BenchParams(_Section):
     soak: Soak
     fuzz: Fuzz
     live_hour: LiveHour
+    learning_curve: LearningCurve
 
 
 class StressParams(_Section):

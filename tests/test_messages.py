@@ -32,6 +32,7 @@ COMMANDS = {
     "export": ["export", TYPO],
     "device": ["device", "simulate", "--scene", TYPO],
     "promote": ["promote", TYPO],
+    "plan": ["plan", TYPO, "--target", "force_r2=0.9"],
 }
 
 # Every stage that takes a scene (python -m stages.<module> <scene> ...), by its main().
@@ -40,6 +41,7 @@ STAGES = {
     "folds": (TYPO,), "pairs": (TYPO,), "export": (TYPO,), "bench": ("summary", TYPO),
     "soak": (TYPO,),
     "stress": (TYPO,), "live_latency": (TYPO,), "dask_scaling": (TYPO,),
+    "learning_curve": (TYPO,),
 }
 
 

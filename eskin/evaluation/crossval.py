@@ -222,8 +222,10 @@ def cross_validate(task: Task, frame: pd.DataFrame, folds: np.ndarray, estimator
         predictions[f"{name}_true"] = values
     confusion = {}
     if task.scorer != "regression":
-        confusion = {name: metrics.confusion(targets[name], predictions[f"{name}_pred"].to_numpy())
-                     for name in targets}
+        tested = fold_of >= 0  # a row no fold tests (-1: training only) has no prediction
+        confusion = {name: metrics.confusion(
+            targets[name][tested], predictions.loc[tested, f"{name}_pred"].to_numpy())
+            for name in targets}
     return CVResult(
         scheme=scheme, predictions=predictions, per_fold=per_fold,
         summary={name: metrics.summarise(scores) for name, scores in per_fold.items()},

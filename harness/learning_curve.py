@@ -1,0 +1,312 @@
+"""make bench's learning curves (issue 41): a task's error against trials per condition,
+beside the Bayes bound; and the planner that reads them (`eskin plan`).
+
+Held out, always: the first trial of every condition. Trained on: the next ``r`` trials of
+every condition, for each ``r`` of ``learning_curve.repeats``. So every held-out condition
+was seen ``r`` times in training, in other trials: the question the ``trials`` CV scheme
+asks, at ``r`` repetitions. The model is the pipeline's (``train.<task>``), its features the
+pipeline's method fitted on the training rows.
+
+Where the trials come from:
+
+* a simulated scene: its plan recorded again, ``max(repeats)`` more times, on the same
+  simulated skin, by acquisition's own path into a scratch copy of the scene's raw log
+  (so its first repetition is the pipeline's own trials, reused, and the held-out rows
+  are exactly the dataset's: the rows the bound answers);
+* any other scene recorded twice or more (``repeats`` ≥ 2, or an import whose conditions
+  have several trials): its own trials, in the order recorded, up to what it has.
+
+The curve, error = floor + a · r^(−b), is fitted by least squares (scipy's curve_fit) to
+the measured points; the planner reads the repetitions a target needs from it, and refuses
+a target beyond the fitted floor or beyond the bound.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import tempfile
+import time
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from eskin.catalog import TASK_NAMES, processed_path, raw_dir
+from eskin.config import Params
+from eskin.data.schema import (
+    contact_mask,
+    dataset_kind,
+    dataset_skin,
+    read_dataset,
+    read_metadata,
+)
+from eskin.evaluation.crossval import cross_validate
+from eskin.evaluation.folds import conditions
+from eskin.learning.estimators import build_model, model_for_skin, model_settings
+from eskin.learning.features import featurize, fit_featurizer
+from eskin.learning.tasks import Task, get_task
+from eskin.tracking.planning import (
+    CURVE,
+    FLAT_GAIN,
+    curve_error,
+    fit_curve,
+    flattens_at,
+    plan_table,
+)
+
+
+def repetition(frame: pd.DataFrame, kind: str) -> np.ndarray:
+    """Each row's repetition: the rank of its trial among its condition's trials, in the
+    order they were recorded (0 for a condition's first trial)."""
+    table = pd.DataFrame({"trial": frame["trial"].to_numpy(),
+                          "condition": conditions(frame, kind)})
+    first = table.drop_duplicates("trial")
+    rank = pd.Series(first.groupby("condition").cumcount().to_numpy(),
+                     index=first["trial"].to_numpy())
+    return rank[table["trial"].to_numpy()].to_numpy()
+
+
+def record_repetitions(scene: str, params: Params, more: int, scratch: Path,
+                       log: Callable[[str], None] = print) -> Path:
+    """A simulated scene's plan recorded ``more`` times beyond its own trials, into a
+    scratch copy of its raw log; the dataset of all of them (its path)."""
+    from eskin.acquisition import acquire
+    from eskin.data import build
+
+    settings = params.scenes[scene]
+    grown = settings.model_copy(update={"repeats": settings.repeats + more})
+    raw = scratch / "raw" / scene
+    raw.mkdir(parents=True, exist_ok=True)
+    for source in raw_dir(scene).iterdir():
+        if source.is_file():
+            shutil.copy2(source, raw / source.name)
+    log(f"{scene}: recording the plan {more} more time(s) on the simulated skin …")
+    report = acquire.acquire(scene, grown, raw, acquire=params.acquire, sim=params.sim,
+                             board=params.sim_board, progress=False)
+    log(f"  {report.summary}")
+    build.ingest(scene, grown, raw, scratch / "processed", ingest=params.ingest)
+    return scratch / "processed" / f"{scene}.parquet"
+
+
+def point(task: Task, train: pd.DataFrame, held_out: pd.DataFrame, estimator, method: str,
+          kind: str, skin) -> dict[str, Any]:
+    """Fit on ``train``, score on ``held_out``: the task's scores per target, and seconds."""
+    featurizer = fit_featurizer(method, train, kind, skin)
+    both = pd.concat([featurize(train, featurizer, skin), featurize(held_out, featurizer, skin)],
+                     ignore_index=True)
+    folds = np.r_[np.full(len(train), -1), np.zeros(len(held_out), dtype=np.int64)]
+    started = time.perf_counter()
+    result = cross_validate(task, both, folds, estimator, "trials", skin)
+    scores = {target: {metric: value for metric, value in values.items()
+                       if not metric.endswith("_std")}
+              for target, values in result.summary.items()}
+    return {"scores": scores, "headline": task.headline(result.summary),
+            "seconds": round(time.perf_counter() - started, 2)}
+
+
+def bound_point(task: Task, held_out: pd.DataFrame, bound_path: Path | None) -> dict | None:
+    """The Bayes bound's scores on the held-out rows, where the bench has it."""
+    from eskin.evaluation.folds import fold_splitter
+    from harness.benchmark import bound_scores, read_bound
+
+    if bound_path is None or not Path(bound_path).exists():
+        return None
+    oracle, reason = read_bound(Path(bound_path), held_out)
+    if oracle is None:
+        return {"unavailable": reason}
+    rows = task.rows(held_out)
+    scores = bound_scores(task, held_out[rows].reset_index(drop=True),
+                          oracle[rows].reset_index(drop=True),
+                          fold_splitter(np.zeros(int(rows.sum()), dtype=np.int64)))
+    return {"headline": task.headline(scores),
+            "scores": {t: {m: v for m, v in s.items() if not m.endswith("_std")}
+                       for t, s in scores.items()}}
+
+
+
+
+
+
+
+
+
+
+def learning_curve(scene: str, params: Params, repeats: list[int], *,
+                   bound_path: Path | None, tasks: tuple[str, ...] = TASK_NAMES,
+                   scratch: Path | None = None,
+                   log: Callable[[str], None] = print) -> dict[str, Any]:
+    """Every task's curve for ``scene``: the document the stage writes and `eskin plan` reads."""
+    settings = params.scenes[scene]
+    want = max(repeats)
+    with tempfile.TemporaryDirectory(prefix="eskin-curve-", dir=scratch) as work:
+        path = processed_path(scene)
+        simulated = settings.source == "simulated"
+        if simulated:
+            path = record_repetitions(scene, params, want + 1 - settings.repeats, Path(work),
+                                      log)
+        frame, skin, the_kind = read_dataset(path), dataset_skin(path), dataset_kind(path)
+        meta = read_metadata(path)
+    kind = the_kind.name
+    rep = repetition(frame, kind)
+    have = int(pd.Series(rep).groupby(conditions(frame, kind)).max().min())
+    usable = [r for r in repeats if r <= have]
+    if not usable:
+        raise ValueError(f"scenes.{scene}: every condition needs two trials or more for a "
+                         f"learning curve (one held out, one to train on); it has "
+                         f"{have + 1}: record it with repeats ≥ 2")
+    held_out = frame[rep == 0].reset_index(drop=True)
+    condition = conditions(held_out, kind)
+    n_conditions = int(condition.max() + 1)
+    # A trial whose indenters touch the skin: the operator places weights for it.
+    placed = int(len(np.unique(condition[contact_mask(held_out)])))
+    document: dict[str, Any] = {
+        "scene": scene, "kind": kind, "source": settings.source,
+        "trials": "new trials of the simulated skin" if simulated else "the scene's own",
+        "conditions": n_conditions, "placed_conditions": placed,
+        "samples": int(len(held_out) // n_conditions),
+        "held_out_rows": len(held_out), "repeats": usable, "curve": CURVE,
+        "flat_gain": FLAT_GAIN, "dataset_rows": int(meta.get("dataset", {}).get("rows", 0))
+        or len(frame), "tasks": {}}
+    for task_name in tasks:
+        task = get_task(kind, task_name)
+        reason = task.unsupported(held_out)
+        if reason is not None:
+            document["tasks"][task_name] = {"skipped": reason}
+            log(f"{scene}/{task_name}: skipped — {reason}")
+            continue
+        task_params = getattr(params.train, task_name)
+        model_name, hyper, _ = model_for_skin(
+            task_params, *model_settings(task_params, params.train.configuration,
+                                         the_kind.scene_kind), skin)
+        points = []
+        for r in usable:
+            train = frame[(rep >= 1) & (rep <= r)].reset_index(drop=True)
+            measured = point(task, train, held_out, build_model(task.role, model_name, hyper,
+                                                                 skin),
+                             params.featurize.method, kind, skin)
+            points.append({"repeats": r, "train_rows": len(train), **measured})
+            log(f"{scene}/{task_name} [{model_name}]: {r} trial(s) per condition → "
+                f"{task.headline_metric} {measured['headline']:.4f} ({measured['seconds']} s)")
+        errors = [1.0 - p["headline"] for p in points]
+        fit = fit_curve(usable, errors)
+        entry: dict[str, Any] = {"model": model_name, "metric": task.headline_metric,
+                                 "targets": list(task.targets), "points": points, "fit": fit}
+        if fit is not None:
+            entry["floor_score"] = 1.0 - fit["floor"]
+            entry["flattens_at"] = flattens_at(fit)
+        bound = bound_point(task, held_out, bound_path) if simulated else None
+        if bound is not None:
+            entry["bound"] = bound
+        document["tasks"][task_name] = entry
+    return document
+
+
+
+
+def render(document: Mapping[str, Any], settings: Any) -> str:
+    """The learning curves as markdown: a table per task, and each target's repetitions."""
+    scene = document["scene"]
+    lines = [f"# Learning curves: {scene}", "",
+             f"Held out: the first trial of each of {document['conditions']:,} conditions "
+             f"({document['held_out_rows']:,} rows); trained on the next r trials of every "
+             f"condition ({document['trials']}). Fitted: {CURVE}; flat where one more "
+             f"repetition gains less than {FLAT_GAIN}.", ""]
+    for task_name, entry in document["tasks"].items():
+        if "skipped" in entry:
+            lines += [f"## {task_name}", "", f"Skipped: {entry['skipped']}", ""]
+            continue
+        metric = entry["metric"]
+        lines += [f"## {task_name} [{entry['model']}]", "",
+                  f"| trials per condition | training rows | {metric} | fitted | seconds |",
+                  "|---|---|---|---|---|"]
+        for p in entry["points"]:
+            fitted = (f"{1.0 - curve_error(entry['fit'], p['repeats']):.4f}"
+                      if entry["fit"] else "—")
+            lines.append(f"| {p['repeats']} | {p['train_rows']:,} | {p['headline']:.4f} | "
+                         f"{fitted} | {p['seconds']:.1f} |")
+        bound = entry.get("bound")
+        if bound and "headline" in bound:
+            lines.append(f"| Bayes bound | — | {bound['headline']:.4f} | — | — |")
+        lines.append("")
+        if entry["fit"]:
+            fit = entry["fit"]
+            lines.append(f"Fit: floor {fit['floor']:.4f} (a {metric} of "
+                         f"{entry['floor_score']:.4f}), a {fit['a']:.4f}, b {fit['b']:.2f}; "
+                         f"flat from {entry['flattens_at']} trial(s) per condition.")
+        else:
+            lines.append("Too few points to fit a curve.")
+        if bound and "unavailable" in bound:
+            lines.append(f"No Bayes bound: {bound['unavailable']}")
+        lines.append("")
+    lines += ["## What a target costs", "", plan_table(document, settings), ""]
+    return "\n".join(lines)
+
+
+
+
+
+
+
+
+
+
+def figure(document: Mapping[str, Any]):
+    """A panel per task: error (log) against trials per condition (log), measured points,
+    the fitted curve, its floor and the Bayes bound."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tasks = {name: e for name, e in document["tasks"].items() if "points" in e}
+    plot, axes = plt.subplots(1, max(len(tasks), 1), figsize=(3.4 * max(len(tasks), 1), 3.2),
+                              squeeze=False, layout="constrained")
+    for ax, (name, entry) in zip(axes[0], tasks.items(), strict=False):
+        r = [p["repeats"] for p in entry["points"]]
+        ax.plot(r, [1 - p["headline"] for p in entry["points"]], "o", label="measured")
+        if entry["fit"]:
+            dense = np.geomspace(1, max(r) * 3, 100)
+            ax.plot(dense, [curve_error(entry["fit"], x) for x in dense], "-", lw=1,
+                    label="fitted")
+            ax.axhline(entry["fit"]["floor"], color="grey", ls=":", lw=1, label="floor")
+        bound = entry.get("bound", {}).get("headline")
+        if bound is not None and 1 - bound > 0:
+            ax.axhline(1 - bound, color="black", ls="--", lw=1, label="Bayes bound")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("trials per condition trained on")
+        ax.set_title(f"{name} [{entry['model']}]", fontsize=9)
+        ax.set_ylabel(f"1 − {entry['metric']}")
+    labelled = {}
+    for ax in axes[0]:
+        for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
+            labelled.setdefault(label, handle)
+    plot.legend(labelled.values(), labelled.keys(), loc="outside lower center",
+                ncols=len(labelled), fontsize=8)
+    plot.suptitle(f"{document['scene']}: held out, the first trial of every condition",
+                  fontsize=9)
+    return plot
+
+
+def write(document: Mapping[str, Any], text: str, out_dir: Path) -> None:
+    """``<scene>.json`` (the planner reads it), ``.md`` and ``.png`` in ``out_dir``."""
+    import matplotlib.pyplot as plt
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / f"{document['scene']}.json").write_text(
+        json.dumps(document, indent=2, default=_finite) + "\n")
+    (out_dir / f"{document['scene']}.md").write_text(
+        text + f"\n\n![Learning curves]({document['scene']}.png)\n")
+    plot = figure(document)
+    plot.savefig(out_dir / f"{document['scene']}.png", dpi=110, metadata={"Software": None})
+    plt.close(plot)
+
+
+def _finite(value: Any) -> Any:
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    raise TypeError(f"{type(value).__name__} is not JSON")
