@@ -112,6 +112,8 @@ def test_the_fit_recovers_a_known_curve_and_the_planner_reads_it():
     assert not answer["extrapolated"]
     far = planning.plan(document, "force_r2", 0.9595, COSTS)
     assert far["extrapolated"] and far["repeats"] > 10
+    near = planning.plan(document, "force_r2", 0.95999, COSTS)  # r ≈ 13,000 by the curve
+    assert near["verdict"] == "out of reach" and "more than 1000 trials" in near["why"]
     floor = planning.plan(document, "force_r2", 0.965, COSTS)
     assert floor["verdict"] == "beyond the floor"
     assert "levels off at 0.9600 (the bound is 0.9750" in floor["why"]

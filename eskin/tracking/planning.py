@@ -21,6 +21,8 @@ import numpy as np
 
 # One more repetition that gains less than this in the headline score: the curve is flat.
 FLAT_GAIN = 0.001
+# The most repetitions a plan is read for: past this a target is out of reach in practice.
+MOST_REPEATS = 1000
 CURVE = "error = floor + a · r^(−b)"
 
 
@@ -66,7 +68,8 @@ def flattens_at(fit: Mapping[str, float], limit: int = 1000) -> int | None:
     return None
 
 
-def repeats_for(fit: Mapping[str, float], error: float, limit: int = 1000) -> int | None:
+def repeats_for(fit: Mapping[str, float], error: float,
+                limit: int = MOST_REPEATS) -> int | None:
     """The fewest repetitions whose fitted error is at most ``error`` (None: beyond the
     floor, or beyond ``limit``)."""
     if error <= fit["floor"]:
@@ -103,6 +106,10 @@ def plan(document: Mapping[str, Any], target: str, value: float, settings: Any) 
     if fit is None:
         return {**answer, "verdict": "unknown", "why": "the curve has too few points to fit"}
     r = repeats_for(fit, 1.0 - value)
+    if r is None and 1.0 - value > fit["floor"]:
+        return {**answer, "verdict": "out of reach",
+                "why": f"out of reach: more than {MOST_REPEATS} trials per condition by the "
+                       f"fitted curve, which levels off at {entry['floor_score']:.4f}"}
     if r is None:
         return {**answer, "verdict": "beyond the floor",
                 "why": f"beyond the floor: {entry['model']} levels off at "
