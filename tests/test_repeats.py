@@ -132,3 +132,22 @@ def test_a_scene_recorded_once_is_not_scored_under_trials_and_says_why(recorded,
                              tmp_path / "twice.parquet", schemes=["grouped", "trials"],
                              n_splits=10, seed=42, scene="single_force")
     assert said.endswith("for grouped, trials CV")
+
+
+def test_a_recording_whose_trials_span_conditions_holds_out_whole_trials(recorded):
+    """An import read by file or by time: labels change within a trial and recur across
+    trials, so no trial is one condition; grouped CV holds its trials out whole."""
+    from sklearn.model_selection import StratifiedGroupKFold
+
+    from eskin.evaluation.folds import strata
+
+    _, _, (once, _) = recorded
+    spans = once.assign(trial=[f"file{k // 60:02d}" for k in range(len(once))])
+    folds = assign_folds(spans, "single_force", "grouped", 5, 42, skin=PAPER_SKIN)
+    assert pd.Series(folds).groupby(spans["trial"].to_numpy()).nunique().eq(1).all()
+    by_trial = np.full(len(spans), -1)
+    splits = StratifiedGroupKFold(5, shuffle=True, random_state=42).split(
+        np.zeros(len(spans)), strata(spans, "single_force", PAPER_SKIN), spans["trial"])
+    for k, (_, test) in enumerate(splits):
+        by_trial[test] = k
+    assert np.array_equal(folds, by_trial)

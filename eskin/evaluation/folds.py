@@ -4,7 +4,8 @@
   pressed node (single force) or on the pair of nodes (two forces): every
   fold holds every node in its share.
 * ``grouped`` — whole conditions held out (``StratifiedGroupKFold`` on the same
-  strata, grouped by condition: stretch and contacts, every trial of them): a trial's
+  strata, grouped by condition: stretch and contacts, every trial of them; a recording
+  whose trials each span several conditions, by trial): a trial's
   20 samples are near-duplicates, so a fold that trains on 18 of them and tests on 2
   flatters the score. With one trial per condition (the paper's plan) a held-out trial
   is a condition training never saw: the harder question of the two below.
@@ -29,8 +30,6 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 from sklearn.model_selection import (
     BaseCrossValidator,
     PredefinedSplit,
@@ -56,19 +55,17 @@ def conditions(frame: pd.DataFrame, kind: str) -> np.ndarray:
 
 
 def condition_groups(frame: pd.DataFrame, kind: str) -> np.ndarray:
-    """Each row's group under the ``grouped`` scheme: the rows linked by a shared trial or
-    a shared condition, named by their first trial (so a trial is never split, an
-    imported trial of several conditions included, and with one trial per condition the
-    groups are the trials, in their order)."""
-    trial_codes, trials = pd.factorize(frame["trial"], sort=True)
-    condition_codes = conditions(frame, kind)
-    n_trials = len(trials)
-    graph = coo_matrix((np.ones(len(frame)), (trial_codes, n_trials + condition_codes)),
-                       shape=(n_trials + condition_codes.max() + 1,) * 2)
-    _, component = connected_components(graph, directed=False)
-    # The first (smallest) trial of each component names it.
-    first = pd.Series(trials[trial_codes]).groupby(component[trial_codes]).transform("min")
-    return first.to_numpy()
+    """Each row's group under the ``grouped`` scheme: its condition, named by the first of
+    the condition's trials (so with one trial per condition the groups are the trials, and
+    the folds those of grouping by trial). A recording whose trials span several
+    conditions (an import read by file or by time, its labels changing within a trial)
+    has no condition to a trial: its trials are the groups, held out whole."""
+    trial = frame["trial"].reset_index(drop=True)
+    condition = conditions(frame, kind)
+    pairs = pd.DataFrame({"trial": trial, "condition": condition}).drop_duplicates()
+    if pairs["trial"].duplicated().any():
+        return trial.to_numpy()
+    return trial.groupby(condition).transform("min").to_numpy()
 
 
 def _trial_folds(frame: pd.DataFrame, kind: str, n_splits: int, seed: int) -> np.ndarray:
