@@ -254,6 +254,19 @@ def acquire_until(params, root, *, complete):
     return process, log
 
 
+def resume_and_ingest(root: Path, total: int, before: int):
+    """`eskin acquire single_force` again after a kill that left ``before`` of ``total``
+    trials complete, then `eskin ingest`: the resumed dataset (the summary checked)."""
+    import pandas as pd
+
+    resumed = eskin(["acquire", "single_force", "--no-progress"], root)
+    assert resumed.returncode == 0, resumed.stderr
+    assert f"{total - before} condition(s) acquired, {before} reused" in resumed.stdout
+    ingested = eskin(["ingest", "single_force"], root)
+    assert ingested.returncode == 0, ingested.stderr
+    return pd.read_parquet(root / "data" / "processed" / "single_force.parquet")
+
+
 def eskin(args, cwd, **kwargs):
     """Run the eskin CLI in its own process, as a user would."""
     return subprocess.run([sys.executable, "-m", "eskin", *args], cwd=cwd, text=True,

@@ -13,6 +13,7 @@ from conftest import (
     eskin,
     ingest_step,
     prepared_scene,
+    resume_and_ingest,
     small_scenes,
     typed,
 )
@@ -109,12 +110,7 @@ def test_sigkill_midway_then_resume_gives_every_planned_row_once(clean_run, tmp_
     done_before = len(read_log(log).completed)
     assert 150 <= done_before < 404, "killed midway"
 
-    resumed = eskin(["acquire", "single_force", "--no-progress"], tmp_path)
-    assert resumed.returncode == 0, resumed.stderr
-    assert f"{404 - done_before} condition(s) acquired, {done_before} reused" in resumed.stdout
-    ingested = eskin(["ingest", "single_force"], tmp_path)
-    assert ingested.returncode == 0, ingested.stderr
-    frame = pd.read_parquet(tmp_path / "data" / "processed" / "single_force.parquet")
+    frame = resume_and_ingest(tmp_path, 404, done_before)
     assert len(frame) == 404 * 5
     assert not frame[["session", "trial", "sample"]].duplicated().any()
     assert set(frame["session"]) == {"s001"}, "a resume continues the interrupted session"

@@ -8,7 +8,7 @@ import signal
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import acquire_step, acquire_until, eskin, ingest_step, small_scenes
+from conftest import acquire_step, acquire_until, ingest_step, resume_and_ingest, small_scenes
 
 from eskin.acquisition.rawlog import read_log
 from eskin.data.schema import LABELS, read_metadata
@@ -72,12 +72,7 @@ def test_repeats_resume_after_a_kill_and_give_the_uninterrupted_dataset(recorded
     before = len(read_log(log).completed)
     assert TRIALS < before < 2 * TRIALS, "killed in the second repetition"
 
-    resumed = eskin(["acquire", "single_force", "--no-progress"], tmp_path)
-    assert resumed.returncode == 0, resumed.stderr
-    assert f"{2 * TRIALS - before} condition(s) acquired, {before} reused" in resumed.stdout
-    ingested = eskin(["ingest", "single_force"], tmp_path)
-    assert ingested.returncode == 0, ingested.stderr
-    frame = pd.read_parquet(tmp_path / "data" / "processed" / "single_force.parquet")
+    frame = resume_and_ingest(tmp_path, 2 * TRIALS, before)
     pd.testing.assert_frame_equal(frame[CONTENT], twice[CONTENT])
 
 
