@@ -17,10 +17,10 @@ from pathlib import Path
 TASK_NAMES: tuple[str, ...] = ("stretch", "force", "detect", "localise")
 # CV schemes, by what a test fold holds out (eskin.evaluation.folds): samples (the paper's),
 # conditions, or trials of conditions training has seen (a scene recorded twice or more).
-SCHEMES: tuple[str, ...] = ("stratified", "grouped", "trials")
+SCHEMES: tuple[str, ...] = ("stratified", "conditions", "trials")
 # What each scheme holds out, as the page, the figures and the results say it.
 SCHEME_NOTES = {"stratified": "the paper's: stratified on the node",
-                "grouped": "whole conditions held out",
+                "conditions": "whole conditions held out",
                 "trials": "new trials of conditions seen in training"}
 # Where a scene's readings come from: the Python board, the firmware under simavr, a
 # board on a port, or a file another lab wrote.
@@ -33,7 +33,7 @@ SCORED_TASKS: tuple[str, ...] = (*TASK_NAMES, PAIRS)
 HEADLINE_METRIC = {"regression": "r2", "detection": "accuracy", "localisation": "accuracy"}
 # The scheme DVC's metrics file holds (the one `make bench` chooses models by); every
 # scheme's scores, with spreads and confusion counts, are in the scores files.
-HEADLINE_SCHEME = "grouped"
+HEADLINE_SCHEME = "conditions"
 # A two-force scene's contacts scored as sets: the pairs stage's headline scores.
 PAIRS_HEADLINE = ("pair_accuracy", "ghost_share", "force_r2")
 

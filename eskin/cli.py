@@ -326,8 +326,8 @@ def build_parser() -> argparse.ArgumentParser:
     compare = commands.add_parser(
         "compare", help="the latest run of every variant side by side, from MLflow: "
         "the params that differ, headline scores, run time")
-    compare.add_argument("--scheme", default="grouped", help="CV scheme of the scores "
-                         "(grouped, stratified; default grouped)")
+    compare.add_argument("--scheme", default="conditions", help="CV scheme of the scores "
+                         "(conditions, stratified, trials; default conditions)")
     compare.add_argument("--last", type=int, metavar="N", help="only the N newest variants")
     compare.add_argument("--variant", action="append", metavar="NAME",
                          help="only this variant (repeatable), e.g. a `dvc exp` name")

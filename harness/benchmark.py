@@ -429,7 +429,7 @@ def targets(doc: Mapping[str, Any]) -> dict[str, Any]:
                 "text": f"force default ({default}) {speedup:.1f}× faster than exact_gp "
                         f"(target ≥ 20×), R² {r2_gap:+.4f} below it (target ≤ 0.01), "
                         f"{scheme} CV"}
-        if scheme == "grouped" and "bayes_bound" in entry:
+        if scheme == "conditions" and "bayes_bound" in entry:
             # A bound a model beats on held-out trials is no bound; beating it by less than
             # the folds' spread (of the variant's or the bound's score) is noise.
             bound = entry["bayes_bound"]
@@ -438,23 +438,23 @@ def targets(doc: Mapping[str, Any]) -> dict[str, Any]:
             beaten = {n: bound["error"] - headline_error(task, r["scores"])
                       for n, r in results.items()
                       if headline_error(task, r["scores"]) < bound["error"] - noise[n]}
-            out[f"{doc['task']}_bound_holds_grouped"] = {
+            out[f"{doc['task']}_bound_holds_conditions"] = {
                 "beaten_by": beaten, "met": not beaten,
                 "text": f"{doc['task']}: " + (
-                    "no variant beats the Bayes bound beyond fold noise, grouped CV"
+                    "no variant beats the Bayes bound beyond fold noise, conditions CV"
                     if not beaten else "the Bayes bound is beaten beyond fold noise by "
                     + ", ".join(f"{n} ({d:.4f})" for n, d in beaten.items()))}
-        if scheme == "grouped" and "gap_closed" in entry:
+        if scheme == "conditions" and "gap_closed" in entry:
             closed = {n: v for n, v in entry["gap_closed"].items()
                       if n != "paper" and np.isfinite(v)}
             if closed:
                 best = max(closed, key=lambda n: closed[n])
-                out[f"{doc['task']}_gap_closed_grouped"] = {
+                out[f"{doc['task']}_gap_closed_conditions"] = {
                     "best": best, "share": closed[best], "default": default,
                     "default_share": entry["gap_closed"].get(default),
                     "met": bool(closed[best] >= 0.8),
                     "text": f"{doc['task']}: {best} closes {closed[best]:.0%} of the gap between "
-                            f"paper and the Bayes bound, grouped CV (target ≥ 80%); default "
+                            f"paper and the Bayes bound, conditions CV (target ≥ 80%); default "
                             f"{default} {entry['gap_closed'].get(default, float('nan')):.0%}"}
     return out
 

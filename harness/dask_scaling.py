@@ -1,6 +1,6 @@
 """Cross-validation on a dask.distributed cluster against joblib's loky, in one process.
 
-The same task, model and folds (a scene's default force model, grouped 10-fold, two
+The same task, model and folds (a scene's default force model, conditions 10-fold, two
 folds at a time) on: loky with 2 processes (the baseline, run first in the same
 process), then a local cluster on 127.0.0.1 of 1 worker process with 2 threads and of 2
 with 1 thread each. Each is run once to warm up (processes started, modules imported),
@@ -77,13 +77,13 @@ def run_cv(scene: str, params: Params, backend: str, n_jobs: int) -> tuple[objec
     skin = dataset_skin(features_path(scene))
     task = get_task(kind, TASK)
     cv = params.cv
-    folds = assign_folds(frame, kind, "grouped", int(cv.folds), int(cv.seed), skin=skin)
+    folds = assign_folds(frame, kind, "conditions", int(cv.folds), int(cv.seed), skin=skin)
     section = getattr(params.train, TASK)
     name, hyper, _ = model_for_skin(section, *model_settings(section, "tuned", kind), skin)
     estimator = build_model(task.role, name, hyper, skin)
     started = time.perf_counter()
     with parallel_config(backend=backend):
-        result = cross_validate(task, frame, folds, estimator, "grouped", skin, n_jobs=n_jobs)
+        result = cross_validate(task, frame, folds, estimator, "conditions", skin, n_jobs=n_jobs)
     return result, time.perf_counter() - started
 
 
@@ -114,7 +114,7 @@ def measure(scene: str) -> dict:
 
 def render(result: dict) -> str:
     lines = [f"Cross-validation of {result['scene']}'s {result['task']} model "
-             f"({result['folds']} grouped folds): dask.distributed against loky "
+             f"({result['folds']} conditions folds): dask.distributed against loky "
              f"(2 processes, {result['loky_2_processes_s']:.1f} s), in one process.", "",
              "| workers × threads | wall time | ÷ loky | identical predictions | tasks | "
              "shared by every task, sent to each worker once | each task's own |",

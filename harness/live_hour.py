@@ -275,24 +275,24 @@ def _share(values) -> float | None:
 
 
 def batch_cv_scores(scene: str, scores_dir: Path = Path("reports/scores")) -> dict[str, Any]:
-    """The trained stack's grouped-CV scores (mean ± fold sd), to set the live ones beside."""
+    """The trained stack's conditions-CV scores (mean ± fold sd), to set the live ones beside."""
     out: dict[str, Any] = {}
     pairs = scores_dir / scene / "pairs.json"
     if pairs.exists():
-        grouped = json.loads(pairs.read_text()).get("grouped", {})
+        held_out = json.loads(pairs.read_text()).get("conditions", {})
         for name in ("pair_accuracy", "force_mae"):
-            if name in grouped:
-                out[name] = [round(grouped[name], 4), round(grouped[f"{name}_std"], 4)]
+            if name in held_out:
+                out[name] = [round(held_out[name], 4), round(held_out[f"{name}_std"], 4)]
     for task, metric, targets in (("localise", "accuracy", ("x", "y")),
                                   ("force", "mae", ("force",))):
         path = scores_dir / scene / f"{task}.json"
         if not path.exists():
             continue
-        grouped = json.loads(path.read_text()).get("grouped", {})
+        held_out = json.loads(path.read_text()).get("conditions", {})
         for target in targets:
-            if target in grouped:
-                out[f"{target}_{metric}"] = [round(grouped[target][metric], 4),
-                                             round(grouped[target][f"{metric}_std"], 4)]
+            if target in held_out:
+                out[f"{target}_{metric}"] = [round(held_out[target][metric], 4),
+                                             round(held_out[target][f"{metric}_std"], 4)]
     return out
 
 
@@ -317,10 +317,10 @@ def render(scene: str, result: dict[str, Any]) -> str:
         ("… before the first stretch change", pct(result["missed_share_before_first_stretch"]),
          "≤ 1 %"),
         ("location (x and y right), detected frames", pct(result["location_accuracy"]),
-         f"grouped CV x {spread('x_accuracy', 100, ' %')}, y {spread('y_accuracy', 100, ' %')}"),
+         f"conditions CV x {spread('x_accuracy', 100, ' %')}, y {spread('y_accuracy', 100, ' %')}"),
         ("… unstretched (λ = 1)", pct(result["location_accuracy_unstretched"]), ""),
         ("force error (MAE), detected frames", f"{result['force_mae_n']} N",
-         f"grouped CV {spread('force_mae', 1, ' N')}"),
+         f"conditions CV {spread('force_mae', 1, ' N')}"),
         ("… unstretched (λ = 1)", f"{result['force_mae_n_unstretched']} N", ""),
         ("sustained press detected at its end", "yes" if result["sustained_detected_at_end"]
          else "no", "yes"),
@@ -355,7 +355,7 @@ def _render_pairs(scene: str, result: dict[str, Any]) -> str:
     pct = _pct
 
     def spread(name, scale=1.0, unit=""):
-        return _spread(result["batch_cv"], name, scale, unit, prefix="grouped CV ")
+        return _spread(result["batch_cv"], name, scale, unit, prefix="conditions CV ")
 
     rows = [
         ("pairs right (both contacts, as a set), pressed frames",

@@ -27,7 +27,7 @@ Its decisions are Bayes-optimal for each metric — the posterior mean for
 stretch and force (least squares), the most probable answer for contact and
 for x and y of a contact — so its scores bound what a model predicting one
 sample at a time can reach. Under stratified CV a model sees the other
-samples of the same trial and may beat it; under grouped CV it cannot.
+samples of the same trial and may beat it; under conditions CV it cannot.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """The daily loop's speed (issue 38): the default pipeline's `dvc repro` from an empty
 cache, a one-knob experiment and a training stage's fixed cost, each against a baseline
-revision's pipeline, all timed here, one revision after the other; and the grouped-CV
+revision's pipeline, all timed here, one revision after the other; and the conditions-CV
 headline scores of both, beside their fold spreads.
 
 Each revision runs in a scratch copy: the project's files (the working tree's git-tracked
@@ -173,9 +173,9 @@ def score_name(scene: str, task: str, target: str | None, score: str) -> str:
 
 
 def headline_keys(project: Path) -> list[tuple[str, str, str | None, str]]:
-    """Each grouped-CV headline score of ``project`` as (scene, task, target, score), from
+    """Each conditions-CV headline score of ``project`` as (scene, task, target, score), from
     its headline metrics: one reports/metrics.json (``<scene>.<task>[.<target>].<score>``)
-    or, before it, reports/metrics/<scene>/<task>.json (``grouped.[<target>.]<score>``).
+    or, before it, reports/metrics/<scene>/<task>.json (``conditions.[<target>.]<score>``).
     A target None: the score sits in the task's scores without one (a single-target task
     written without its target, or pairs)."""
     def flatten(scene: str, task: str, entry: dict) -> list[tuple[str, str, str | None, str]]:
@@ -189,20 +189,26 @@ def headline_keys(project: Path) -> list[tuple[str, str, str | None, str]]:
                 for task, entry in tasks.items() for key in flatten(scene, task, entry)]
     return [key for path in sorted((project / "reports" / "metrics").glob("*/*.json"))
             for key in flatten(path.parent.name, path.stem,
-                               json.loads(path.read_text()).get("grouped", {}))]
+                               _headline_scheme(json.loads(path.read_text())))]
+
+
+def _headline_scheme(doc: dict) -> dict:
+    """A scores document's held-out-conditions scores; a baseline revision older than
+    issue 41 named that scheme ``grouped``."""
+    return doc.get("conditions", doc.get("grouped", {}))
 
 
 def fold_scores(project: Path) -> dict[str, dict[str, float]]:
-    """Each grouped-CV headline score of ``project`` (:func:`headline_keys`) with its fold
+    """Each conditions-CV headline score of ``project`` (:func:`headline_keys`) with its fold
     spread, from the scores files (reports/scores/<scene>/<task>.json, ``<score>_std``):
     ``{name: {"mean": …, "std": …}}``."""
     out = {}
     for scene, task, target, score in headline_keys(project):
-        grouped = json.loads((project / "reports" / "scores" / scene / f"{task}.json")
-                             .read_text())["grouped"]
-        if target is None and isinstance(grouped.get(task), dict):
+        headline = _headline_scheme(json.loads(
+            (project / "reports" / "scores" / scene / f"{task}.json").read_text()))
+        if target is None and isinstance(headline.get(task), dict):
             target = task
-        scores = grouped if target is None else grouped[target]
+        scores = headline if target is None else headline[target]
         out[score_name(scene, task, target, score)] = {"mean": scores[score],
                                                        "std": scores[f"{score}_std"]}
     return out
@@ -298,7 +304,7 @@ def render(result: dict) -> str:
         return f"{found['mean']:.4f} ± {found['std']:.4f}" if found else "—"
 
     verdict = {True: "yes", False: "**no**", None: "—"}
-    lines += ["", "The grouped-CV headline scores, mean ± standard deviation over the folds "
+    lines += ["", "The conditions-CV headline scores, mean ± standard deviation over the folds "
               "(after the full repro, default params):", "",
               "| score | baseline | current | current within the baseline's mean ± std |",
               "|---|---|---|---|"]

@@ -161,7 +161,7 @@ def models_under_test(train: Any, skin: AnySkin) -> list[tuple[str, str, dict[st
 
 def fit_case(frame: pd.DataFrame, task_name: str, model: str, hyper: Mapping[str, Any],
              folds: int, seed: int, skin: AnySkin) -> dict[str, Any]:
-    """One model's grouped cross-validation on one (stressed) frame, warnings counted.
+    """One model's conditions cross-validation on one (stressed) frame, warnings counted.
 
     Runs in a worker process; returns predictions and scores, or the error."""
     from eskin.evaluation.crossval import cross_validate
@@ -175,9 +175,9 @@ def fit_case(frame: pd.DataFrame, task_name: str, model: str, hyper: Mapping[str
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
-            fold_of = assign_folds(frame, KIND, "grouped", folds, seed, skin=skin)
+            fold_of = assign_folds(frame, KIND, "conditions", folds, seed, skin=skin)
             result = cross_validate(task, frame, fold_of,
-                                    build_model(task.role, model, hyper, skin), "grouped", skin,
+                                    build_model(task.role, model, hyper, skin), "conditions", skin,
                                     n_jobs=1)
         except Exception as err:  # every error is an outcome here, judged by the case
             return {"error": f"{type(err).__name__}: {err}", "warnings": _count(caught),
@@ -380,7 +380,7 @@ def stress(params: Any, settings: Any, scene: str, features_path, out_dir, *, sc
                         settings=params.featurize)
         frames[name] = read_dataset(root / "features" / f"{scene}.parquet")
     log(f"stress: {len(frames['default']):,} samples of {len(trials)} trials, "
-        f"{int(settings.folds)}-fold grouped CV")
+        f"{int(settings.folds)}-fold conditions CV")
     rows = run_suite(frames, params, skin, folds=int(settings.folds), seed=int(settings.seed),
                      log=log)
     if int(settings.large_gp_rows) > 0:
@@ -414,7 +414,7 @@ def stress_html(rows: list[Mapping[str, Any]], doc: Mapping[str, Any]) -> str:
             "td,th{border:1px solid #ccc;padding:2px 6px;font-size:90%}</style></head><body>"
             f"<h1>Numerical stress: {doc['scene']}</h1><p>{doc['samples']:,} samples of "
             f"{doc['source']}, {doc['folds']}-fold "
-            f"grouped CV per case and model; tolerances {doc['tolerance']}; "
+            f"conditions CV per case and model; tolerances {doc['tolerance']}; "
             f"{doc['failed']} failed.</p>"
             + pd.DataFrame(body, columns=head).to_html(index=False, escape=True)
             + "<h2>Every run</h2>"

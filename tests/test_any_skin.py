@@ -142,7 +142,7 @@ def run_pipeline(root, scene: str, frame: pd.DataFrame, skin, spec, params) -> d
         {"path": path.as_posix(), "md5": md5_file(root / path)} for path in outs]}}}))
     exported = export_scene(scene, root)
     reported = report.report(
-        report=Report(schemes=["stratified", "grouped"], plots_scheme="stratified", dpi=40,
+        report=Report(schemes=["stratified", "conditions"], plots_scheme="stratified", dpi=40,
                       page_dpi=30),
         scenes={scene: SimpleNamespace(kind="single_force", skin=spec)},
         scores_dir=root / "reports/scores", predictions_dir=root / "reports/predictions",
@@ -168,9 +168,9 @@ def test_a_row_column_skin_of_any_size_goes_from_features_to_the_stack(
     assert scores["force"]["model"] == "physics_profile"  # per axis, on any R × C
     assert "model_note" not in scores["force"]
     assert all(scores[task]["status"] == "trained" for task in TASK_NAMES)
-    assert scores["force"]["grouped"]["force"]["r2"] > 0.8
-    assert min(scores["localise"]["grouped"][t]["accuracy"] for t in ("x", "y")) > 0.8
-    assert "position" not in scores["localise"]["grouped"]  # no mm on a row/column skin
+    assert scores["force"]["conditions"]["force"]["r2"] > 0.8
+    assert min(scores["localise"]["conditions"][t]["accuracy"] for t in ("x", "y")) > 0.8
+    assert "position" not in scores["localise"]["conditions"]  # no mm on a row/column skin
     # the stack reads the skin's terminals, and says which skin it is for
     stack = ExportedStack.from_file(tmp_path / stack_path("lab"))
     assert stack.skin == skin
@@ -183,7 +183,7 @@ def test_a_row_column_skin_of_any_size_goes_from_features_to_the_stack(
     assert f"skin: {rows} × {columns} row/column skin ({rows + columns} terminals)" in results
     panels = pd.read_csv(tmp_path / "reports/plots/confusion/lab_x.csv")["panel"]
     assert set(panels) == {"lab: x terminal"}
-    assert (tmp_path / "reports/figures/lab/localisation_confusion_grouped.png").exists()
+    assert (tmp_path / "reports/figures/lab/localisation_confusion_conditions.png").exists()
 
 
 def test_a_magnetic_channel_array_trains_generic_models_and_scores_in_mm(params, tmp_path):
@@ -201,11 +201,11 @@ def test_a_magnetic_channel_array_trains_generic_models_and_scores_in_mm(params,
     assert len(note) == 1 and "trained hist_gradient_boosting instead" in note[0]
     assert scores["stretch"]["status"] == "skipped"  # one stretch: the reason, as ever
     assert "two or more stretch levels" in scores["stretch"]["reason"]
-    assert scores["force"]["grouped"]["force"]["r2"] > 0.5
-    assert scores["detect"]["grouped"]["contact"]["accuracy"] > 0.8
+    assert scores["force"]["conditions"]["force"]["r2"] > 0.5
+    assert scores["detect"]["conditions"]["contact"]["accuracy"] > 0.8
     # the localisation error in mm, beside accuracy: the mean distance per fold
     oof = pd.read_parquet(tmp_path / task_outputs("magnetic", "localise")["predictions_path"])
-    for scheme in ("stratified", "grouped"):
+    for scheme in ("stratified", "conditions"):
         rows = oof[oof["scheme"] == scheme]
         x_mm, y_mm = np.array(skin.x_mm), np.array(skin.y_mm)
         per_fold = [np.hypot(x_mm[f["x_true"] - 1] - x_mm[f["x_pred"] - 1],

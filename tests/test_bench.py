@@ -187,16 +187,16 @@ def test_variants_go_through_joblib_and_a_parallel_run_scores_the_same(small_dat
     params, frame = small_dataset
     task = get_task("single_force", "stretch")
     variants = {"paper": {"model": "paper"}, "ridge": {"model": "ridge", "alpha": 1.0}}
-    common = dict(skin=PAPER_SKIN, schemes=["grouped"], folds=3, seed=0, evaluate_folds=2,
+    common = dict(skin=PAPER_SKIN, schemes=["conditions"], folds=3, seed=0, evaluate_folds=2,
                   oracle=None, log=lambda _: None)
     one = benchmark.benchmark_task(task, frame, "single_force", variants, n_jobs=1, **common)
     with parallel_backend("threading"):
         two = benchmark.benchmark_task(task, frame, "single_force", variants, n_jobs=2, **common)
     for doc in (one, two):
-        assert list(doc["schemes"]["grouped"]["variants"]) == ["paper", "ridge"]
+        assert list(doc["schemes"]["conditions"]["variants"]) == ["paper", "ridge"]
     for name in variants:
-        assert (one["schemes"]["grouped"]["variants"][name]["scores"]
-                == two["schemes"]["grouped"]["variants"][name]["scores"])
+        assert (one["schemes"]["conditions"]["variants"][name]["scores"]
+                == two["schemes"]["conditions"]["variants"][name]["scores"])
 
 
 # ------------------------------------------------------------ a bound that is a bound
@@ -229,13 +229,13 @@ def test_doubling_the_grid_catches_a_bound_that_has_not_converged(light_and_heav
 
 
 def test_the_strongest_force_model_does_not_beat_the_bound_on_held_out_trials(light_and_heavy):
-    """The benchmark's best force models under grouped CV (gradient boosting on the
+    """The benchmark's best force models under conditions CV (gradient boosting on the
     channels, and on the physics features), against the oracle on the same held-out
     fold: a bound a model beats is no bound."""
     from eskin.evaluation.folds import assign_folds
 
     sim, frame, force = light_and_heavy
-    folds = assign_folds(frame, "single_force", "grouped", 4, seed=0, skin=PAPER_SKIN)
+    folds = assign_folds(frame, "single_force", "conditions", 4, seed=0, skin=PAPER_SKIN)
     train, test = folds != 0, folds == 0
     rows = frame[test].reset_index(drop=True)
     answers = posterior_predictions(rows, sim, [1.0], [0.0, 1.2936, 3.2536, 5.2136])
@@ -295,7 +295,7 @@ def test_the_pair_bound_converges_and_no_strong_model_beats_it(two_contacts):
     from harness import pair_oracle
 
     sim, conditions, frame = two_contacts
-    folds = assign_folds(frame, "two_force", "grouped", 5, seed=0, skin=PAPER_SKIN)
+    folds = assign_folds(frame, "two_force", "conditions", 5, seed=0, skin=PAPER_SKIN)
     train, test = folds != 0, folds == 0
     rows = frame[test].reset_index(drop=True)
     coarse = pair_oracle.posterior_predictions(rows[:12], sim, *conditions,

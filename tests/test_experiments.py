@@ -38,21 +38,21 @@ def task(run_id, minute, seconds, parent, scene, name, digest, **metrics):
 def runs():
     rows = [
         pipeline("P1", 0, "repro 1a2b", "hist_gradient_boosting"),
-        task("a", 1, 2.0, "P1", "single_force", "force", "d1", grouped__force__r2=0.60,
-             grouped__force__r2_std=0.1, stratified__force__r2=0.95, wall_seconds=12.0),
-        task("b", 2, 1.0, "P1", "single_force", "detect", "d1", grouped__contact__accuracy=0.99),
+        task("a", 1, 2.0, "P1", "single_force", "force", "d1", conditions__force__r2=0.60,
+             conditions__force__r2_std=0.1, stratified__force__r2=0.95, wall_seconds=12.0),
+        task("b", 2, 1.0, "P1", "single_force", "detect", "d1", conditions__contact__accuracy=0.99),
         pipeline("P2", 5, "force-rf", "random_forest"),
-        task("c", 6, 30.0, "P2", "single_force", "force", "d1", grouped__force__r2=0.10),
-        task("d", 7, 20.0, "P2", "single_force", "force", "d1", grouped__force__r2=0.58),
+        task("c", 6, 30.0, "P2", "single_force", "force", "d1", conditions__force__r2=0.10),
+        task("d", 7, 20.0, "P2", "single_force", "force", "d1", conditions__force__r2=0.58),
         pipeline("P3", 9, "seed7", "hist_gradient_boosting", seed=7),
-        task("e", 10, 3.0, "P3", "single_force", "force", "d2", grouped__force__r2=0.55),
-        task("f", 11, 0.5, "P3", "two_force", "pairs", "t1", grouped__pair_accuracy=0.76),
+        task("e", 10, 3.0, "P3", "single_force", "force", "d2", conditions__force__r2=0.55),
+        task("f", 11, 0.5, "P3", "two_force", "pairs", "t1", conditions__pair_accuracy=0.76),
     ]
     return pd.DataFrame(rows)
 
 
 def test_compare_keeps_the_latest_run_per_task_and_shows_only_differing_params(runs):
-    table = compare.variant_table(runs, scheme="grouped")
+    table = compare.variant_table(runs, scheme="conditions")
     assert list(table["variant"]) == ["repro 1a2b", "force-rf", "seed7"]
     assert "cv.folds" not in table  # the same everywhere
     assert list(table["train.force.model"]) == [
@@ -79,9 +79,9 @@ def test_compare_shows_a_param_one_variant_has_and_the_other_lacks(monkeypatch):
                      "params.train.force.model.two_force": "active_terminals"})
     every_kind = pipeline("P2", 5, "hgb", "hist_gradient_boosting")
     runs = pd.DataFrame([
-        per_kind, task("a", 1, 2.0, "P1", "single_force", "force", "d1", grouped__force__r2=0.6),
+        per_kind, task("a", 1, 2.0, "P1", "single_force", "force", "d1", conditions__force__r2=0.6),
         every_kind, task("b", 6, 2.0, "P2", "single_force", "force", "d1",
-                         grouped__force__r2=0.5)])
+                         conditions__force__r2=0.5)])
     table = compare.variant_table(runs).set_index("variant")
     model = ["train.force.model", "train.force.model.single_force",
              "train.force.model.two_force"]
@@ -162,6 +162,6 @@ def test_an_empty_store_is_a_clear_error():
 
 
 def test_params_come_back_from_their_mlflow_strings():
-    assert compare.parse_param("['stratified', 'grouped']") == ["stratified", "grouped"]
+    assert compare.parse_param("['stratified', 'conditions']") == ["stratified", "conditions"]
     assert compare.parse_param("10") == 10
     assert compare.parse_param("random_forest") == "random_forest"

@@ -103,15 +103,15 @@ def project(tmp_path_factory, repo_params, repo_bench_params, mlflow_server):
         params = copy.deepcopy(repo_params)
         params["scenes"] = scenes(files / "lab_single.csv", files / "lab_pairs.csv", served.port)
         params["acquire"]["indenters"] = "board"
-        # Grouped CV only: the plumbing, not the paper's scheme, is under test (CI time).
-        params["cv"].update(n_jobs=1, folds=3, schemes=["grouped"])
-        params["report"].update(dpi=60, page_dpi=50, schemes=["grouped"],
-                                plots_scheme="grouped")
+        # Conditions CV only: the plumbing, not the paper's scheme, is under test (CI time).
+        params["cv"].update(n_jobs=1, folds=3, schemes=["conditions"])
+        params["report"].update(dpi=60, page_dpi=50, schemes=["conditions"],
+                                plots_scheme="conditions")
         params["train"]["localise"]["paper"]["n_estimators"] = 20
         params["train"]["force"]["paper"]["subsample"] = 200
-        # make bench, small: every candidate the train section names, one grouped fold.
+        # make bench, small: every candidate the train section names, one conditions fold.
         bench_params = copy.deepcopy(repo_bench_params)
-        bench_params["bench"].update(schemes=["grouped"], evaluate_folds=1,
+        bench_params["bench"].update(schemes=["conditions"], evaluate_folds=1,
                                      scaling_fractions=[0.5, 1.0], tasks={
                                          task: {name: {"model": name, **hyper}
                                                 for name, hyper in settings.items()
@@ -144,12 +144,12 @@ def test_each_scene_trains_what_its_data_supports_and_says_why_it_skips_the_rest
     root, *_ = project
     for task in ("stretch", "force", "detect", "localise"):
         assert scores(root, "lab_single", task)["status"] == "trained", task
-    assert scores(root, "lab_single", "stretch")["grouped"]["stretch"]["r2"] > 0.9
+    assert scores(root, "lab_single", "stretch")["conditions"]["stretch"]["r2"] > 0.9
     assert scores(root, "lab_single", "pairs")["reason"].startswith("a single_force scene")
     pairs = {task: scores(root, "lab_pairs", task) for task in
              ("stretch", "force", "detect", "localise", "pairs")}
     assert pairs["force"]["status"] == "trained"
-    assert set(pairs["force"]["grouped"]) == {"force1", "force2"}
+    assert set(pairs["force"]["conditions"]) == {"force1", "force2"}
     assert pairs["localise"]["status"] == "trained" and pairs["pairs"]["status"] == "scored"
     assert "two or more stretch levels" in pairs["stretch"]["reason"]
     assert "contact and no-contact samples" in pairs["detect"]["reason"]
@@ -177,9 +177,9 @@ def test_the_report_has_a_section_and_figures_per_scene(project):
         page.index('id="scene-board_day1"')  # the order of params.yaml
     figures = {p.relative_to(root / "reports/figures").as_posix()
                for p in (root / "reports/figures").rglob("*.png")}
-    assert {"lab_single/stretch_parity_grouped.png", "lab_single/force_parity_grouped.png",
-            "lab_pairs/force_parity_grouped.png", "board_day1/force_parity_grouped.png",
-            "board_day1/detection_grouped.png"} <= figures
+    assert {"lab_single/stretch_parity_conditions.png", "lab_single/force_parity_conditions.png",
+            "lab_pairs/force_parity_conditions.png", "board_day1/force_parity_conditions.png",
+            "board_day1/detection_conditions.png"} <= figures
     assert not any(f.startswith("board_day1/stretch") for f in figures)
     results = (root / "reports" / "results.md").read_text()
     assert "## board_day1 (single force)" in results
@@ -245,7 +245,7 @@ def test_the_benchmark_runs_per_scene_and_says_where_there_is_no_bayes_bound(ben
                                    "detect": "hist_gradient_boosting", "localise": "logistic"}
     assert 0 < summary["targets"]["cost_on_doubling"]["growth_per_doubling"][0]
     force = json.loads((bench / "lab_pairs/force.json").read_text())
-    assert set(force["schemes"]["grouped"]["variants"]["paper"]["scores"]) == {"force1",
+    assert set(force["schemes"]["conditions"]["variants"]["paper"]["scores"]) == {"force1",
                                                                                "force2"}
     pairs = json.loads((bench / "lab_pairs/summary.json").read_text())
     assert pairs["defaults"]["localise"] == "active_terminals"  # two-force default (train.localise)

@@ -195,7 +195,7 @@ BAD_SCENES = {
     "too few conditions": (lambda d: {"kind": "two_force", "source": "simulated",
                                   "stretches": [1.0], "forces": [1.0], "nodes_x": [1, 6],
                                   "nodes_y": [1], "samples": 4},
-                       "scenes.lab: 1 condition(s), but grouped CV with cv.folds = 10 "
+                       "scenes.lab: 1 condition(s), but conditions CV with cv.folds = 10 "
                        "needs at least 10; add stretches, forces or nodes, or lower cv.folds"),
 }
 

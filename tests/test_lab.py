@@ -52,11 +52,11 @@ def dataset(tmp_path_factory, repo_params):
 def cv_on(backend: str, frame: pd.DataFrame, n_jobs: int = 2,
           model: str = "hist_gradient_boosting"):
     task = get_task("single_force", "force")
-    folds = assign_folds(frame, "single_force", "grouped", 10, 42, skin=PAPER_SKIN)
+    folds = assign_folds(frame, "single_force", "conditions", 10, 42, skin=PAPER_SKIN)
     hyper = {"max_iter": 60} if model == "hist_gradient_boosting" else {"n_estimators": 30}
     estimator = build_model("force", model, {**hyper, "seed": 0})
     with parallel_backend(backend):
-        return cross_validate(task, frame, folds, estimator, "grouped", PAPER_SKIN,
+        return cross_validate(task, frame, folds, estimator, "conditions", PAPER_SKIN,
                               n_jobs=n_jobs)
 
 

@@ -63,15 +63,15 @@ def test_every_stratified_fold_holds_every_node(project):
         assert set(nodes[folds == fold]) == set(range(101)), f"fold {fold} misses a node"
 
 
-def test_grouped_folds_never_put_a_trial_on_both_sides(project):
+def test_conditions_folds_never_put_a_trial_on_both_sides(project):
     frame = features(project)
-    folds = assign_folds(frame, "single_force", "grouped", 10, seed=42, skin=PAPER_SKIN)
+    folds = assign_folds(frame, "single_force", "conditions", 10, seed=42, skin=PAPER_SKIN)
     folds_per_trial = pd.Series(folds).groupby(frame["trial"].to_numpy()).nunique()
     assert folds_per_trial.eq(1).all()
     assert set(folds) == set(range(10))
 
 
-def test_stratified_folds_split_trials_which_is_why_grouped_exists(project):
+def test_stratified_folds_split_trials_which_is_why_conditions_exists(project):
     frame = features(project)
     folds = assign_folds(frame, "single_force", "stratified", 10, seed=42, skin=PAPER_SKIN)
     assert pd.Series(folds).groupby(frame["trial"].to_numpy()).nunique().gt(1).any()
@@ -94,10 +94,10 @@ def test_two_force_strata_are_the_pair_of_nodes(project):
     assert set(pairs[folds == 0]) == set(np.unique(pairs))
 
 
-def test_grouped_cv_with_too_few_conditions_is_a_clear_error(project):
+def test_conditions_cv_with_too_few_conditions_is_a_clear_error(project):
     frame = features(project).iloc[:15]  # three trials
     with pytest.raises(ValueError, match="needs at least 10 conditions; this dataset has 3"):
-        assign_folds(frame, "single_force", "grouped", 10, seed=0, skin=PAPER_SKIN)
+        assign_folds(frame, "single_force", "conditions", 10, seed=0, skin=PAPER_SKIN)
 
 
 # ------------------------------------------------------------------ tasks and labels
@@ -221,7 +221,7 @@ def test_scores_carry_every_score_under_both_schemes_and_metrics_the_headline(pr
                                                                             tmp_path):
     train(project, "single_force", "localise", tmp_path)
     metrics = json.loads((tmp_path / "scores.json").read_text())
-    for scheme in ("stratified", "grouped"):
+    for scheme in ("stratified", "conditions"):
         for axis in ("x", "y"):
             scores = metrics[scheme][axis]
             assert {"accuracy", "balanced_accuracy", "f1_macro", "within_one",
@@ -230,11 +230,11 @@ def test_scores_carry_every_score_under_both_schemes_and_metrics_the_headline(pr
         assert len(metrics["confusion"][scheme]["x"]["counts"]) == 10  # x = 1..10
     assert metrics["dataset_md5"] == md5_file(project[1] / "processed" / "single_force.parquet")
     oof = pd.read_parquet(tmp_path / "oof.parquet")
-    assert set(oof["scheme"]) == {"stratified", "grouped"}
-    # DVC's metrics (the report writes them): the grouped accuracy of each axis, nothing else
+    assert set(oof["scheme"]) == {"stratified", "conditions"}
+    # DVC's metrics (the report writes them): the conditions-CV accuracy of each axis, nothing else
     from eskin.reporting.report import headline_metrics
     assert headline_metrics({"single_force": {"localise": metrics}}) == {"single_force": {
-        "localise": {axis: {"accuracy": metrics["grouped"][axis]["accuracy"]}
+        "localise": {axis: {"accuracy": metrics["conditions"][axis]["accuracy"]}
                      for axis in ("x", "y")}}}
 
 
@@ -254,8 +254,8 @@ def test_two_force_tasks_train(project, tmp_path):
     assert set(scores["stratified"]) == {"x1", "y1", "x2", "y2"}, summary
     train(project, "two_force", "force", tmp_path / "f")
     scores = json.loads((tmp_path / "f" / "scores.json").read_text())
-    assert np.isfinite(scores["grouped"]["force1"]["r2"])
-    assert np.isfinite(scores["grouped"]["force2"]["r2"])
+    assert np.isfinite(scores["conditions"]["force1"]["r2"])
+    assert np.isfinite(scores["conditions"]["force2"]["r2"])
     for task, reason in (("stretch", "two or more stretch levels"),
                          ("detect", "contact and no-contact samples")):
         train(project, "two_force", task, tmp_path / task)
@@ -293,14 +293,14 @@ def test_folds_give_the_same_predictions_on_every_joblib_backend(backend, projec
     """cv.backend: a Dask or Ray cluster would take the folds through the same joblib path."""
     frame, kind = features(project), "single_force"
     task_ = get_task(kind, "force")
-    folds = assign_folds(frame, kind, "grouped", 4, 0, skin=PAPER_SKIN)
+    folds = assign_folds(frame, kind, "conditions", 4, 0, skin=PAPER_SKIN)
     estimator = build_model("force", "hist_gradient_boosting",
                             {"max_iter": 20, "learning_rate": 0.1, "seed": 0})
     with parallel_backend("sequential"):
-        reference = cross_validate(task_, frame, folds, estimator, "grouped", PAPER_SKIN,
+        reference = cross_validate(task_, frame, folds, estimator, "conditions", PAPER_SKIN,
                                    n_jobs=1)
     with parallel_backend(backend):
-        result = cross_validate(task_, frame, folds, estimator, "grouped", PAPER_SKIN,
+        result = cross_validate(task_, frame, folds, estimator, "conditions", PAPER_SKIN,
                                 n_jobs=2)
     pd.testing.assert_frame_equal(result.predictions, reference.predictions)
     assert result.per_fold == reference.per_fold

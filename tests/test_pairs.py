@@ -68,7 +68,7 @@ def test_matching_never_scores_worse_than_the_order_given(cases):
 
 def test_score_pairs_joins_localise_and_force_per_scheme_and_fold():
     rows = []
-    for scheme in ("stratified", "grouped"):
+    for scheme in ("stratified", "conditions"):
         for trial in range(4):
             rows.append({"scheme": scheme, "trial": f"t{trial}", "sample": 0, "fold": trial % 2,
                          **sample(((1, 1), (6, 6)), ((6, 6), (1, 1)) if trial else ((1, 1), (1, 6)),
@@ -78,10 +78,10 @@ def test_score_pairs_joins_localise_and_force_per_scheme_and_fold():
     force = frame[["scheme", "trial", "sample", "force1_true", "force1_pred", "force2_true",
                    "force2_pred"]]
     scores = score_pairs(loc, force)
-    assert set(scores) == {"stratified", "grouped"}
+    assert set(scores) == {"stratified", "conditions"}
     # fold 0: trials 0 (one wrong) and 2 (swapped, right); fold 1: both right.
-    assert scores["grouped"]["pair_accuracy"] == pytest.approx(0.75)
-    assert scores["grouped"]["pair_accuracy_ordered"] == pytest.approx(0.0)
+    assert scores["conditions"]["pair_accuracy"] == pytest.approx(0.75)
+    assert scores["conditions"]["pair_accuracy_ordered"] == pytest.approx(0.0)
     with pytest.raises(ValueError, match="do not cover the same samples"):
         score_pairs(loc, force.iloc[:3])
 

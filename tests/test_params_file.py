@@ -40,7 +40,7 @@ def test_dvc_writes_params_files_back_unchanged(tmp_path, name, override):
 
 @pytest.mark.parametrize("name, override, changed", [
     ("params.yaml", "sim_board.faults.log=faults.txt", 2),
-    ("params.yaml", "cv.schemes.0=grouped", 2),
+    ("params.yaml", "cv.schemes.0=conditions", 2),
     ("params.yaml", "train.localise.model.two_force=extra_trees", 2),
     ("params.yaml", "scenes.two_force.nodes_x=[1,6]", 1),  # one item fewer
     ("bench/params.yaml", "soak.kill_at=[0.33,0.5]", 2),

@@ -61,12 +61,12 @@ def test_dvc_metrics_show_lists_the_headline_metrics(scratch):
     shown = json.loads(run(["dvc", "metrics", "show", "--json"], root, env))
     files = {path: content["data"] for data in shown.values()
              for path, content in data["data"].items() if "data" in content}
-    # One file: the headline only (grouped CV, one score a target; every scheme, spread
+    # One file: the headline only (conditions CV, one score a target; every scheme, spread
     # and confusion count is in reports/scores/), named by scene and task.
     assert list(files) == ["reports/metrics.json"]
     metrics = files["reports/metrics.json"]
     scores = json.loads((root / "reports/scores/single_force/stretch.json").read_text())
-    assert metrics["single_force"]["stretch"] == {"r2": scores["grouped"]["stretch"]["r2"]}
+    assert metrics["single_force"]["stretch"] == {"r2": scores["conditions"]["stretch"]["r2"]}
     assert set(metrics["single_force"]["force"]) == {"r2"}
     assert set(metrics["single_force"]["detect"]["contact"]) == {"accuracy"}
     assert set(metrics["single_force"]["localise"]) == {"x", "y"}
@@ -278,16 +278,16 @@ def test_a_repro_groups_its_task_runs_under_one_pipeline_run(scratch):
     # Artifacts go through the server: predictions and models come back from it.
     run_id = runs[runs["tags.eskin.task"] == "detect"].iloc[0]["run_id"]
     listed = {a.path for a in mlflow.MlflowClient().list_artifacts(run_id, "predictions")}
-    assert listed == {"predictions/oof_stratified.parquet", "predictions/oof_grouped.parquet"}
+    assert listed == {"predictions/oof_stratified.parquet", "predictions/oof_conditions.parquet"}
     # A run's headline metric is the mean over folds, as in the metrics file; the
     # folds are a history of their own.
     logged = mlflow.MlflowClient().get_run(run_id).data.metrics
     written = json.loads((root / "reports" / "metrics.json").read_text())
-    assert logged["grouped.contact.accuracy"] == written["single_force"]["detect"]["contact"][
+    assert logged["conditions.contact.accuracy"] == written["single_force"]["detect"]["contact"][
         "accuracy"]
-    per_fold = mlflow.artifacts.load_dict(f"runs:/{run_id}/scores/per_fold_grouped.json")
+    per_fold = mlflow.artifacts.load_dict(f"runs:/{run_id}/scores/per_fold_conditions.json")
     assert len(per_fold["contact"]) == 3
-    assert "grouped.fold.contact.accuracy" not in logged
+    assert "conditions.fold.contact.accuracy" not in logged
     model = mlflow.sklearn.load_model(f"runs:/{run_id}/detect-contact")
     features = pd.read_parquet(root / "data" / "features" / "single_force.parquet")
     assert set(model.predict(features[PAPER_SKIN.channels].head(50))) <= {False, True}
@@ -299,7 +299,7 @@ def test_a_repro_groups_its_task_runs_under_one_pipeline_run(scratch):
     assert not [k for k in parent.data.params if k.split(".")[0] in ("bench", "stress", "soak",
                                                                       "fuzz")]
     assert parent.data.metrics["single_force.detect.contact.accuracy"] == logged[
-        "grouped.contact.accuracy"]
+        "conditions.contact.accuracy"]
     assert parent.data.tags["eskin.scenes"] == "single_force,two_force"
     assert "eskin.scene" not in parent.data.tags
     # Each task run holds its own figures, and the pipeline run the page (through the server).
@@ -311,7 +311,7 @@ def test_a_repro_groups_its_task_runs_under_one_pipeline_run(scratch):
     assert "index.html" in {a.path for a in client.list_artifacts(parent.info.run_id)}
     # A registered version says what it is: dataset, scores, run.
     version = client.get_model_version("single_force.detect.contact", "1")
-    assert run_id in version.description and "grouped CV: contact accuracy" in \
+    assert run_id in version.description and "conditions CV: contact accuracy" in \
         version.description and "rows" in version.description
 
 
@@ -435,7 +435,7 @@ def test_eskin_promote_gives_the_alias_to_a_whole_stack_and_live_loads_it(scratc
         force = printed["single_force.force"]
         assert force.split()[1] == f"v{rf_force['single_force.force']}"
         assert f"run {rf_runs['force'].info.run_id} (trained here)" in force
-        assert "grouped CV: force r2 " in force
+        assert "conditions CV: force r2 " in force
         assert f"run {repro_runs['stretch'].info.run_id} (reused)" in \
             printed["single_force.stretch"]
         assert len(lines) == len(repro_stack)  # one line per model

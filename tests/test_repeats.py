@@ -1,5 +1,5 @@
 """Repetitions (issue 41): a plan recorded ``repeats`` times, each repetition a new trial of
-the same skin, and the CV schemes named for what they hold out: ``grouped`` whole
+the same skin, and the CV schemes named for what they hold out: ``conditions`` whole
 conditions, ``trials`` new trials of conditions that training has seen."""
 
 import os
@@ -91,13 +91,13 @@ def test_the_trials_scheme_tests_trials_of_conditions_seen_in_training(recorded)
     assert np.array_equal(folds, again)
 
 
-def test_the_grouped_scheme_holds_out_whole_conditions_every_trial_of_them(recorded):
+def test_the_conditions_scheme_holds_out_whole_conditions_every_trial_of_them(recorded):
     _, _, (once, twice) = recorded
-    folds = assign_folds(twice, "single_force", "grouped", 10, 42, skin=PAPER_SKIN)
+    folds = assign_folds(twice, "single_force", "conditions", 10, 42, skin=PAPER_SKIN)
     per_condition = pd.Series(folds).groupby(
         [twice[c].to_numpy() for c in CONDITION]).nunique()
     assert per_condition.eq(1).all(), "a condition's trials on both sides"
-    # With one trial per condition, conditions are trials: grouped CV as before repeats.
+    # With one trial per condition, conditions are trials: conditions CV as before repeats.
     from sklearn.model_selection import StratifiedGroupKFold
 
     from eskin.evaluation.folds import strata
@@ -106,14 +106,14 @@ def test_the_grouped_scheme_holds_out_whole_conditions_every_trial_of_them(recor
         np.zeros(len(once)), strata(once, "single_force", PAPER_SKIN), once["trial"])
     for k, (_, test) in enumerate(splits):
         by_trial[test] = k
-    assert np.array_equal(assign_folds(once, "single_force", "grouped", 5, 42,
+    assert np.array_equal(assign_folds(once, "single_force", "conditions", 5, 42,
                                        skin=PAPER_SKIN), by_trial)
 
 
 def test_a_scene_recorded_once_is_not_scored_under_trials_and_says_why(recorded, tmp_path):
     root, _, (once, twice) = recorded
-    assert applicable_schemes(once, "single_force", ["stratified", "grouped", "trials"]) == [
-        "stratified", "grouped"]
+    assert applicable_schemes(once, "single_force", ["stratified", "conditions", "trials"]) == [
+        "stratified", "conditions"]
     assert applicable_schemes(twice, "single_force", ["trials"]) == ["trials"]
     with pytest.raises(ValueError, match=r"202 of 202 conditions have one trial; record each "
                                          r"at least twice \(scenes.<scene>.repeats: 2\)"):
@@ -124,21 +124,21 @@ def test_a_scene_recorded_once_is_not_scored_under_trials_and_says_why(recorded,
     assert "for stratified CV; not trials: a condition has only one trial" in said
     assert list(pd.read_parquet(tmp_path / "once.parquet").columns) == ["trial", "stratified"]
     said = write_scene_folds(root / "repeats_2" / "single_force.parquet",
-                             tmp_path / "twice.parquet", schemes=["grouped", "trials"],
+                             tmp_path / "twice.parquet", schemes=["conditions", "trials"],
                              n_splits=10, seed=42, scene="single_force")
-    assert said.endswith("for grouped, trials CV")
+    assert said.endswith("for conditions, trials CV")
 
 
 def test_a_recording_whose_trials_span_conditions_holds_out_whole_trials(recorded):
     """An import read by file or by time: labels change within a trial and recur across
-    trials, so no trial is one condition; grouped CV holds its trials out whole."""
+    trials, so no trial is one condition; conditions CV holds its trials out whole."""
     from sklearn.model_selection import StratifiedGroupKFold
 
     from eskin.evaluation.folds import strata
 
     _, _, (once, _) = recorded
     spans = once.assign(trial=[f"file{k // 60:02d}" for k in range(len(once))])
-    folds = assign_folds(spans, "single_force", "grouped", 5, 42, skin=PAPER_SKIN)
+    folds = assign_folds(spans, "single_force", "conditions", 5, 42, skin=PAPER_SKIN)
     assert pd.Series(folds).groupby(spans["trial"].to_numpy()).nunique().eq(1).all()
     by_trial = np.full(len(spans), -1)
     splits = StratifiedGroupKFold(5, shuffle=True, random_state=42).split(

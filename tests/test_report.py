@@ -35,22 +35,22 @@ def fake_outputs(root):
              "model_md5": f"{task:0>32}", **metrics}))
 
     n = 120
-    schemes = np.repeat(["stratified", "grouped"], n // 2)
+    schemes = np.repeat(["stratified", "conditions"], n // 2)
     stretch = rng.choice([1.0, 1.07921, 1.15842], n)
     force = rng.choice([0.0, 1.2936, 3.2536, 5.2136], n)
     node = rng.integers(1, 11, (n, 4))
-    scores = {"stratified": {}, "grouped": {}}
+    scores = {"stratified": {}, "conditions": {}}
 
     def regression(target, values):
         # each scheme its own numbers, so that a figure's score says which scheme it is
         return {s: {target: {"r2": r2, "r2_std": 0.01, "mse": 1e-5, "mse_std": 1e-6,
                              "rmse": 0.1, "rmse_std": 0.01}}
-                for s, r2 in (("stratified", 0.9), ("grouped", 0.8))}
+                for s, r2 in (("stratified", 0.9), ("conditions", 0.8))}
 
     def accuracy(*targets):
         return {s: {t: {"accuracy": value, "accuracy_std": 0.01, "balanced_accuracy": value,
                         "balanced_accuracy_std": 0.01} for t in targets}
-                for s, value in (("stratified", 0.96), ("grouped", 0.93))}
+                for s, value in (("stratified", 0.96), ("conditions", 0.93))}
 
     base = pd.DataFrame({"scheme": schemes, "stretch": stretch, "trial": np.arange(n).astype(str),
                          "sample": 0, "fold": np.arange(n) % 5})
@@ -80,7 +80,7 @@ def fake_outputs(root):
     return root
 
 
-SETTINGS = Report(schemes=["stratified", "grouped"], plots_scheme="stratified", dpi=60,
+SETTINGS = Report(schemes=["stratified", "conditions"], plots_scheme="stratified", dpi=60,
                   page_dpi=50)
 # the report reads each scene's kind and skin only (none: the paper's)
 SCENES = {"single_force": SimpleNamespace(kind="single_force", skin=None),
@@ -109,7 +109,7 @@ def test_every_figure_is_written_as_png_and_svg_per_scheme(built):
     names = {p.relative_to(root / "figures").with_suffix("").as_posix()
              for p in (root / "figures").rglob("*.png")}
     # one naming scheme, <figure>_<scheme>, whatever the scene's kind
-    expected = {f"{scene}/{fid}_{scheme}" for scheme in ("stratified", "grouped")
+    expected = {f"{scene}/{fid}_{scheme}" for scheme in ("stratified", "conditions")
                 for scene, fids in (("single_force", ("stretch_parity", "force_parity",
                                                       "localisation_confusion", "detection")),
                                     ("two_force", ("localisation_confusion", "force_parity")))
@@ -166,9 +166,9 @@ def test_missing_and_skipped_tasks_say_so_in_the_table():
 
 def test_a_scene_scored_under_trials_gets_its_column_and_others_do_not():
     force = {"model": "m", "stratified": {"force": {"r2": 0.9, "r2_std": 0.01}},
-             "grouped": {"force": {"r2": 0.8, "r2_std": 0.02}}}
+             "conditions": {"force": {"r2": 0.8, "r2_std": 0.02}}}
     once = headline_markdown("single_force", {"force": force}).splitlines()[0]
-    assert once == ("| metric | stratified CV (the paper's) | grouped CV (whole conditions out) "
+    assert once == ("| metric | stratified CV (the paper's) | conditions CV (whole conditions out) "
                     "| paper |")
     twice = {"force": {**force, "trials": {"force": {"r2": 0.85, "r2_std": 0.03}}}}
     table = headline_markdown("single_force", twice).splitlines()
@@ -208,9 +208,9 @@ HEADLINE = {("single_force", STRETCH_PARITY): ("stretch", "stretch R² {r2}"),
             ("two_force", LOCALISATION_CONFUSION): ("localise", "accuracy: x1 {acc}, y1 {acc}"),
             ("two_force", FORCE_PARITY): ("force", "R²: force1 {r2}, force2 {r2}")}
 SCORES = {"stratified": {"r2": "0.900 ± 0.010", "acc": "0.960 ± 0.010"},
-          "grouped": {"r2": "0.800 ± 0.010", "acc": "0.930 ± 0.010"}}
+          "conditions": {"r2": "0.800 ± 0.010", "acc": "0.930 ± 0.010"}}
 NOTES = {"stratified": "the paper's: stratified on the node",
-         "grouped": "whole conditions held out"}
+         "conditions": "whole conditions held out"}
 
 
 def svg_metadata(path):
@@ -238,7 +238,7 @@ def test_every_figure_file_says_its_scene_task_scheme_n_and_score(built):
     assert set(SCHEME_NOTES) == set(SCHEMES)  # every scheme says what it holds out
     checked = 0
     for (scene, fid), (task, score) in HEADLINE.items():
-        for scheme in ("stratified", "grouped"):
+        for scheme in ("stratified", "conditions"):
             png = root / "figures" / scene / f"{fid}_{scheme}.png"
             with Image.open(png) as image:
                 title, description = image.text.get("Title", ""), image.text.get("Description", "")
@@ -307,7 +307,7 @@ def test_the_page_has_contents_schemes_side_by_side_and_its_commit_in_the_title(
     assert expected <= set(links), links
     assert len(rows) == 6, rows
     for row_id, shown in rows:
-        assert [s for s, _, _ in shown] == ["stratified", "grouped"], (row_id, shown)
+        assert [s for s, _, _ in shown] == ["stratified", "conditions"], (row_id, shown)
         (_, top1, left1), (_, top2, left2) = shown
         assert top1 == top2 and left2 > left1, (row_id, shown)  # one row, side by side
     assert abs(jumped) < 5, jumped  # the contents' link lands on its figure

@@ -55,9 +55,9 @@ def project(tmp_path_factory, repo_params):
     params = copy.deepcopy(repo_params)
     params["scenes"] = scenes(recording.folder)
     params["ingest"]["bad_rows"] = "quarantine"  # the recording's dropped and stale frames
-    # Grouped CV only, few folds: the skins, not the paper's scheme, are under test.
-    params["cv"].update(n_jobs=1, folds=5, schemes=["grouped"])
-    params["report"].update(dpi=60, page_dpi=50, schemes=["grouped"], plots_scheme="grouped")
+    # Conditions CV only, few folds: the skins, not the paper's scheme, are under test.
+    params["cv"].update(n_jobs=1, folds=5, schemes=["conditions"])
+    params["report"].update(dpi=60, page_dpi=50, schemes=["conditions"], plots_scheme="conditions")
     params["train"]["localise"]["paper"]["n_estimators"] = 20
     params["train"]["force"]["paper"]["subsample"] = 200
     root = base / "project"
@@ -89,7 +89,7 @@ def test_a_simulated_row_column_skin_of_its_size_goes_through_every_stage(projec
     assert localise["status"] == "trained"
     targets = ("x", "y") if scene == "lab8" else ("x1", "y1", "x2", "y2")
     for target in targets:  # far above chance (1 in 8 to 1 in 16 terminals)
-        assert localise["grouped"][target]["accuracy"] > 0.5, (target, localise["grouped"])
+        assert localise["conditions"][target]["accuracy"] > 0.5, (target, localise["conditions"])
     stack = onnx.load(root / "models" / scene / "stack.onnx")
     width = stack.graph.input[0].type.tensor_type.shape.dim[1].dim_value
     assert width == rows + columns
@@ -97,9 +97,9 @@ def test_a_simulated_row_column_skin_of_its_size_goes_through_every_stage(projec
 
 def test_the_one_contact_skin_weighs_and_detects(project):
     root, *_ = project
-    assert scores(root, "lab8", "stretch")["grouped"]["stretch"]["r2"] > 0.9
-    assert scores(root, "lab8", "force")["grouped"]["force"]["r2"] > 0.5
-    assert scores(root, "lab8", "detect")["grouped"]["contact"]["accuracy"] > 0.9
+    assert scores(root, "lab8", "stretch")["conditions"]["stretch"]["r2"] > 0.9
+    assert scores(root, "lab8", "force")["conditions"]["force"]["r2"] > 0.5
+    assert scores(root, "lab8", "detect")["conditions"]["contact"]["accuracy"] > 0.9
 
 
 def test_the_magnetic_recording_is_read_as_written(project):
@@ -115,7 +115,7 @@ def test_the_magnetic_skin_gets_generic_models_and_its_error_in_mm(project):
     root, *_ = project
     force = scores(root, "magnetic", "force")
     assert force["status"] == "trained" and force["model"] != "physics_profile"
-    localise = scores(root, "magnetic", "localise")["grouped"]
+    localise = scores(root, "magnetic", "localise")["conditions"]
     # within one 8 mm pitch on average, and accurate far above chance (1 in 3)
     assert localise["position"]["error_mm"] < 8.0, localise["position"]
     assert localise["x"]["accuracy"] > 0.6 and localise["y"]["accuracy"] > 0.6
@@ -129,7 +129,7 @@ def test_the_magnetic_force_agrees_with_a_plain_baseline_on_the_same_folds(proje
     root, *_ = project
     data = pd.read_parquet(root / "data/processed/magnetic.parquet")
     predictions = pd.read_parquet(root / "reports/predictions/magnetic/force.parquet")
-    predictions = predictions[predictions["scheme"] == "grouped"]
+    predictions = predictions[predictions["scheme"] == "conditions"]
     keys = ["session", "trial", "sample"]
     rows = data.reset_index().merge(predictions[keys + ["fold"]], on=keys)
     ours, plain = [], []
@@ -143,5 +143,5 @@ def test_the_magnetic_force_agrees_with_a_plain_baseline_on_the_same_folds(proje
         ours.append(r2_score(mine["force_true"], mine["force_pred"]))
     spread = max(np.std(ours), np.std(plain))
     assert abs(np.mean(ours) - np.mean(plain)) <= spread, (ours, plain)
-    reported = scores(root, "magnetic", "force")["grouped"]["force"]["r2"]
+    reported = scores(root, "magnetic", "force")["conditions"]["force"]["r2"]
     assert reported == pytest.approx(np.mean(ours), abs=1e-9)

@@ -104,7 +104,7 @@ def pipeline(tmp_path_factory, repo_params):
         {"path": path.as_posix(), "md5": md5_file(root / path)} for path in outs]}}}))
     exported = export_scene("two", root)
     report.report(
-        report=Report(schemes=["stratified", "grouped"], plots_scheme="stratified", dpi=40,
+        report=Report(schemes=["stratified", "conditions"], plots_scheme="stratified", dpi=40,
                       page_dpi=30),
         scenes=params.scenes, scores_dir=root / "reports/scores",
         predictions_dir=root / "reports/predictions", figures_dir=root / "reports/figures",
@@ -131,10 +131,10 @@ def test_the_dataset_and_its_features_are_of_the_total_force_kind(pipeline):
 def test_the_total_force_is_trained_and_scored_as_a_regression(pipeline):
     force = pipeline["scores"]["force"]
     assert force["status"] == "trained" and force["kind"] == "two_force_total"
-    for scheme in ("stratified", "grouped"):
+    for scheme in ("stratified", "conditions"):
         assert set(force[scheme]) == {"force"}
         assert np.isfinite(force[scheme]["force"]["r2"]) and force[scheme]["force"]["rmse"] > 0
-    # grouped CV holds out whole files, each a pair of places never seen in training
+    # conditions CV holds out whole files, each a pair of places never seen in training
     assert force["stratified"]["force"]["r2"] > 0.9
     oof = pd.read_parquet(pipeline["root"] / task_outputs("two", "force")["predictions_path"])
     assert {"force_true", "force_pred"} <= set(oof.columns)
@@ -145,7 +145,7 @@ def test_the_positions_are_trained_and_scored_and_the_rest_skipped_with_reasons(
     scores = pipeline["scores"]
     localise = scores["localise"]
     assert localise["status"] == "trained"
-    for scheme in ("stratified", "grouped"):
+    for scheme in ("stratified", "conditions"):
         assert {"x1", "y1", "x2", "y2", "position1", "position2"} <= set(localise[scheme])
     stratified = localise["stratified"]
     assert min(stratified[t]["accuracy"] for t in ("x1", "y1", "x2", "y2")) > 0.9
@@ -160,7 +160,7 @@ def test_pairs_score_the_positions_and_skip_the_per_contact_forces_with_the_reas
     pairs, paired = pipeline["scores"][PAIRS], pipeline["paired"]
     assert pairs["status"] == "scored"
     assert pairs["skipped_scores"] == {"force": TOTAL_FORCE_ONLY}
-    for scheme in ("stratified", "grouped"):
+    for scheme in ("stratified", "conditions"):
         assert 0 < pairs[scheme]["pair_accuracy"] <= 1
         assert not any(name.startswith("force") for name in pairs[scheme])
     assert pairs["stratified"]["pair_accuracy"] > 0.9
@@ -184,7 +184,7 @@ def test_the_report_gives_the_total_force_and_says_once_why_there_is_no_per_cont
     figures = root / "reports/figures/two"
     assert {p.name for p in figures.glob("*.png")} == {
         f"{figure}_{scheme}.png" for figure in ("force_parity", "localisation_confusion")
-        for scheme in ("stratified", "grouped")}
+        for scheme in ("stratified", "conditions")}
     parity = pd.read_csv(root / "reports/plots/parity/two_force.csv")
     assert list(parity.columns) == ["actual", "predicted", "panel"]
 
@@ -259,11 +259,11 @@ def test_the_schema_takes_the_total_force_labels_and_records_them(tmp_path):
 
 
 def test_pairs_without_per_contact_forces_score_the_positions_only():
-    localise = pd.DataFrame({"scheme": "grouped", "trial": ["a", "b"], "sample": 0,
+    localise = pd.DataFrame({"scheme": "conditions", "trial": ["a", "b"], "sample": 0,
                              "fold": [0, 1], "x1_true": [1, 1], "y1_true": [1, 1],
                              "x2_true": [2, 2], "y2_true": [2, 2], "x1_pred": [2, 1],
                              "y1_pred": [2, 1], "x2_pred": [1, 3], "y2_pred": [1, 3]})
-    scores = score_pairs(localise, None)["grouped"]
+    scores = score_pairs(localise, None)["conditions"]
     assert scores["pair_accuracy"] == 0.5 and scores["pair_accuracy_ordered"] == 0.0
     assert not any(name.startswith("force") for name in scores)
 

@@ -8,7 +8,7 @@ not fit 120 columns (docs/experiments.md says why); the daily loop's view is
 that differ and the headline scores that differ, each dependency's hash left out.
 
 The headline scores are one file, reports/metrics.json (the report stage writes it),
-keyed ``<scene>.<task>.<target>.<score>`` (grouped CV; the target left out where it is
+keyed ``<scene>.<task>.<target>.<score>`` (conditions CV; the target left out where it is
 the task), no entry for a skipped task.
 """
 

@@ -63,7 +63,7 @@ def check_scenes(scenes: Mapping[str, Scene], cv: CV) -> None:
     """What can be wrong with any scene, found before the first acquisition starts (so a
     typo in the last scene does not wait for the first to be recorded): an import file
     missing, unreadable or not in its kind's layout; a plan with fewer trials than the
-    grouped folds; a board's scene on a skin no board reads (a channel array). One line
+    conditions folds; a board's scene on a skin no board reads (a channel array). One line
     naming the scene, the key and the file. (The stage calls it under
     :func:`eskin.config.validating`: checking other scenes is not reading knobs.)"""
     for name, scene in scenes.items():
@@ -78,7 +78,7 @@ def check_scenes(scenes: Mapping[str, Scene], cv: CV) -> None:
             continue
         plan = plan_from_params(name, scene)
         conditions = len(plan.conditions) // plan.repeats
-        if "grouped" in cv.schemes and conditions < int(cv.folds):
-            raise ValueError(f"scenes.{name}: {conditions} condition(s), but grouped CV "
+        if "conditions" in cv.schemes and conditions < int(cv.folds):
+            raise ValueError(f"scenes.{name}: {conditions} condition(s), but conditions CV "
                              f"with cv.folds = {cv.folds} needs at least {cv.folds}; "
                              "add stretches, forces or nodes, or lower cv.folds")

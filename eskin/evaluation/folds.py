@@ -3,7 +3,7 @@
 * ``stratified`` — the paper's ``StratifiedKFold(10, shuffle=True)`` on the
   pressed node (single force) or on the pair of nodes (two forces): every
   fold holds every node in its share.
-* ``grouped`` — whole conditions held out (``StratifiedGroupKFold`` on the same
+* ``conditions`` — whole conditions held out (``StratifiedGroupKFold`` on the same
   strata, grouped by condition: stretch and contacts, every trial of them; a recording
   whose trials each span several conditions, by trial): a trial's
   20 samples are near-duplicates, so a fold that trains on 18 of them and tests on 2
@@ -55,7 +55,7 @@ def conditions(frame: pd.DataFrame, kind: str) -> np.ndarray:
 
 
 def condition_groups(frame: pd.DataFrame, kind: str) -> np.ndarray:
-    """Each row's group under the ``grouped`` scheme: its condition, named by the first of
+    """Each row's group under the ``conditions`` scheme: its condition, named by the first of
     the condition's trials (so with one trial per condition the groups are the trials, and
     the folds those of grouping by trial). A recording whose trials span several
     conditions (an import read by file or by time, its labels changing within a trial)
@@ -118,10 +118,10 @@ def assign_folds(frame: pd.DataFrame, kind: str, scheme: str, n_splits: int,
     if scheme == "trials":
         return _trial_folds(frame, kind, n_splits, seed)
     labels = strata(frame, kind, skin)
-    groups = condition_groups(frame, kind) if scheme == "grouped" else frame["trial"].to_numpy()
+    groups = condition_groups(frame, kind) if scheme == "conditions" else frame["trial"].to_numpy()
     n_groups = len(np.unique(groups))
-    if scheme == "grouped" and n_groups < n_splits:
-        raise ValueError(f"grouped CV with {n_splits} folds needs at least {n_splits} "
+    if scheme == "conditions" and n_groups < n_splits:
+        raise ValueError(f"conditions CV with {n_splits} folds needs at least {n_splits} "
                          f"conditions; this dataset has {n_groups}")
     if scheme == "stratified" and len(frame) < n_splits:
         raise ValueError(f"{n_splits}-fold CV needs at least {n_splits} samples; "

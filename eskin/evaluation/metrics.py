@@ -43,7 +43,7 @@ def localisation(y_true: np.ndarray, y_pred: np.ndarray, score=None) -> dict[str
     y_true = np.asarray(y_true)
     y_pred = np.asarray(y_pred)
     with warnings.catch_warnings():
-        # A grouped fold may hold no sample of a node the model still predicts: the
+        # A conditions fold may hold no sample of a node the model still predicts: the
         # score is then over the nodes present, which is what a fold can measure.
         warnings.filterwarnings("ignore", message="y_pred contains classes not in y_true")
         balanced = balanced_accuracy_score(y_true, y_pred)

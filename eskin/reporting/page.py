@@ -20,7 +20,7 @@ Scenes = list[tuple[str, str, AnySkin, Mapping[str, Mapping]]]
 
 # The headline tables' column of each scheme.
 SCHEME_HEADINGS = {"stratified": "stratified CV (the paper's)",
-                   "grouped": "grouped CV (whole conditions out)",
+                   "conditions": "conditions CV (whole conditions out)",
                    "trials": "trials CV (new trials of seen conditions)"}
 
 
@@ -46,8 +46,8 @@ def score_text(scores: Mapping[str, Mapping], row: Headline, scheme: str) -> str
 
 def scored_schemes(scores: Mapping[str, Mapping]) -> list[str]:
     """The schemes a scene's tasks were scored under, in :data:`SCHEMES`' order: always the
-    paper's and grouped; ``trials`` where the scene's data allowed it (repeats ≥ 2)."""
-    return [s for s in SCHEMES if s in ("stratified", "grouped")
+    paper's and conditions; ``trials`` where the scene's data allowed it (repeats ≥ 2)."""
+    return [s for s in SCHEMES if s in ("stratified", "conditions")
             or any(s in (document or {}) for document in scores.values())]
 
 
@@ -116,7 +116,7 @@ def results_markdown(scenes: Scenes) -> str:
     experiment rewrote it, and a prose edit made `dvc status` report a changed output."""
     parts = ["# Results",
              "Written by the report stage from the scores of this commit "
-             "(`reports/scores/`; `dvc metrics show` has the grouped-CV headline, and "
+             "(`reports/scores/`; `dvc metrics show` has the conditions-CV headline, and "
              "the figures and the model hashes are in `reports/index.html`)."]
     for scene, kind, skin, scores in scenes:
         data = dataset(scores)

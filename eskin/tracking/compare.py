@@ -115,7 +115,7 @@ def differing_params(pipelines: pd.DataFrame) -> list[str]:
     return sorted(c for c in pipelines.columns if c.startswith("params.") and differs(pipelines[c]))
 
 
-def variant_table(runs: pd.DataFrame, scheme: str = "grouped", *,
+def variant_table(runs: pd.DataFrame, scheme: str = "conditions", *,
                   variants: list[str] | None = None, last: int | None = None) -> pd.DataFrame:
     """One row per variant: its name, commit, datasets, the params that differ from
     the other variants shown, each task's headline score under ``scheme``, and the

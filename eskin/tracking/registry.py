@@ -204,7 +204,7 @@ class PromotedModel:
     version: str
     run_id: str        # the run that trained and registered it
     trained: str       # the pipeline's task run: here | elsewhere | reused
-    headline: str      # e.g. "grouped CV: force r2 0.941 ± 0.010"
+    headline: str      # e.g. "conditions CV: force r2 0.941 ± 0.010"
 
 
 @dataclass(frozen=True)
@@ -278,7 +278,7 @@ def render_promotion(promotion: Promotion) -> str:
 
 
 def _headline(metrics: dict[str, float], target: str) -> str:
-    """``grouped CV: force r2 0.941 ± 0.010``: a target's headline score in its run."""
+    """``conditions CV: force r2 0.941 ± 0.010``: a target's headline score in its run."""
     for name in dict.fromkeys(HEADLINE_METRIC.values()):
         key = f"{HEADLINE_SCHEME}.{target}.{name}"
         if key in metrics:

@@ -542,7 +542,7 @@ def _log_trained(client, experiment_id, files, record, variant, common) -> str:
 
 
 def _headline_text(scores: Mapping[str, Any]) -> str:
-    """``grouped CV: force r2 0.941 ± 0.010``: the headline scheme's scores of a task."""
+    """``conditions CV: force r2 0.941 ± 0.010``: the headline scheme's scores of a task."""
     from eskin.catalog import HEADLINE_METRIC, HEADLINE_SCHEME
 
     scheme = scores.get(HEADLINE_SCHEME, {})
