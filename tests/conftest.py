@@ -261,7 +261,7 @@ def resume_and_ingest(root: Path, total: int, before: int):
 
     resumed = eskin(["acquire", "single_force", "--no-progress"], root)
     assert resumed.returncode == 0, resumed.stderr
-    assert f"{total - before} condition(s) acquired, {before} reused" in resumed.stdout
+    assert f"{total - before} trial(s) acquired, {before} reused" in resumed.stdout
     ingested = eskin(["ingest", "single_force"], root)
     assert ingested.returncode == 0, ingested.stderr
     return pd.read_parquet(root / "data" / "processed" / "single_force.parquet")

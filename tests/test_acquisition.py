@@ -51,7 +51,7 @@ def test_small_scene_has_exactly_the_planned_rows_and_labels(clean_run):
     params, summary, frame = clean_run
     plan = plan_from_params("single_force", typed(params).scenes["single_force"])
     assert len(frame) == plan.n_samples == 2 * 2 * 101 * 5
-    assert "404 condition(s) acquired, 0 reused" in summary
+    assert "404 trial(s) acquired, 0 reused" in summary
     assert not frame[["session", "trial", "sample"]].duplicated().any()
     assert frame.groupby("trial").size().eq(5).all()
     assert set(frame["stretch"]) == {1.0, 1.07921}
@@ -94,7 +94,7 @@ def test_a_faulty_link_gives_the_clean_rows_within_5_attempts_per_condition(
     faulty["sim_board"]["faults"].update(drop=0.04, reset=0.02, seed=6)
     assert faulty["acquire"]["max_attempts"] == 5
     summary, frame = acquire_and_ingest(faulty, tmp_path)
-    assert "404 condition(s) acquired" in summary and " 0 board restart(s)" not in summary, \
+    assert "404 trial(s) acquired" in summary and " 0 board restart(s)" not in summary, \
         summary
     assembled = [line for line in (tmp_path / "raw" / "single_force" / "acquisition.log")
                  .read_text().splitlines() if line.startswith("B\t") and "assembled" in line]
@@ -120,14 +120,14 @@ def test_sigkill_midway_then_resume_gives_every_planned_row_once(clean_run, tmp_
 def test_a_grown_plan_acquires_only_the_new_conditions(clean_run, tmp_path):
     params, _, _ = clean_run
     first = acquire_step(params, "single_force", tmp_path, progress=False).summary
-    assert "404 condition(s) acquired" in first
+    assert "404 trial(s) acquired" in first
     grown = copy.deepcopy(params)
     grown["scenes"]["single_force"]["stretches"].append(1.15842)
     second = acquire_step(grown, "single_force", tmp_path, progress=False).summary
-    assert "202 condition(s) acquired, 404 reused of 606" in second
+    assert "202 trial(s) acquired, 404 reused of 606" in second
     before = (tmp_path / "acquisition.log").read_bytes()
     again = acquire_step(grown, "single_force", tmp_path, progress=False).summary
-    assert "0 condition(s) acquired, 606 reused" in again
+    assert "0 trial(s) acquired, 606 reused" in again
     assert (tmp_path / "acquisition.log").read_bytes() == before, "nothing new, nothing written"
 
 
@@ -137,7 +137,7 @@ def test_a_changed_simulator_parameter_reacquires_everything(clean_run, tmp_path
     changed = copy.deepcopy(params)
     changed["sim"]["noise_pf"] = params["sim"]["noise_pf"] * 2
     summary = acquire_step(changed, "single_force", tmp_path, progress=False).summary
-    assert "404 condition(s) acquired, 0 reused" in summary
+    assert "404 trial(s) acquired, 0 reused" in summary
     ingest_step(changed, "single_force", tmp_path, tmp_path / "processed")
     frame = pd.read_parquet(tmp_path / "processed" / "single_force.parquet")
     assert not frame[PAPER_CHANNELS].equals(clean[PAPER_CHANNELS])
@@ -214,7 +214,7 @@ def test_ctrl_c_stops_cleanly_with_everything_received_on_disk(clean_run, tmp_pa
     done = len(contents.completed)
     assert 100 <= done < 404
     resumed = eskin(["acquire", "single_force", "--no-progress"], tmp_path)
-    assert f"{404 - done} condition(s) acquired, {done} reused" in resumed.stdout
+    assert f"{404 - done} trial(s) acquired, {done} reused" in resumed.stdout
     assert eskin(["ingest", "single_force"], tmp_path).returncode == 0
     frame = pd.read_parquet(tmp_path / "data" / "processed" / "single_force.parquet")
     pd.testing.assert_frame_equal(frame[CONTENT + ["session"]], clean[CONTENT + ["session"]])

@@ -65,7 +65,7 @@ def test_damaged_log_stops_ingest_or_goes_to_quarantine(tmp_path, small_params):
     with pytest.raises(DatasetError, match="1 of 404 planned conditions"):
         ingest_step(lenient, "single_force", tmp_path, tmp_path / "out")
     summary = acquire_step(lenient, "single_force", tmp_path, progress=False).summary
-    assert "1 condition(s) acquired, 403 reused" in summary
+    assert "1 trial(s) acquired, 403 reused" in summary
     message = ingest_step(lenient, "single_force", tmp_path, tmp_path / "out").summary
     assert "2020 rows" in message and "1 row(s) quarantined" in message
     assert "does not verify" in (tmp_path / "out" / "single_force.quarantine.csv").read_text()

@@ -44,9 +44,9 @@ def recorded(tmp_path_factory, repo_params):
 
 def test_repeats_record_the_whole_plan_again_as_new_trials(recorded):
     root, (once_summary, twice_summary), (once, twice) = recorded
-    assert f"{TRIALS} condition(s) acquired, 0 reused of {TRIALS}" in once_summary
+    assert f"{TRIALS} trial(s) acquired, 0 reused of {TRIALS}" in once_summary
     # Growing the plan to two repetitions records only the second.
-    assert f"{TRIALS} condition(s) acquired, {TRIALS} reused of {2 * TRIALS}" in twice_summary
+    assert f"{TRIALS} trial(s) acquired, {TRIALS} reused of {2 * TRIALS}" in twice_summary
     assert len(twice) == 2 * TRIALS * 3
     first = twice.iloc[:len(once)].reset_index(drop=True)
     pd.testing.assert_frame_equal(first[CONTENT], once[CONTENT])  # the first is the plan's

@@ -63,7 +63,7 @@ class AcquisitionReport:
     frames_stored: int
     frames_rejected: int
     seconds: float
-    resets: int = 0        # the board restarted mid-condition
+    resets: int = 0        # the board restarted mid-trial
     reconnects: int = 0    # the link failed and was reopened
 
     @property
@@ -71,9 +71,9 @@ class AcquisitionReport:
         return self.frames_stored / self.seconds if self.seconds > 0 else 0.0
 
     def summary(self) -> str:
-        return (f"{self.scene}: {self.acquired} condition(s) acquired, {self.reused} reused "
+        return (f"{self.scene}: {self.acquired} trial(s) acquired, {self.reused} reused "
                 f"of {self.conditions}; {self.frames_stored} frames stored, "
-                f"{self.frames_rejected} rejected, {self.retries} retried condition(s), "
+                f"{self.frames_rejected} rejected, {self.retries} retried trial(s), "
                 f"{self.resets} board restart(s), {self.reconnects} reconnect(s); "
                 f"{self.seconds:.1f} s ({self.frames_per_s:.0f} frames/s over {self.port})")
 

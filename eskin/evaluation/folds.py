@@ -54,6 +54,13 @@ def conditions(frame: pd.DataFrame, kind: str) -> np.ndarray:
     return frame.groupby(get_kind(kind).labels, sort=False, dropna=False).ngroup().to_numpy()
 
 
+def trial_conditions(frame: pd.DataFrame, kind: str) -> pd.DataFrame:
+    """Each (trial, condition) pair of ``frame`` once, in the order first met: a trial of
+    a planned scene is one condition, a trial of a recording read by file may be several."""
+    return pd.DataFrame({"trial": frame["trial"].to_numpy(),
+                         "condition": conditions(frame, kind)}).drop_duplicates()
+
+
 def condition_groups(frame: pd.DataFrame, kind: str) -> np.ndarray:
     """Each row's group under the ``conditions`` scheme: its condition, named by the first of
     the condition's trials (so with one trial per condition the groups are the trials, and
@@ -61,18 +68,15 @@ def condition_groups(frame: pd.DataFrame, kind: str) -> np.ndarray:
     conditions (an import read by file or by time, its labels changing within a trial)
     has no condition to a trial: its trials are the groups, held out whole."""
     trial = frame["trial"].reset_index(drop=True)
-    condition = conditions(frame, kind)
-    pairs = pd.DataFrame({"trial": trial, "condition": condition}).drop_duplicates()
-    if pairs["trial"].duplicated().any():
+    if trial_conditions(frame, kind)["trial"].duplicated().any():
         return trial.to_numpy()
-    return trial.groupby(condition).transform("min").to_numpy()
+    return trial.groupby(conditions(frame, kind)).transform("min").to_numpy()
 
 
 def _trial_folds(frame: pd.DataFrame, kind: str, n_splits: int, seed: int) -> np.ndarray:
     """The ``trials`` scheme: each condition's trials dealt to distinct folds in turn, from
     a seeded fold, in a seeded order; so no fold holds every trial of a condition."""
-    table = pd.DataFrame({"trial": frame["trial"].to_numpy(),
-                          "condition": conditions(frame, kind)}).drop_duplicates()
+    table = trial_conditions(frame, kind)
     mixed = table["trial"].duplicated(keep=False)
     if mixed.any():
         raise ValueError(f"trials CV: trial {table['trial'][mixed].iloc[0]} holds several "
@@ -96,8 +100,7 @@ def _trial_folds(frame: pd.DataFrame, kind: str, n_splits: int, seed: int) -> np
 def repeated_conditions(frame: pd.DataFrame, kind: str) -> bool:
     """Whether every trial of ``frame`` is one condition and every condition has two trials
     or more: what the ``trials`` scheme needs."""
-    table = pd.DataFrame({"trial": frame["trial"].to_numpy(),
-                          "condition": conditions(frame, kind)}).drop_duplicates()
+    table = trial_conditions(frame, kind)
     return (bool(len(table)) and not table["trial"].duplicated().any()
             and int(table.groupby("condition").size().min()) >= 2)
 
