@@ -83,6 +83,7 @@ NonNegative = _real(ge=0)
 Count = Annotated[int, Field(ge=1)]
 Seed = Annotated[int, Field(ge=0)]
 Scheme = Literal[SCHEMES]  # type: ignore[valid-type]
+TaskName = Literal[TASK_NAMES]  # type: ignore[valid-type]
 Backend = Literal["loky", "threading", "sequential", "dask"]
 Jobs = Annotated[int, Field(ge=-1)]
 
@@ -593,6 +594,8 @@ class LearningCurve(_Section):
     repeats: Annotated[list[Count], Field(min_length=1)]  # trials per condition trained on
     placement_s: NonNegative    # an operator's time to place one trial's weights
     frames_per_s: Positive      # the board's frame rate (the firmware's, measured)
+    gap_share: Annotated[float, Field(gt=0, lt=1)] = 0.8  # of the paper→bound gap, to close
+    gap_tasks: list[TaskName] = []   # the tasks whose recommended repeats are checked
 
     @field_validator("repeats")
     @classmethod

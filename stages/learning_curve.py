@@ -15,6 +15,7 @@ def main(scene: str) -> str:
     settings = load_params(BENCH_PARAMS, BenchParams).learning_curve
     document = learning_curve.learning_curve(
         scene, params, list(settings.repeats), bound_path=bayes_bound_path(scene),
+        gap_share=settings.gap_share, gap_tasks=tuple(settings.gap_tasks),
         log=lambda line: print(line, file=sys.stderr, flush=True))
     text = learning_curve.render(document, settings)
     learning_curve.write(document, text, learning_curve_path(scene).parent)

@@ -10,6 +10,10 @@ import pandas as pd
 import pytest
 from conftest import acquire_step, eskin, ingest_step, small_scenes, typed, write_params
 
+from eskin.evaluation.crossval import cross_validate
+from eskin.evaluation.folds import assign_folds
+from eskin.learning.estimators import build_model
+from eskin.learning.tasks import get_task
 from eskin.skin import PAPER_SKIN
 from eskin.tracking import planning
 from harness import benchmark, learning_curve
@@ -23,6 +27,7 @@ def small(repo_params) -> dict:
     params = small_scenes(repo_params)
     # A light force too: with 0 and 3.25 N only, the bound knows every force (R² 1.0).
     params["scenes"][SCENE].update(stretches=[1.0], forces=[0.0, 1.2936, 3.2536], samples=3)
+    params["cv"]["folds"] = 3  # the gap check's conditions CV: 3 trials a node
     return params
 
 
@@ -50,6 +55,7 @@ def curves(project):
         patch.chdir(root)
         return learning_curve.learning_curve(SCENE, typed(params), [1, 2, 4], bound_path=bound,
                                              tasks=("force", "detect", "stretch"),
+                                             gap_share=0.5, gap_tasks=("force",),
                                              log=lambda _: None)
 
 
@@ -75,6 +81,37 @@ def test_no_point_of_the_curve_beats_the_bayes_bound(curves):
         bound = entry["bound"]["headline"]
         best = max(p["headline"] for p in entry["points"])
         assert best <= bound + 0.002, (name, best, bound)  # 0.002: one held-out set's noise
+
+
+def test_the_gap_check_scores_the_recommended_scene_under_trials_cv(curves):
+    check = curves["gap_check"]["tasks"]["force"]
+    r = check["recommended_repeats"]
+    assert r == planning.repeats_for(curves["tasks"]["force"]["fit"], 1 - check["target"])
+    # the target: half the way from the paper's model to the bound
+    assert check["target"] == pytest.approx(
+        check["paper_conditions"] + 0.5 * (check["bound"] - check["paper_conditions"]))
+    assert check["scene_repeats"] == r + 1 and check["rows"] == 303 * 3 * (r + 1)
+    model = check["scores"]["pipeline"]["first_trials"]
+    assert check["gap_closed"] == pytest.approx(
+        (model - check["paper_conditions"]) / (check["bound"] - check["paper_conditions"]))
+    assert model <= check["bound"] + 0.01
+
+
+def test_scores_on_a_subset_of_rows_are_the_cv_scores_on_every_row(project):
+    root, params, _ = project
+    frame = pd.read_parquet(root / "data" / "processed" / f"{SCENE}.parquet")
+    task = get_task("single_force", "force")
+    folds = assign_folds(frame, "single_force", "stratified", 3, 0, skin=PAPER_SKIN)
+    result = cross_validate(task, frame, folds, build_model(task.role, "hist_gradient_boosting",
+                                                           {"max_iter": 20}), "stratified",
+                            PAPER_SKIN)
+    every = np.ones(len(frame), dtype=bool)
+    assert learning_curve._scored_on(task, frame, result, folds, every) == pytest.approx(
+        task.headline(result.summary))
+    # on part of the rows, the scores of those rows alone
+    part = frame["trial"].rank(method="dense").to_numpy() % 2 == 0
+    assert learning_curve._scored_on(task, frame, result, folds, part) != pytest.approx(
+        task.headline(result.summary))
 
 
 def test_the_planner_says_impossible_where_the_bound_forbids_it(curves):

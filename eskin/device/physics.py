@@ -17,8 +17,8 @@ and columns from the :class:`~eskin.skin.Skin` it is built for (the scene's; the
   seats it fully, F_seat (``seating_force_n``). The share of the footprint
   pressing is min(1, (F/F_seat)^⅔), so light loads give less signal, and
   F_seat varies from trial to trial with the tilt (lognormal, SD
-  ``seating_variation``): light weights read imprecisely, seated heavy ones
-  precisely (the paper's Fig. 6). The strain spreads over neighbouring nodes
+  ``seating_variation``): a light weight's error is a large share of its force,
+  a seated heavy one's a smaller share (the paper's Fig. 6). The strain spreads over neighbouring nodes
   with a compact kernel that reaches ``reach_nodes`` nodes
   each way and no further. A node's capacitance grows as 1/(1 − ε); a
   terminal strip sums its nodes.
