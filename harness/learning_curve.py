@@ -220,8 +220,8 @@ def gap_check(frame: pd.DataFrame, rep: np.ndarray, params: Params, document: di
 
 
 def _featurized(frame: pd.DataFrame, params: Params, kind: str, skin) -> pd.DataFrame:
-    """``frame`` with the pipeline's features, fitted on all of it (the method reads no
-    label: ``raw`` and ``standardise`` are per channel)."""
+    """``frame`` with the pipeline's features, fitted on all of it, as the featurize stage
+    fits them on the whole dataset before any fold is drawn."""
     return featurize(frame, fit_featurizer(params.featurize.method, frame, kind, skin), skin)
 
 
