@@ -244,10 +244,12 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="instead: the exact GP beside the paper's subsampled one on the "
                              "pipeline's single-force dataset, over this many of its folds")
     args = parser.parse_args(argv)
-    if args.exact_gp:
-        exact_beside_subsampled("single_force", args.exact_gp)
-        return 0
     params = load_params(args.params)
+    if args.exact_gp:
+        # the first one-contact scene, as scores() takes it
+        exact_beside_subsampled(next(name for name, scene in params.scenes.items()
+                                     if scene.kind == ONE_CONTACT.name), args.exact_gp)
+        return 0
     sim = skin_params(params.sim)
     scenes = params.scenes
     print("targets: " + "; ".join(f"{name} {paper} ± {tol} ({'fitted' if fitted else 'predicted'})"
