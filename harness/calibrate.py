@@ -193,10 +193,12 @@ def fit(base: SkinParams, scenes: Mapping[str, Any], log=print) -> SkinParams:
     return best
 
 
-def exact_beside_subsampled(scene: str, evaluate_folds: int, log=print) -> dict[str, Any]:
+def exact_beside_subsampled(scene: str, cv: Any, evaluate_folds: int,
+                            log=print) -> dict[str, Any]:
     """The paper's force GP (exact, fitted on a 2,000-sample subsample) beside the exact GP
     on every training sample (its kernel fitted on a subsample), on the pipeline's dataset
-    of ``scene`` and the first ``evaluate_folds`` folds of its split, stratified (the
+    of ``scene`` and the first ``evaluate_folds`` folds of its split (``cv``, the params'
+    ``cv`` section), stratified (the
     paper's scheme) and conditions, with the bench's bound and variants
     (bench/params.yaml ``bench.tasks.force``: ``paper``, ``exact_gp``)."""
     import json
@@ -206,7 +208,6 @@ def exact_beside_subsampled(scene: str, evaluate_folds: int, log=print) -> dict[
     from eskin.config import BENCH_PARAMS, BenchParams, load_params
     from harness.benchmark import bench
 
-    params = load_params()
     settings = load_params(BENCH_PARAMS, BenchParams).bench
     variants = {name: settings.tasks["force"][name] for name in ("paper", "exact_gp")}
     settings = settings.model_copy(update={
@@ -214,7 +215,7 @@ def exact_beside_subsampled(scene: str, evaluate_folds: int, log=print) -> dict[
         "tasks": {"force": variants}})
     with tempfile.TemporaryDirectory() as out:
         bench(scene, "force", features_path(scene), bayes_bound_path(scene), Path(out),
-              bench=settings, cv=params.cv, log=log)
+              bench=settings, cv=cv, log=log)
         doc = json.loads((Path(out) / "force.json").read_text())
     table = {scheme: {name: {"r2": run["scores"]["force"]["r2"],
                              "r2_std": run["scores"]["force"]["r2_std"],
@@ -248,7 +249,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.exact_gp:
         # the first one-contact scene, as scores() takes it
         exact_beside_subsampled(next(name for name, scene in params.scenes.items()
-                                     if scene.kind == ONE_CONTACT.name), args.exact_gp)
+                                     if scene.kind == ONE_CONTACT.name),
+                                params.cv, args.exact_gp)
         return 0
     sim = skin_params(params.sim)
     scenes = params.scenes

@@ -128,12 +128,14 @@ def _means(summary: Mapping[str, Mapping[str, float]]) -> dict[str, dict[str, fl
             for target, values in summary.items()}
 
 
-def _model(task: Task, params: Params, configuration: str, the_kind, skin):
-    """(model name, estimator) the pipeline trains for ``task`` under ``configuration``."""
+def _model(task: Task, params: Params, configuration: str, the_kind,
+           skin) -> tuple[str, dict[str, Any]]:
+    """(model name, hyperparameters) the pipeline trains for ``task`` under
+    ``configuration`` (``train.configuration``, or ``paper``)."""
     task_params = getattr(params.train, task.name)
     name, hyper, _ = model_for_skin(
         task_params, *model_settings(task_params, configuration, the_kind.scene_kind), skin)
-    return name, build_model(task.role, name, hyper, skin)
+    return name, hyper
 
 
 def _scored_on(task: Task, frame: pd.DataFrame, result, fold_of: np.ndarray,
@@ -164,8 +166,10 @@ def gap_check(frame: pd.DataFrame, rep: np.ndarray, params: Params, document: di
     from eskin.evaluation.folds import assign_folds
 
     kind, seed = the_kind.name, int(params.cv.seed)
-    first = rep == 0
-    held_out = frame[first].reset_index(drop=True)
+    held_out = frame[rep == 0].reset_index(drop=True)
+    held_out_features = _featurized(held_out, params, kind, skin)
+    on_dataset = assign_folds(held_out, kind, "conditions", folds, seed, skin=skin)
+    scenes: dict[int, tuple[pd.DataFrame, pd.DataFrame, np.ndarray]] = {}  # by r, once
     out: dict[str, Any] = {"share": share, "folds": folds, "tasks": {}}
     for task_name in tasks:
         entry = document["tasks"].get(task_name, {})
@@ -174,11 +178,10 @@ def gap_check(frame: pd.DataFrame, rep: np.ndarray, params: Params, document: di
         if entry.get("fit") is None or bound is None:
             out["tasks"][task_name] = {"skipped": "no fitted curve or no bound"}
             continue
-        paper_name, paper = _model(task, params, "paper", the_kind, skin)
-        featurized = _featurized(held_out, params, kind, skin)
-        on_dataset = assign_folds(held_out, kind, "conditions", folds, seed, skin=skin)
-        paper_error = 1.0 - task.headline(
-            cross_validate(task, featurized, on_dataset, paper, "conditions", skin).summary)
+        paper_name, paper_hyper = _model(task, params, "paper", the_kind, skin)
+        paper_error = 1.0 - task.headline(cross_validate(
+            task, held_out_features, on_dataset,
+            build_model(task.role, paper_name, paper_hyper, skin), "conditions", skin).summary)
         target_error = paper_error - share * (paper_error - (1.0 - bound))
         r = repeats_for(entry["fit"], target_error)
         check: dict[str, Any] = {"paper_model": paper_name, "paper_conditions": 1 - paper_error,
@@ -192,18 +195,20 @@ def gap_check(frame: pd.DataFrame, rep: np.ndarray, params: Params, document: di
             check["skipped"] = "the curve does not reach it within the recorded trials"
             out["tasks"][task_name] = check
             continue
-        scene_rows = rep <= r
-        scene = frame[scene_rows].reset_index(drop=True)
-        fold_of = assign_folds(scene, kind, "trials", folds, seed, skin=skin)
-        scene_features = _featurized(scene, params, kind, skin)
+        if r not in scenes:
+            scene = frame[rep <= r].reset_index(drop=True)
+            scenes[r] = (scene, _featurized(scene, params, kind, skin),
+                         assign_folds(scene, kind, "trials", folds, seed, skin=skin))
+        scene, scene_features, fold_of = scenes[r]
         scored = {}
         for label, configuration in (("pipeline", params.train.configuration),
                                      ("paper", "paper")):
-            name, estimator = _model(task, params, configuration, the_kind, skin)
-            result = cross_validate(task, scene_features, fold_of, estimator, "trials", skin)
+            name, hyper = _model(task, params, configuration, the_kind, skin)
+            result = cross_validate(task, scene_features, fold_of,
+                                    build_model(task.role, name, hyper, skin), "trials", skin)
             scored[label] = {"model": name, "all_rows": task.headline(result.summary),
                              "first_trials": _scored_on(task, scene, result, fold_of,
-                                                        rep[scene_rows] == 0)}
+                                                        rep[rep <= r] == 0)}
         model_error = 1.0 - scored["pipeline"]["first_trials"]
         same_folds_paper = 1.0 - scored["paper"]["first_trials"]
         check.update({
@@ -269,10 +274,7 @@ def learning_curve(scene: str, params: Params, repeats: list[int], *,
             document["tasks"][task_name] = {"skipped": reason}
             log(f"{scene}/{task_name}: skipped — {reason}")
             continue
-        task_params = getattr(params.train, task_name)
-        model_name, hyper, _ = model_for_skin(
-            task_params, *model_settings(task_params, params.train.configuration,
-                                         the_kind.scene_kind), skin)
+        model_name, hyper = _model(task, params, params.train.configuration, the_kind, skin)
         points = []
         for r in usable:
             train = frame[(rep >= 1) & (rep <= r)].reset_index(drop=True)
