@@ -157,7 +157,7 @@ def _scored_on(task: Task, frame: pd.DataFrame, result, fold_of: np.ndarray,
 def gap_check(frame: pd.DataFrame, rep: np.ndarray, params: Params, document: dict, *,
               tasks: tuple[str, ...], share: float, folds: int, skin, the_kind,
               log: Callable[[str], None] = print) -> dict[str, Any]:
-    """Issue 41's acceptance, per task: the repetitions the fitted curve says close
+    """Issue 41's acceptance, per task: the repetitions the planner says close
     ``share`` of the gap between the paper's model (``conditions`` CV on the dataset: one
     trial per condition, the paper's protocol) and the bound; then the scene recorded that
     many times plus the held-out one, under ``trials`` CV with ``folds`` folds, the
@@ -183,7 +183,7 @@ def gap_check(frame: pd.DataFrame, rep: np.ndarray, params: Params, document: di
             task, held_out_features, on_dataset,
             build_model(task.role, paper_name, paper_hyper, skin), "conditions", skin).summary)
         target_error = paper_error - share * (paper_error - (1.0 - bound))
-        r = repeats_for(entry["fit"], target_error)
+        r = repeats_for(entry["fit"], target_error, entry["points"])
         check: dict[str, Any] = {"paper_model": paper_name, "paper_conditions": 1 - paper_error,
                                  "bound": bound, "target": 1.0 - target_error,
                                  "recommended_repeats": r}
@@ -352,8 +352,9 @@ def render_gap_check(document: Mapping[str, Any], settings: Any) -> list[str]:
               + document["placed_conditions"] * float(settings.placement_s))
     lines = [f"## {check['share']:.0%} of the paper→bound gap, under trials CV", "",
              f"The paper's model under conditions CV on the dataset (one trial per condition, "
-             f"the paper's protocol) and the bound set the gap; the fitted curve gives the "
-             f"trials per condition to train on that close {check['share']:.0%} of it. The "
+             f"the paper's protocol) and the bound set the gap; the planner gives the trials "
+             f"per condition to train on that close {check['share']:.0%} of it (the fitted "
+             f"curve's count, past any measured point that falls short). The "
              f"scene recorded that many times plus once (the held-out first trials) is then "
              f"scored under trials CV, {check['folds']} folds, on its first trials (the rows "
              f"the bound answers), the paper's model on the same folds beside it.", "",

@@ -86,7 +86,8 @@ def test_no_point_of_the_curve_beats_the_bayes_bound(curves):
 def test_the_gap_check_scores_the_recommended_scene_under_trials_cv(curves):
     check = curves["gap_check"]["tasks"]["force"]
     r = check["recommended_repeats"]
-    assert r == planning.repeats_for(curves["tasks"]["force"]["fit"], 1 - check["target"])
+    assert r == planning.repeats_for(curves["tasks"]["force"]["fit"], 1 - check["target"],
+                                    curves["tasks"]["force"]["points"])
     # the target: half the way from the paper's model to the bound
     assert check["target"] == pytest.approx(
         check["paper_conditions"] + 0.5 * (check["bound"] - check["paper_conditions"]))
@@ -157,6 +158,19 @@ def test_the_fit_recovers_a_known_curve_and_the_planner_reads_it():
     with pytest.raises(ValueError, match="unknown target 'force_mae' for scene s; one of: "
                                          "force_r2"):
         planning.plan(document, "force_mae", 0.3, COSTS)
+
+
+def test_a_measured_point_that_misses_the_target_outranks_the_fit():
+    """The fit says two trials; the point measured at two fell short: the plan is the next
+    count the fit says reaches the target past it (two-contact force, issue 41)."""
+    document = synthetic()
+    force = document["tasks"]["force"]
+    assert planning.plan(document, "force_r2", 0.948, COSTS)["repeats"] == 2
+    force["points"][1]["headline"] = 0.947  # measured at 2: short of 0.948
+    answer = planning.plan(document, "force_r2", 0.948, COSTS)
+    assert answer["verdict"] == "possible" and answer["repeats"] == 3
+    force["points"][2]["headline"] = 0.947  # and at 3: past it, the fit's next count
+    assert planning.plan(document, "force_r2", 0.948, COSTS)["repeats"] == 4
 
 
 def test_eskin_plan_answers_from_the_benchs_curves_and_refuses_bad_targets(project, curves):
