@@ -220,6 +220,29 @@ def test_ctrl_c_stops_cleanly_with_everything_received_on_disk(clean_run, tmp_pa
     pd.testing.assert_frame_equal(frame[CONTENT + ["session"]], clean[CONTENT + ["session"]])
 
 
+def test_ctrl_c_between_a_conditions_frames_and_its_end_closes_the_attempt(
+        small_params, tmp_path, monkeypatch):
+    """The window the signal test can hit by chance: every frame of a condition is in the
+    log, its end record not yet. The attempt is marked interrupted, never left open."""
+    import eskin.acquisition.runner as runner
+
+    checks = []
+
+    def interrupted_on_the_third(frames, max_jump_counts):
+        checks.append(len(frames))
+        if len(checks) == 3:
+            raise KeyboardInterrupt
+        return None
+
+    monkeypatch.setattr(runner, "digits_lost", interrupted_on_the_third)
+    with pytest.raises(KeyboardInterrupt):
+        acquire_step(small_params, "single_force", tmp_path, progress=False)
+    lines = (tmp_path / "acquisition.log").read_text().splitlines()
+    assert lines[-1] == "X\t3\tinterrupted", lines[-3:]
+    assert lines[-2].startswith("F\t3\t")
+    assert len(read_log(tmp_path / "acquisition.log").completed) == 2
+
+
 SIZES = {  # scene → (skin, its plan's changes): small plans, so that each runs in seconds
     "single_force": ({"rows": 8, "columns": 8},
                      {"stretches": [1.0], "forces": [0.0, 3.2536], "samples": 2}),

@@ -184,6 +184,7 @@ class RawLogWriter:
         self.attempt = contents.attempts if contents else 0
         self._session: dict | None = session  # written with the first attempt
         self._file = None  # opened at the first attempt: a session that records nothing
+        self.open_attempt: int | None = None  # begun, neither ended nor abandoned yet
 
     def _open(self):
         """The file, for append, valid from its first byte."""
@@ -207,6 +208,7 @@ class RawLogWriter:
             self._session = None
         self.attempt += 1
         self._write("B", self.attempt, json.dumps(condition, sort_keys=True))
+        self.open_attempt = self.attempt
         return self.attempt
 
     def frames(self, attempt: int, frames: list[Frame]) -> None:
@@ -220,6 +222,7 @@ class RawLogWriter:
 
     def end(self, attempt: int, n_frames: int) -> None:
         self._write("E", attempt, n_frames)
+        self.open_attempt = None
         self.flush()
 
     def assemble(self, condition: dict, frames: list[Frame], attempts: list[int]) -> int:
@@ -232,6 +235,7 @@ class RawLogWriter:
 
     def abandon(self, attempt: int, reason: str) -> None:
         self._write("X", attempt, _ascii_field(reason))
+        self.open_attempt = None
         self.flush()
 
     def flush(self) -> None:

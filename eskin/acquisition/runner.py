@@ -24,7 +24,8 @@ from __future__ import annotations
 import logging
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -200,7 +201,7 @@ def acquire(plan: ScenePlan, link: SerialLink, writer: RawLogWriter, placer: Pla
                disable=not progress, leave=False)
     say = notify or (lambda message: tqdm.write(f"acquire {plan.name}: {message}",
                                                 file=sys.stderr))
-    with bar:
+    with bar, _closed_on_the_way_out(writer):
         for condition in plan.conditions:
             key = condition.key(hello.device_id, hello.firmware)
             if completed.get(key, 0) >= plan.samples:
@@ -266,9 +267,6 @@ def acquire(plan: ScenePlan, link: SerialLink, writer: RawLogWriter, placer: Pla
                         raise AcquisitionError(
                             f"{plan.name}: {lost}. Everything received is in {writer.path}; "
                             "rerun to resume.") from lost
-                except BaseException:  # Ctrl-C, or a bug: the attempt is closed, then stop
-                    _close(writer, attempt, "interrupted")
-                    raise
                 if cut_short:
                     interruptions += 1
                 else:
@@ -309,6 +307,18 @@ def acquire(plan: ScenePlan, link: SerialLink, writer: RawLogWriter, placer: Pla
             bar.update()
     report.seconds = time.monotonic() - started
     return report
+
+
+@contextmanager
+def _closed_on_the_way_out(writer: RawLogWriter) -> Iterator[None]:
+    """Ctrl-C, or a bug, wherever it lands (in a batch, or between a condition's last
+    frames and its end record): the attempt left open is marked abandoned, then stop."""
+    try:
+        yield
+    except BaseException:
+        if writer.open_attempt is not None:
+            writer.abandon(writer.open_attempt, "interrupted")
+        raise
 
 
 def _keep(kept: dict[int, tuple[int, Frame]], batch: SampleBatch, first: int,
