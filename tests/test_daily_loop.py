@@ -121,9 +121,6 @@ def two_experiments(tmp_path_factory, repo_params):
     params = small_scenes(repo_params)
     params["cv"].update(n_jobs=1, folds=3)  # the params are under test, not the scores
     env = scratch_project(root, params, f"sqlite:///{root.parent / 'daily_loop.db'}")
-    # Gradient boosting's OpenMP threads spin against a CPU another process is busy on
-    # (make test's other worker): measured here, one thread took 20 s a stage, two 170 s.
-    env["OMP_NUM_THREADS"] = "1"
     # The tracking stage logs the runs eskin compare reads: it is last, so the whole
     # (small) pipeline runs; the second experiment retrains only the force tasks.
     run_checked(["dvc", "exp", "run", "-n", "per-kind", "track"], root, env)

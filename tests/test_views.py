@@ -49,7 +49,6 @@ def experiment(tmp_path_factory, repo_params):
     params["train"]["force"]["paper"]["subsample"] = 200
     params["train"]["localise"]["paper"]["n_estimators"] = 20
     env = scratch_project(root, params, f"sqlite:///{root.parent / 'views.db'}")
-    env["OMP_NUM_THREADS"] = "1"  # as tests/test_daily_loop.py: no OpenMP spinning
     for args in (["dvc", "repro", "-q"], ["git", "add", "-A"], ["git", "commit", "-qm", "repro"],
                  ["dvc", "exp", "run", "-q", "-n", EXPERIMENT, "-S", f"{KNOB}={VALUE}"]):
         run_checked(args, root, env)
