@@ -200,6 +200,75 @@ def params_trace_dir(root: Path) -> Path:
     return root.parent / f"{root.name}-params-read"
 
 
+def project_env(root: Path, tracking_uri: str) -> dict:
+    """The environment a scratch project's commands run in, logging to MLflow at
+    ``tracking_uri``."""
+    bin_dir = str(Path(sys.executable).parent)  # dvc, and the python DVC's stages call
+    env = {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ.get('PATH', '')}",
+           "DVC_NO_ANALYTICS": "1", "MLFLOW_ENABLE_TELEMETRY": "false",
+           "MLFLOW_TRACKING_URI": tracking_uri,
+           # each stage notes the params it reads (tests/test_stage_deps.params_mismatches)
+           "ESKIN_PARAMS_TRACE": str(params_trace_dir(root)),
+           "GIT_AUTHOR_NAME": "t", "GIT_AUTHOR_EMAIL": "t@t", "GIT_COMMITTER_NAME": "t",
+           "GIT_COMMITTER_EMAIL": "t@t"}
+    env.pop("DVC_ROOT", None)
+    return env
+
+
+def small_pipeline_params(repo_params: dict) -> dict:
+    """The small scenes, with the knobs turned down that cost time and that tests of the
+    plumbing (not of the scores) do not look at: 3 folds in one process, small figures,
+    smaller paper models."""
+    params = small_scenes(repo_params)
+    params["cv"].update(n_jobs=1, folds=3)
+    params["report"].update(dpi=60, page_dpi=50)
+    params["train"]["force"]["paper"]["subsample"] = 200
+    params["train"]["localise"]["paper"]["n_estimators"] = 20
+    return params
+
+
+@pytest.fixture(scope="session")
+def small_pipeline(tmp_path_factory, repo_params) -> Path:
+    """A scratch project with :func:`small_pipeline_params`, reproduced and committed, built
+    once per test session: under `make test`'s two workers, by the first that asks while
+    the other waits on a lock. Tests work on copies of it (:func:`copy_small_pipeline`)."""
+    import fcntl
+
+    base = tmp_path_factory.getbasetemp()
+    shared = base.parent if "PYTEST_XDIST_WORKER" in os.environ else base  # the session's
+    root, built = shared / "small_pipeline", shared / "small_pipeline.built"
+    with (shared / "small_pipeline.lock").open("w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        if not built.exists():
+            shutil.rmtree(root, ignore_errors=True)  # a build that failed half-way
+            root.mkdir()
+            env = scratch_project(root, small_pipeline_params(repo_params),
+                                  f"sqlite:///{shared / 'small_pipeline.db'}")
+            for args in (["dvc", "repro"], ["git", "add", "-A"],
+                         ["git", "commit", "-qm", "repro"]):
+                run_checked(args, root, env)
+            built.touch()
+    return root
+
+
+def copy_small_pipeline(small_pipeline: Path, root: Path, tracking_uri: str, *,
+                        track: bool = True) -> dict:
+    """A copy at ``root`` of the built small pipeline (its git and DVC repositories, cache
+    and workspace, and the params its stages noted reading), logging to MLflow at
+    ``tracking_uri``; with ``track``, its tracking stage run again there, which logs the
+    pipeline as its first `dvc repro` did. Returns the environment its commands run in."""
+    shutil.copytree(small_pipeline, root, symlinks=True, dirs_exist_ok=True,
+                    # DVC's locks and state, and the build's MLflow artifacts: not the copy's
+                    ignore=lambda directory, names: {small_pipeline / ".dvc": ["tmp"],
+                                                     small_pipeline: ["mlruns"]}.get(
+                                                         Path(directory), []))
+    shutil.copytree(params_trace_dir(small_pipeline), params_trace_dir(root))
+    env = project_env(root, tracking_uri)
+    if track:
+        run_checked(["dvc", "repro", "--force", "--single-item", "track"], root, env)
+    return env
+
+
 def scratch_project(root: Path, params: dict, tracking_uri: str, *,
                     bench_params: dict | None = None) -> dict:
     """A scratch copy of the project at ``root`` (code, dvc.yaml, README) with ``params``
@@ -219,15 +288,7 @@ def scratch_project(root: Path, params: dict, tracking_uri: str, *,
     write_params(root, params)
     if bench_params is not None:
         write_params(root / "bench", bench_params)
-    bin_dir = str(Path(sys.executable).parent)  # dvc, and the python DVC's stages call
-    env = {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ.get('PATH', '')}",
-           "DVC_NO_ANALYTICS": "1", "MLFLOW_ENABLE_TELEMETRY": "false",
-           "MLFLOW_TRACKING_URI": tracking_uri,
-           # each stage notes the params it reads (tests/test_stage_deps.params_mismatches)
-           "ESKIN_PARAMS_TRACE": str(params_trace_dir(root)),
-           "GIT_AUTHOR_NAME": "t", "GIT_AUTHOR_EMAIL": "t@t", "GIT_COMMITTER_NAME": "t",
-           "GIT_COMMITTER_EMAIL": "t@t"}
-    env.pop("DVC_ROOT", None)
+    env = project_env(root, tracking_uri)
     for args in (["git", "init", "-q"], ["dvc", "init", "-q"],
                  ["dvc", "config", "core.analytics", "false"]):
         run_checked(args, root, env)

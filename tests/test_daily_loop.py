@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-from conftest import ROOT, run_checked, scratch_project, small_scenes
+from conftest import ROOT, copy_small_pipeline, run_checked
 
 # Each key a stage of the scratch project reads (a list item: its list).
 READ_KEYS = ("sim_board.faults.stall_s", "train.stretch.model", "train.force.model",
@@ -113,17 +113,17 @@ def test_dvc_exp_run_set_param_changes_only_that_setting_in_params_yaml(
 
 
 @pytest.fixture(scope="module")
-def two_experiments(tmp_path_factory, repo_params):
+def two_experiments(tmp_path_factory, small_pipeline):
     """A scratch copy of the project (small scenes, MLflow in SQLite beside it) and two
     real experiments of its single-force force stage: the default, a force model given
     per kind of scene, and `-S train.force.model=hist_gradient_boosting`, one for all."""
     root = tmp_path_factory.mktemp("daily_loop")
-    params = small_scenes(repo_params)
-    params["cv"].update(n_jobs=1, folds=3)  # the params are under test, not the scores
-    env = scratch_project(root, params, f"sqlite:///{root.parent / 'daily_loop.db'}")
-    # The tracking stage logs the runs eskin compare reads: it is last, so the whole
-    # (small) pipeline runs; the second experiment retrains only the force tasks.
-    run_checked(["dvc", "exp", "run", "-n", "per-kind", "track"], root, env)
+    env = copy_small_pipeline(small_pipeline, root,
+                              f"sqlite:///{root.parent / 'daily_loop.db'}", track=False)
+    # The tracking stage logs the runs eskin compare reads: the first experiment is the
+    # reproduced pipeline, logged again by it; the second retrains only the force tasks.
+    run_checked(["dvc", "exp", "run", "-n", "per-kind", "--force", "--single-item", "track"],
+                root, env)
     run_checked(["dvc", "exp", "run", "-n", "all-kinds", "-S",
                  "train.force.model=hist_gradient_boosting", "track"], root, env)
     return root, env

@@ -17,12 +17,11 @@ import pytest
 import yaml
 from conftest import (
     ROOT,
+    copy_small_pipeline,
     headless_chromium,
     needs_chromium,
     params_trace_dir,
     run_checked,
-    scratch_project,
-    small_scenes,
 )
 from test_stage_deps import params_mismatches
 
@@ -37,17 +36,10 @@ def run(args, cwd, env):
 
 
 @pytest.fixture(scope="module")
-def scratch(tmp_path_factory, repo_params, lab):
+def scratch(tmp_path_factory, small_pipeline, lab):
     root = tmp_path_factory.mktemp("pipeline")
-    params = small_scenes(repo_params)
-    params["cv"].update(n_jobs=1, folds=3)  # the plumbing is under test, not the scores (CI time)
-    params["report"].update(dpi=60, page_dpi=50)
-    params["train"]["force"]["paper"]["subsample"] = 200
-    params["train"]["localise"]["paper"]["n_estimators"] = 20
-    env = scratch_project(root, params, lab[1].uri)  # the lab's server, on PostgreSQL
-    run(["dvc", "repro"], root, env)
-    run(["git", "add", "-A"], root, env)
-    run(["git", "commit", "-qm", "repro"], root, env)
+    env = copy_small_pipeline(small_pipeline, root, lab[1].uri)  # the lab's, on PostgreSQL
+    assert run(["git", "status", "--porcelain"], root, env) == "", "the repro is committed"
     return root, env
 
 

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from conftest import ROOT, run_checked, scratch_project, small_scenes
+from conftest import ROOT, copy_small_pipeline, run_checked
 
 HEADLINE = "reports/metrics.json"
 EXP_SHOW = ["dvc", "exp", "show", "--only-changed", "--drop", ".*/", "--no-pager"]
@@ -39,19 +39,14 @@ def too_wide(text: str) -> list[str]:
 
 
 @pytest.fixture(scope="module")
-def experiment(tmp_path_factory, repo_params):
+def experiment(tmp_path_factory, small_pipeline):
     """A scratch copy of the project (small scenes) reproduced and committed, then one
     real `dvc exp run -S`; the workspace holds the experiment."""
     root = tmp_path_factory.mktemp("views")
-    params = small_scenes(repo_params)
-    params["cv"].update(n_jobs=1, folds=3)  # the views are under test, not the scores
-    params["report"].update(dpi=60, page_dpi=50)
-    params["train"]["force"]["paper"]["subsample"] = 200
-    params["train"]["localise"]["paper"]["n_estimators"] = 20
-    env = scratch_project(root, params, f"sqlite:///{root.parent / 'views.db'}")
-    for args in (["dvc", "repro", "-q"], ["git", "add", "-A"], ["git", "commit", "-qm", "repro"],
-                 ["dvc", "exp", "run", "-q", "-n", EXPERIMENT, "-S", f"{KNOB}={VALUE}"]):
-        run_checked(args, root, env)
+    env = copy_small_pipeline(small_pipeline, root, f"sqlite:///{root.parent / 'views.db'}",
+                              track=False)
+    run_checked(["dvc", "exp", "run", "-q", "-n", EXPERIMENT, "-S", f"{KNOB}={VALUE}"], root,
+                env)
     return root, env
 
 
