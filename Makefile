@@ -146,7 +146,7 @@ stress: setup
 # runs; the cause is not found yet).
 test: setup browser firmware postgres sshd
 	mkdocs build --strict --quiet
-	pytest -q -n 2 --dist loadfile --no-loadscope-reorder -m "not alone" --durations=15
+	pytest -q -n 2 --dist loadfile -m "not alone" --durations=15
 	pytest -q -m alone
 
 # The documentation site (mkdocs.yml, docs/) into site/; --strict: a broken link, a missing

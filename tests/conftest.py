@@ -21,12 +21,10 @@ if "PYTEST_XDIST_WORKER" in os.environ:
     os.environ["OMP_NUM_THREADS"] = "1"
 
 # `make test` runs two workers, a file each (pytest-xdist --dist loadfile), handing files
-# out in collection order (--no-loadscope-reorder: by default xdist hands out the files
-# with the most tests first, which put the three skins' pipeline 35th of 45): the longest
-# go first, so neither worker is left alone with one at the end. Measured with
-# --durations=0 (setup, call and teardown, summed per file): 467, 163, 161 and 97 s.
-LONGEST_FIRST = ("test_pipeline_tracking.py", "test_foreign_data.py",
-                 "test_skins_pipeline.py", "test_learning_curve.py")
+# out in collection order: the longest go first, so neither worker is left alone with one
+# at the end (measured with --durations; the rest keep their order).
+LONGEST_FIRST = ("test_pipeline_tracking.py", "test_foreign_data.py", "test_views.py",
+                 "test_stress.py")
 
 
 def pytest_collection_modifyitems(items):
