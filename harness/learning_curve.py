@@ -169,7 +169,8 @@ def gap_check(frame: pd.DataFrame, rep: np.ndarray, params: Params, document: di
     held_out = frame[rep == 0].reset_index(drop=True)
     held_out_features = _featurized(held_out, params, kind, skin)
     on_dataset = assign_folds(held_out, kind, "conditions", folds, seed, skin=skin)
-    scenes: dict[int, tuple[pd.DataFrame, pd.DataFrame, np.ndarray]] = {}  # by r, once
+    # by r, once: the scene, its features, its folds, its first trials (the bound's rows)
+    scenes: dict[int, tuple[pd.DataFrame, pd.DataFrame, np.ndarray, np.ndarray]] = {}
     out: dict[str, Any] = {"share": share, "folds": folds, "tasks": {}}
     for task_name in tasks:
         entry = document["tasks"].get(task_name, {})
@@ -198,17 +199,18 @@ def gap_check(frame: pd.DataFrame, rep: np.ndarray, params: Params, document: di
         if r not in scenes:
             scene = frame[rep <= r].reset_index(drop=True)
             scenes[r] = (scene, _featurized(scene, params, kind, skin),
-                         assign_folds(scene, kind, "trials", folds, seed, skin=skin))
-        scene, scene_features, fold_of = scenes[r]
+                         assign_folds(scene, kind, "trials", folds, seed, skin=skin),
+                         rep[rep <= r] == 0)
+        scene, scene_features, fold_of, first_trials = scenes[r]
         scored = {}
-        for label, configuration in (("pipeline", params.train.configuration),
-                                     ("paper", "paper")):
-            name, hyper = _model(task, params, configuration, the_kind, skin)
+        for label, (name, hyper) in (
+                ("pipeline", _model(task, params, params.train.configuration, the_kind, skin)),
+                ("paper", (paper_name, paper_hyper))):
             result = cross_validate(task, scene_features, fold_of,
                                     build_model(task.role, name, hyper, skin), "trials", skin)
             scored[label] = {"model": name, "all_rows": task.headline(result.summary),
                              "first_trials": _scored_on(task, scene, result, fold_of,
-                                                        rep[rep <= r] == 0)}
+                                                        first_trials)}
         model_error = 1.0 - scored["pipeline"]["first_trials"]
         same_folds_paper = 1.0 - scored["paper"]["first_trials"]
         check.update({

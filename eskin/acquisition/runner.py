@@ -316,8 +316,7 @@ def _closed_on_the_way_out(writer: RawLogWriter) -> Iterator[None]:
     try:
         yield
     except BaseException:
-        if writer.open_attempt is not None:
-            writer.abandon(writer.open_attempt, "interrupted")
+        _close(writer, writer.open_attempt, "interrupted")
         raise
 
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import json
 import warnings
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -69,7 +69,7 @@ def flattens_at(fit: Mapping[str, float], limit: int = 1000) -> int | None:
 
 
 def repeats_for(fit: Mapping[str, float], error: float,
-                points: list[Mapping[str, Any]] = (),
+                points: Sequence[Mapping[str, Any]] = (),
                 limit: int = MOST_REPEATS) -> int | None:
     """The fewest repetitions whose fitted error is at most ``error``, and more than any
     measured point (``points``: the curve's, ``repeats`` and ``headline``) whose own error
