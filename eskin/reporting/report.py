@@ -11,8 +11,10 @@ from __future__ import annotations
 
 import io
 import json
+import multiprocessing
 import os
 from collections.abc import Mapping
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -109,7 +111,48 @@ def save(figure, path: Path, about: Identity, dpi: int) -> None:
     nothing that changes from one run to the next (no date, no software version)."""
     meta = {"Title": about.title, "Description": about.description}
     figure.savefig(path.with_suffix(".png"), dpi=dpi, metadata={**meta, "Software": None})
+    # The constrained layout, found while drawing the PNG, is kept for the other files:
+    # finding it again was a third of the report stage's time.
+    figure.set_layout_engine("none")
     figure.savefig(path.with_suffix(".svg"), metadata={**meta, "Date": None})
+
+
+@dataclass(frozen=True)
+class FigureJob:
+    """One figure file to draw: ``spec`` from ``oof`` on ``skin``, saved at ``path`` (no
+    suffix) at ``dpi``, and rendered at ``page_dpi`` for the page."""
+
+    spec: Figure
+    oof: pd.DataFrame
+    skin: AnySkin
+    about: Identity
+    path: Path
+    dpi: int
+    page_dpi: int
+
+
+def draw_figure(job: FigureJob) -> bytes:
+    """Draw and save one figure (PNG and SVG); its PNG for the page."""
+    figure = draw(job.spec, job.oof, job.skin)
+    fig.identify(figure, job.about.heading)
+    save(figure, job.path, job.about, job.dpi)
+    buffer = io.BytesIO()
+    figure.savefig(buffer, format="png", dpi=job.page_dpi,
+                   metadata={"Title": job.about.title, "Software": None})
+    plt.close(figure)
+    return buffer.getvalue()
+
+
+def _draw_all(jobs: list[FigureJob]) -> list[bytes]:
+    """Every figure, on as many cores as this process may use (at most two figures at a
+    time): each figure is drawn on its own, so the files are the same in any order.
+    Drawing was most of the report stage (12 figures × 3 files: 9 of its 12 s)."""
+    workers = min(2, len(os.sched_getaffinity(0)), len(jobs))
+    if workers < 2:
+        return [draw_figure(job) for job in jobs]
+    # fork: the workers start with matplotlib and the data already imported
+    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) as pool:
+        return list(pool.map(draw_figure, jobs))
 
 
 def provenance(environ: Mapping[str, str] | None = None) -> Provenance:
@@ -223,7 +266,7 @@ def report(*, report: Report, scenes: Mapping[str, Scene], scores_dir: Path,
     for stale in [*figures_dir.glob("*/*.png"), *figures_dir.glob("*/*.svg")]:
         stale.unlink()
     page_figures: dict[str, list[FigureRow]] = {scene: [] for scene in kinds}
-    written = 0
+    jobs: list[tuple[FigureRow, str, FigureJob]] = []
     for scene, kind in kinds.items():
         # each figure under every scheme, side by side on the page
         for spec in get_kind(kind).figures:
@@ -232,24 +275,21 @@ def report(*, report: Report, scenes: Mapping[str, Scene], scores_dir: Path,
                 continue
             row = FigureRow(id=f"{scene}-{spec.id}", file=spec.id, title=spec.title,
                             caption=spec.caption)
+            page_figures[scene].append(row)
             for scheme in settings.schemes:
                 oof = frame[frame["scheme"] == scheme]
                 if oof.empty:  # a scheme the scene's data did not allow (trials: repeats 1)
                     continue
                 about = identity(scene, spec, scheme, oof, scores[scene].get(spec.task))
-                figure = draw(spec, oof, skins[scene])
-                fig.identify(figure, about.heading)
-                name = f"{spec.id}_{scheme}"
                 (figures_dir / scene).mkdir(parents=True, exist_ok=True)
-                save(figure, figures_dir / scene / name, about, int(settings.dpi))
-                buffer = io.BytesIO()
-                figure.savefig(buffer, format="png", dpi=int(settings.page_dpi),
-                               metadata={"Title": about.title, "Software": None})
-                plt.close(figure)
-                row.schemes.append((scheme, about.heading.replace("\n", "; "),
-                                    buffer.getvalue()))
-                written += 1
-            page_figures[scene].append(row)
+                jobs.append((row, scheme, FigureJob(
+                    spec, oof, skins[scene], about, figures_dir / scene / f"{spec.id}_{scheme}",
+                    int(settings.dpi), int(settings.page_dpi))))
+    for (row, scheme, job), page_png in zip(jobs, _draw_all([job for *_, job in jobs]),
+                                            strict=True):
+        row.schemes.append((scheme, job.about.heading.replace("\n", "; "), page_png))
+    written = len(jobs)
+    for scene, kind in kinds.items():
         chosen = {task: frame[frame["scheme"] == settings.plots_scheme]
                   for task, frame in predictions[scene].items() if not frame.empty}
         for template, stem, frame in plot_data(scene, kind, skins[scene], chosen):
