@@ -325,7 +325,11 @@ REGISTRY: dict[str, dict[str, Factory]] = {
         "hist_gradient_boosting": lambda max_iter=100, seed=0: _scaled(
             HistGradientBoostingClassifier(max_iter=max_iter, random_state=seed)),
         "knn": lambda n_neighbors=5: _scaled(KNeighborsClassifier(n_neighbors)),
-        "logistic": lambda C=1.0: _scaled(LogisticRegression(C=C, max_iter=1000)),
+        # Newton-Cholesky: a few Newton steps, as a skin has tens of channels (the
+        # Hessian is small). The paper skin's CV fits took 0.57 of lbfgs's time, for
+        # the same optimum: conditions-CV accuracy within 0.0003 of lbfgs's.
+        "logistic": lambda C=1.0: _scaled(LogisticRegression(C=C, max_iter=1000,
+                                                             solver="newton-cholesky")),
         "linear_svm": lambda C=1.0: _scaled(LinearSVC(C=C)),
         # Two contacts: find the pressed terminals, pair them by amplitude (ActiveTerminals).
         "active_terminals": lambda max_iter=200, learning_rate=0.1, min_samples_leaf=20,
