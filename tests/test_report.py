@@ -311,3 +311,25 @@ def test_the_page_has_contents_schemes_side_by_side_and_its_commit_in_the_title(
         (_, top1, left1), (_, top2, left2) = shown
         assert top1 == top2 and left2 > left1, (row_id, shown)  # one row, side by side
     assert abs(jumped) < 5, jumped  # the contents' link lands on its figure
+
+
+def test_a_continuous_force_is_summarised_in_a_few_bins():
+    """A load cell's force (an imported recording) has a distinct value per row: its
+    spread panel has a bar per bin, not per value."""
+    from eskin.reporting import figures
+
+    rng = np.random.default_rng(0)
+    true = rng.uniform(0.0, 5.0, 3000)
+    oof = pd.DataFrame({"force_true": true, "force_pred": true + rng.normal(0, 0.2, 3000),
+                        "stretch": 1.0})
+    drawn = figures.force_parity(oof)
+    parity, spread = drawn.axes
+    assert len(spread.patches) == figures.LEVEL_BINS
+    assert len(spread.get_xticklabels()) == figures.LEVEL_BINS
+    assert spread.get_title() == "spread per bin"
+    # every level a bin's centre, inside the range of the true force
+    centres = [float(label.get_text()) for label in spread.get_xticklabels()]
+    assert 0.0 < min(centres) < 0.5 and 4.5 < max(centres) < 5.0
+    # a few levels (the paper's weights) stay levels
+    levels = oof.assign(force_true=np.repeat([0.0, 1.2936, 3.2536, 5.2136], 750))
+    assert figures.force_parity(levels).axes[1].get_title() == "spread per level"
