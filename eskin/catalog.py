@@ -51,6 +51,9 @@ RUNS_DIR = Path("reports/runs")
 SCORES_DIR = Path("reports/scores")
 PREDICTIONS_DIR = Path("reports/predictions")
 LINEAGE_DIR = Path("reports/lineage")
+# Which model and hyperparameters each scene's task trains (the settings stage resolves
+# params.yaml's train section once, so that each training stage depends on its own).
+SETTINGS_DIR = Path("reports/settings")
 FIGURES_DIR = Path("reports/figures")
 PLOTS_DIR = Path("reports/plots")
 BENCH_DIR = Path("reports/benchmark")
@@ -128,6 +131,11 @@ def learning_curve_path(scene: str) -> Path:
     """`make bench`'s learning curves of one scene (JSON; the markdown beside it), which
     `eskin plan` reads."""
     return LEARNING_CURVE_DIR / f"{scene}.json"
+
+
+def settings_path(scene: str, task: str) -> Path:
+    """The model and hyperparameters the scene's task trains (eskin/learning/choice.py)."""
+    return SETTINGS_DIR / scene / f"{task}.json"
 
 
 def task_outputs(scene: str, task: str) -> dict[str, Path]:

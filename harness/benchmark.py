@@ -345,7 +345,7 @@ def bench(scene: str, task_name: str, features_path: Path, bound_path: Path, out
 def default_variant(train: Any, kind: str, task_name: str, variants: Mapping[str, Any]) -> str:
     """The bench variant whose model and hyperparameters the training stage uses by default
     for a scene of ``kind`` (``train``: the ``train`` section)."""
-    from eskin.learning.estimators import model_settings
+    from eskin.learning.choice import model_settings
 
     model, hyper = model_settings(getattr(train, task_name), train.configuration, kind)
     for name, spec in variants.items():

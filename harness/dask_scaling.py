@@ -31,7 +31,8 @@ from eskin.config import Params, load_params
 from eskin.data.schema import dataset_skin, read_metadata
 from eskin.evaluation.crossval import cross_validate
 from eskin.evaluation.folds import assign_folds
-from eskin.learning.estimators import build_model, model_for_skin, model_settings
+from eskin.learning.choice import model_for_skin, model_settings
+from eskin.learning.estimators import build_model
 from eskin.learning.tasks import get_task
 
 TASK = "force"

@@ -46,7 +46,8 @@ from eskin.data.schema import (
 )
 from eskin.evaluation.crossval import cross_validate
 from eskin.evaluation.folds import conditions, trial_conditions
-from eskin.learning.estimators import build_model, model_for_skin, model_settings
+from eskin.learning.choice import model_for_skin, model_settings
+from eskin.learning.estimators import build_model
 from eskin.learning.features import featurize, fit_featurizer
 from eskin.learning.tasks import Task, get_task
 from eskin.tracking.planning import (

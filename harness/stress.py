@@ -146,7 +146,7 @@ def models_under_test(train: Any, skin: AnySkin) -> list[tuple[str, str, dict[st
     """(task, model name, hyperparameters) of the tuned and paper configurations of the
     ``train`` section, as they train on ``skin``."""
     from eskin.catalog import TASK_NAMES
-    from eskin.learning.estimators import model_for_skin, model_settings
+    from eskin.learning.choice import model_for_skin, model_settings
 
     out = []
     for task in TASK_NAMES:

@@ -1,20 +1,22 @@
-"""DVC stage: features and folds of a scene → one task's scores, predictions, models, and
-the run's record for the tracking stage."""
+"""DVC stage: features and folds of a scene, and the model its settings name → one task's
+scores, predictions, models, and the run's record for the tracking stage."""
 
 import sys
 
-from eskin.catalog import FEATURES_DIR, task_outputs
+from eskin.catalog import FEATURES_DIR, settings_path, task_outputs
 from eskin.config import get_scene, load_params
 from eskin.errors import run_friendly
 from eskin.learning import train
+from eskin.learning.choice import read_settings
 
 
 def main(scene: str, task: str) -> str:
     params = load_params()
     get_scene(params, scene)
-    return train.train(scene, task, task_params=getattr(params.train, task),
-                       configuration=params.train.configuration, cv=params.cv,
-                       features_dir=FEATURES_DIR, **task_outputs(scene, task)).summary
+    task_params, configuration, _ = read_settings(settings_path(scene, task), scene, task)
+    return train.train(scene, task, task_params=task_params, configuration=configuration,
+                       cv=params.cv, features_dir=FEATURES_DIR,
+                       **task_outputs(scene, task)).summary
 
 
 if __name__ == "__main__":

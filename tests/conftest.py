@@ -150,7 +150,8 @@ def small_stack(params: dict, root: Path):
     from eskin.data.schema import read_dataset, read_metadata
     from eskin.deploy.stack import SkinStack, rest_readings
     from eskin.evaluation.crossval import fit_final
-    from eskin.learning.estimators import build_model, model_settings
+    from eskin.learning.choice import model_settings
+    from eskin.learning.estimators import build_model
     from eskin.learning.tasks import get_task
     from eskin.skin import PAPER_SKIN
 

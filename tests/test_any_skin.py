@@ -33,11 +33,11 @@ from eskin.deploy.view import LiveView
 from eskin.evaluation.folds import strata, write_scene_folds
 from eskin.evaluation.metrics import position_error_mm
 from eskin.learning import train
+from eskin.learning.choice import model_for_skin
 from eskin.learning.estimators import (
     ActiveTerminals,
     ForceProfile,
     build_model,
-    model_for_skin,
 )
 from eskin.learning.features import featurize_scene
 from eskin.reporting import figures, report

@@ -13,11 +13,11 @@ from eskin.config import TaskModels
 from eskin.data.schema import md5_file
 from eskin.evaluation.crossval import cross_validate, parallel_backend
 from eskin.evaluation.folds import assign_folds, strata
+from eskin.learning.choice import model_settings
 from eskin.learning.estimators import (
     REGISTRY,
     SubsampledGaussianProcess,
     build_model,
-    model_settings,
 )
 from eskin.learning.features import BaselineDelta, fit_featurizer
 from eskin.learning.tasks import TASKS, get_task
@@ -271,6 +271,48 @@ def test_a_task_model_may_be_named_per_kind():
     with pytest.raises(KeyError, match="no model for"):
         model_settings(TaskModels.model_validate({"model": {"single_force": "logistic"}}),
                        "tuned", "two_force")
+
+
+@pytest.mark.parametrize("configuration", ["tuned", "paper"])
+def test_a_scenes_settings_choose_what_the_whole_section_chooses(repo_params, configuration):
+    """The settings stage's part of each train.<task> section gives every kind, on a
+    row/column skin and on a channel array, the model and hyperparameters the whole
+    section gives."""
+    from eskin.learning.choice import model_for_skin, task_section
+    from eskin.skin import skin_from_dict
+
+    array = skin_from_dict({"channels": [f"m{i}" for i in range(15)],
+                            "x_mm": [0.0, 8.0, 16.0], "y_mm": [0.0, 8.0, 16.0]})
+    for task in ("stretch", "force", "detect", "localise"):
+        whole = TaskModels.model_validate(repo_params["train"][task])
+        for kind in ("single_force", "two_force"):
+            part = TaskModels.model_validate(task_section(whole, configuration, kind))
+            chosen = model_settings(whole, configuration, kind)
+            assert model_settings(part, configuration, kind) == chosen
+            for skin in (PAPER_SKIN, array):
+                assert model_for_skin(part, *chosen, skin) == \
+                    model_for_skin(whole, *chosen, skin), (task, kind)
+
+
+def test_a_knob_of_one_kinds_model_leaves_the_other_kinds_settings_file_as_it_was(
+        repo_params, tmp_path):
+    """What lets `-S train.force.physics_profile.max_iter=150` rerun the single-force
+    force stage only: the two-force scene's settings file keeps its bytes."""
+    import copy
+
+    from eskin.learning.choice import write_settings
+
+    changed = copy.deepcopy(repo_params["train"]["force"])
+    changed["physics_profile"]["max_iter"] += 1
+    files = {}
+    for name, section in (("before", repo_params["train"]["force"]), ("after", changed)):
+        for kind in ("single_force", "two_force"):
+            path = tmp_path / name / f"{kind}.json"
+            write_settings(path, scene=kind, kind=kind, task="force", configuration="tuned",
+                           task_params=TaskModels.model_validate(section))
+            files[name, kind] = path.read_bytes()
+    assert files["before", "single_force"] != files["after", "single_force"]
+    assert files["before", "two_force"] == files["after", "two_force"]
 
 
 def test_node_ids_are_row_major():

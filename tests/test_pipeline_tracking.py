@@ -27,7 +27,7 @@ from test_stage_deps import params_mismatches
 
 from eskin.config import TaskModels
 from eskin.data.schema import md5_file
-from eskin.learning.estimators import model_settings
+from eskin.learning.choice import model_settings
 from eskin.skin import PAPER_SKIN
 
 
@@ -77,6 +77,9 @@ def test_a_second_force_model_is_a_second_mlflow_run_on_the_same_dataset(scratch
                "train.force.model.single_force=random_forest"], root, env)
     assert "train@single_force-force" in out
     assert "Running stage 'train@single_force-stretch'" not in out  # only what changed reruns
+    # nor the other kind's force stage, which shares train.force (its settings file did
+    # not change)
+    assert "Running stage 'train@two_force-force'" not in out
 
     import mlflow
     mlflow.set_tracking_uri(env["MLFLOW_TRACKING_URI"])

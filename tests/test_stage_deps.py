@@ -92,8 +92,15 @@ def pipeline_modules() -> list[str]:
     return out
 
 
+# Modules a module runs without importing them by name: loading a saved model
+# (eskin/learning/saved.py) unpickles its estimators, which imports the module that
+# defines them (and, through it, the Gaussian processes').
+RUNS_WHEN_LOADING = {"eskin.learning.saved": ("eskin.learning.estimators",)}
+
+
 def closure(module: str) -> set[Path]:
-    """The files ``module`` runs: itself and everything it imports, transitively."""
+    """The files ``module`` runs: itself and everything it imports, transitively
+    (with :data:`RUNS_WHEN_LOADING`)."""
     start = module_file(module)
     assert start is not None, f"no module {module}"
     seen: set[Path] = set()
@@ -103,7 +110,7 @@ def closure(module: str) -> set[Path]:
         if path in seen:
             continue
         seen.add(path)
-        for name in imported_modules(path):
+        for name in [*imported_modules(path), *RUNS_WHEN_LOADING.get(module_name(path), ())]:
             found = module_file(name)
             if found is not None and found not in seen:
                 todo.append(found)

@@ -20,7 +20,7 @@ from __future__ import annotations
 import warnings
 from collections.abc import Callable, Mapping
 from functools import partial
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from sklearn.base import BaseEstimator, RegressorMixin, TransformerMixin, clone
@@ -40,7 +40,7 @@ from sklearn.preprocessing import FunctionTransformer, StandardScaler
 from sklearn.svm import SVC, LinearSVC
 from sklearn.utils.validation import check_is_fitted, validate_data
 
-from eskin.kinds import ONE_CONTACT
+from eskin.learning.choice import ROW_COLUMN_MODELS
 from eskin.learning.gp import (
     FixedKernelGaussianProcess,
     SparseGaussianProcess,
@@ -48,9 +48,6 @@ from eskin.learning.gp import (
     subsample_rows,
 )
 from eskin.skin import AnySkin, Skin, skin_of_columns
-
-if TYPE_CHECKING:
-    from eskin.config import TaskModels
 
 ROLES = ("stretch", "force", "detect", "localise")
 
@@ -340,61 +337,8 @@ REGISTRY: dict[str, dict[str, Factory]] = {
 }
 
 
-# Models that read a row/column skin's x and y terminals (ForceProfile, ActiveTerminals),
-# each with the generic model a channel array trains instead: the same gradient boosting
-# on the channels themselves (docs/learning.md).
-ROW_COLUMN_MODELS: dict[str, str] = {"physics_profile": "hist_gradient_boosting",
-                                     "active_terminals": "hist_gradient_boosting"}
 # Models built for the skin (their factory takes it first): one constraint per feature.
 BUILT_FOR_SKIN = ("physics_profile",)
-
-CONFIGURATIONS = ("tuned", "paper")
-
-
-def model_settings(task_params: TaskModels, configuration: str = "tuned",
-                   kind: str = ONE_CONTACT.name) -> tuple[str, dict[str, Any]]:
-    """(model name, its hyperparameters) from a ``train.<task>`` section
-    (:class:`eskin.config.TaskModels`: ``params.train.force``), for a scene of ``kind``.
-
-    ``configuration`` is ``train.configuration``: ``tuned`` uses the task's
-    ``model`` (chosen by ``make bench``), ``paper`` its ``paper`` entry. ``model`` is a
-    name, or a name per kind (``{single_force: logistic, two_force: paper}``); the
-    hyperparameters are the entry of that name beside it (``model_extra``).
-    """
-    if configuration not in CONFIGURATIONS:
-        raise ValueError(f"train.configuration must be one of {CONFIGURATIONS}, "
-                         f"got {configuration!r}")
-    chosen = getattr(task_params, "model", None)
-    if chosen is None:
-        raise KeyError("the task's params need a 'model' entry naming a registry model")
-    if isinstance(chosen, Mapping):
-        if kind not in chosen:
-            raise KeyError(f"the task's model names no model for {kind} scenes "
-                           f"(it has {', '.join(map(str, chosen))})")
-        chosen = chosen[kind]
-    name = "paper" if configuration == "paper" else str(chosen)
-    return name, hyperparameters(task_params, name)
-
-
-def hyperparameters(task_params: TaskModels, name: str) -> dict[str, Any]:
-    """The hyperparameters of model ``name`` in a ``train.<task>`` section (none: {})."""
-    hyper = (task_params.model_extra or {}).get(name) or {}
-    if not isinstance(hyper, Mapping):
-        raise ValueError(f"hyperparameters of {name!r} must be a mapping, got {hyper!r}")
-    return dict(hyper)
-
-
-def model_for_skin(task_params: TaskModels, name: str, hyper: dict[str, Any],
-                   skin: AnySkin) -> tuple[str, dict[str, Any], str]:
-    """(model, hyperparameters, note) that train on ``skin``: ``name`` as it is, or, for a
-    model that reads row/column terminals on a channel array, its generic model
-    (:data:`ROW_COLUMN_MODELS`) with its hyperparameters, and a note saying so."""
-    generic = ROW_COLUMN_MODELS.get(name)
-    if skin.row_column or generic is None:
-        return name, hyper, ""
-    return generic, hyperparameters(task_params, generic), (
-        f"{name} reads a row/column skin's x and y terminals and this scene is an "
-        f"{skin.describe()}: trained {generic} instead")
 
 
 def build_model(role: str, name: str, hyper: Mapping[str, Any] | None = None,

@@ -32,7 +32,8 @@ from eskin.data.schema import (
 from eskin.evaluation.crossval import cross_validate, fit_final, parallel_backend
 from eskin.evaluation.folds import read_scene_folds
 from eskin.kinds import DATASET_KINDS, TOTAL_FORCE_ONLY
-from eskin.learning.estimators import build_model, model_for_skin, model_settings
+from eskin.learning.choice import model_for_skin, model_settings
+from eskin.learning.estimators import build_model
 from eskin.learning.saved import save_models
 from eskin.learning.tasks import Task, get_task
 
@@ -60,7 +61,7 @@ def train(scene: str, task_name: str, *, task_params: TaskModels, configuration:
     once by the folds stage; a progress bar per scheme), refit and save, on the skin the
     features were taken on. A model that reads a row/column skin's terminals is replaced,
     on a channel array, by its generic model
-    (:func:`~eskin.learning.estimators.model_for_skin`), and the summary says so.
+    (:func:`~eskin.learning.choice.model_for_skin`), and the summary says so.
 
     ``task_params`` is the task's ``train.<task>`` section, ``configuration``
     ``train.configuration``; of ``cv`` only how folds run (``n_jobs``, ``backend``).

@@ -569,7 +569,7 @@ def pipeline_tasks(scenes: Mapping[str, Any], train: Any, cv: Mapping[str, Any],
     )
     from eskin.data.schema import dataset_skin
     from eskin.kinds import DATASET_KINDS
-    from eskin.learning.estimators import model_for_skin, model_settings
+    from eskin.learning.choice import model_for_skin, model_settings
 
     found = []
     for scene in scenes:
