@@ -509,14 +509,19 @@ def test_queued_experiments_run_two_at_a_time_and_compare_side_by_side(scratch, 
     head = run(["git", "rev-parse", "HEAD"], root, env).strip()
     everything = mlflow.search_runs(experiment_names=["eskin"])
     assert set(everything["status"]) == {"FINISHED"}
-    for name, task in (("q-logistic", "detect"), ("q-ridge", "stretch"), ("c2-alpha", "stretch")):
+    # c2-alpha sets a knob of ridge, which the second clone's stretch task (the paper's
+    # linear regression) does not use: its settings file keeps its bytes, nothing retrains
+    for name, task in (("q-logistic", "detect"), ("q-ridge", "stretch"), ("c2-alpha", None)):
         logged = mlflow.search_runs(experiment_names=["eskin"], filter_string=(
             f"tags.`eskin.dvc_experiment` = '{name}' and tags.`eskin.kind` = 'task'"))
         found = logged[logged["tags.eskin.trained"] != "reused"]
-        assert set(found["tags.eskin.task"]) == {task}  # only what the setting changes
+        # only what the setting changes
+        assert set(found["tags.eskin.task"]) == ({task} if task else set()), name
         # every other task is there too, marked reused, naming the run that trained it
         reused = logged[logged["tags.eskin.trained"] == "reused"]
         assert len(reused) >= 3 and reused["tags.eskin.reused_from"].str.len().min() == 32
+        if task is None:
+            continue
         trained = found[found["tags.eskin.scene"] == "single_force"].iloc[0]
         assert trained["tags.eskin.dataset_digest"] == digest
         assert trained["tags.eskin.git_commit"] == head
