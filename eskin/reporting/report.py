@@ -146,11 +146,13 @@ def draw_figure(job: FigureJob) -> bytes:
 def _draw_all(jobs: list[FigureJob]) -> list[bytes]:
     """Every figure, on as many cores as this process may use (at most two figures at a
     time): each figure is drawn on its own, so the files are the same in any order.
-    Drawing was most of the report stage (12 figures × 3 files: 9 of its 12 s)."""
+    Drawing was most of the report stage (12 figures × 3 files: about 9 of its 12 s)."""
     workers = min(2, len(os.sched_getaffinity(0)), len(jobs))
     if workers < 2:
         return [draw_figure(job) for job in jobs]
-    # fork: the workers start with matplotlib and the data already imported
+    # fork: the workers start with matplotlib and the data already imported. The parent
+    # has read Parquet; Arrow's thread pool and allocator register at-fork handlers
+    # (a forked child of a threaded process is otherwise unsafe).
     with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) as pool:
         return list(pool.map(draw_figure, jobs))
 
