@@ -13,7 +13,7 @@ from eskin.learning.choice import read_settings
 def main(scene: str, task: str) -> str:
     params = load_params()
     get_scene(params, scene)
-    task_params, configuration, _ = read_settings(settings_path(scene, task), scene, task)
+    task_params, configuration = read_settings(settings_path(scene, task), scene, task)
     return train.train(scene, task, task_params=task_params, configuration=configuration,
                        cv=params.cv, features_dir=FEATURES_DIR,
                        **task_outputs(scene, task)).summary

@@ -104,9 +104,9 @@ def write_settings(path: Path, *, scene: str, kind: str, task: str, configuratio
     return document
 
 
-def read_settings(path: Path, scene: str, task: str) -> tuple[TaskModels, str, str]:
-    """(``train.<task>`` section, ``train.configuration``, kind) of a scene's task, from
-    its settings file."""
+def read_settings(path: Path, scene: str, task: str) -> tuple[TaskModels, str]:
+    """(``train.<task>`` section, ``train.configuration``) of a scene's task, from its
+    settings file."""
     from eskin.config import TaskModels
 
     path = Path(path)
@@ -118,5 +118,4 @@ def read_settings(path: Path, scene: str, task: str) -> tuple[TaskModels, str, s
         raise ValueError(f"{path} holds the settings of {document.get('scene')}/"
                          f"{document.get('task')}, not {scene}/{task}; run `dvc repro "
                          f"settings`")
-    return (TaskModels.model_validate(document["train"]), document["configuration"],
-            document["kind"])
+    return TaskModels.model_validate(document["train"]), document["configuration"]

@@ -287,24 +287,22 @@ def report(*, report: Report, scenes: Mapping[str, Scene], scores_dir: Path,
                 jobs.append((row, scheme, FigureJob(
                     spec, oof, skins[scene], about, figures_dir / scene / f"{spec.id}_{scheme}",
                     int(settings.dpi), int(settings.page_dpi))))
-    for (row, scheme, job), page_png in zip(jobs, _draw_all([job for *_, job in jobs]),
-                                            strict=True):
-        row.schemes.append((scheme, job.about.heading.replace("\n", "; "), page_png))
-    written = len(jobs)
-    for scene, kind in kinds.items():
         chosen = {task: frame[frame["scheme"] == settings.plots_scheme]
                   for task, frame in predictions[scene].items() if not frame.empty}
         for template, stem, frame in plot_data(scene, kind, skins[scene], chosen):
             (plots_dir / template).mkdir(parents=True, exist_ok=True)
             frame.to_csv(plots_dir / template / f"{scene}_{stem}.csv", index=False)
+    for (row, scheme, job), page_png in zip(jobs, _draw_all([job for *_, job in jobs]),
+                                            strict=True):
+        row.schemes.append((scheme, job.about.heading.replace("\n", "; "), page_png))
 
     scenes = [(scene, kinds[scene], skins[scene], scores[scene]) for scene in kinds]
     href = Path(os.path.relpath(figures_dir, Path(page_path).parent)).as_posix()
     Path(page_path).write_text(render_page(scenes, page_figures, run or Provenance(), href))
     Path(results_path).write_text(results_markdown(scenes))
     Path(metrics_path).write_text(json.dumps(headline_metrics(scores), indent=2) + "\n")
-    return Reported(kinds, written, figures_dir, plots_dir, Path(page_path), Path(results_path),
-                    f"report: {len(kinds)} scene(s), {written} figures (PNG + SVG) in "
+    return Reported(kinds, len(jobs), figures_dir, plots_dir, Path(page_path), Path(results_path),
+                    f"report: {len(kinds)} scene(s), {len(jobs)} figures (PNG + SVG) in "
                     f"{figures_dir}, plot data in {plots_dir}, {page_path}, results in "
                     f"{results_path}, headline scores in {metrics_path}")
 
