@@ -217,16 +217,24 @@ def project_env(root: Path, tracking_uri: str) -> dict:
     return env
 
 
-def small_pipeline_params(repo_params: dict) -> dict:
-    """The small scenes, with the knobs turned down that cost time and that tests of the
-    plumbing (not of the scores) do not look at: 3 folds in one process, small figures,
-    smaller paper models."""
-    params = small_scenes(repo_params)
-    params["cv"].update(n_jobs=1, folds=3)
+def quick_params(params: dict, *, folds: int, conditions_only: bool = False) -> dict:
+    """``params``, changed in place, with the knobs turned down that cost time and that
+    tests of the plumbing (not of the scores) do not look at: ``folds`` folds in one
+    process, small figures, smaller paper models; with ``conditions_only``, the
+    conditions scheme alone (CV and figures)."""
+    params["cv"].update(n_jobs=1, folds=folds)
     params["report"].update(dpi=60, page_dpi=50)
+    if conditions_only:
+        params["cv"]["schemes"] = ["conditions"]
+        params["report"].update(schemes=["conditions"], plots_scheme="conditions")
     params["train"]["force"]["paper"]["subsample"] = 200
     params["train"]["localise"]["paper"]["n_estimators"] = 20
     return params
+
+
+def small_pipeline_params(repo_params: dict) -> dict:
+    """The small scenes, with :func:`quick_params` (3 folds)."""
+    return quick_params(small_scenes(repo_params), folds=3)
 
 
 @pytest.fixture(scope="session")

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from conftest import params_trace_dir, scratch_project
+from conftest import params_trace_dir, quick_params, scratch_project
 from conftest import run_checked as run
 from hostile_board import HostileBoard, Served
 from test_stage_deps import params_mismatches
@@ -104,11 +104,7 @@ def project(tmp_path_factory, repo_params, repo_bench_params, mlflow_server):
         params["scenes"] = scenes(files / "lab_single.csv", files / "lab_pairs.csv", served.port)
         params["acquire"]["indenters"] = "board"
         # Conditions CV only: the plumbing, not the paper's scheme, is under test (CI time).
-        params["cv"].update(n_jobs=1, folds=3, schemes=["conditions"])
-        params["report"].update(dpi=60, page_dpi=50, schemes=["conditions"],
-                                plots_scheme="conditions")
-        params["train"]["localise"]["paper"]["n_estimators"] = 20
-        params["train"]["force"]["paper"]["subsample"] = 200
+        quick_params(params, folds=3, conditions_only=True)
         # make bench, small: every candidate the train section names, one conditions fold.
         bench_params = copy.deepcopy(repo_bench_params)
         bench_params["bench"].update(schemes=["conditions"], evaluate_folds=1,

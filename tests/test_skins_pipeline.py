@@ -21,7 +21,7 @@ import onnx
 import pandas as pd
 import pyarrow.parquet as pq
 import pytest
-from conftest import run_checked, scratch_project
+from conftest import quick_params, run_checked, scratch_project
 from foreign_tactile import CHANNELS, GRID_MM, write_recording
 from sklearn.ensemble import HistGradientBoostingRegressor
 from sklearn.metrics import r2_score
@@ -56,10 +56,7 @@ def project(tmp_path_factory, repo_params):
     params["scenes"] = scenes(recording.folder)
     params["ingest"]["bad_rows"] = "quarantine"  # the recording's dropped and stale frames
     # Conditions CV only, few folds: the skins, not the paper's scheme, are under test.
-    params["cv"].update(n_jobs=1, folds=5, schemes=["conditions"])
-    params["report"].update(dpi=60, page_dpi=50, schemes=["conditions"], plots_scheme="conditions")
-    params["train"]["localise"]["paper"]["n_estimators"] = 20
-    params["train"]["force"]["paper"]["subsample"] = 200
+    quick_params(params, folds=5, conditions_only=True)
     root = base / "project"
     root.mkdir()
     env = scratch_project(root, params, f"sqlite:///{base / 'mlflow.db'}")
