@@ -18,6 +18,14 @@ repository, no DVC cache and an MLflow store of its own (SQLite). In that copy, 
    stage's fixed cost: starting Python, imports, reading, writing, and the baseline's
    MLflow logging), as a whole process, the median of 3 runs.
 
+Then the floor, in a scratch project of its own that holds none of eskin's code: what DVC
+and Python cost before any of eskin's work. A chain of stages, each a Python process that
+imports what every training stage needs (pandas and scikit-learn) and writes a few bytes,
+as many as the current pipeline's repro ran; ``dvc repro`` of the chain, then a
+``dvc exp run -S`` that reruns as many of them as the current experiment ran; and that
+import alone, the median of 3. A target below its floor cannot be met by faster eskin code
+while the pipeline keeps its stages (one per scene × task) and its libraries.
+
 Each ratio is the current pipeline's over the baseline's: the same machine, the same load,
 minutes apart; the load average is recorded beside them.
 
@@ -60,6 +68,14 @@ FIXED_COST_STAGE = ["python", "-m", "stages.train",
 # burst of load does not move it, and three runs of a stage that should take about a
 # second keep the bench short.
 FIXED_COST_RUNS = 3
+# The floor's stages import what every training stage imports (crossval's estimators need
+# scikit-learn's base, which imports scipy.stats; the features are pandas frames).
+FLOOR_IMPORTS = "import pandas, sklearn.base"
+FLOOR_STAGE = """import sys
+{imports}
+source, out, knob = sys.argv[1:]
+open(out, "w").write((open(source).read() if source != "-" else "") + knob)
+"""
 MEASUREMENTS = {"repro": "full `dvc repro --force`, empty cache",
                 "experiment": "one-knob experiment, `dvc exp run -S {knob}`",
                 "fixed_cost": "per-stage fixed cost, `{command}`, median of {runs}"}
@@ -236,8 +252,44 @@ def measure_revision(project: Path, *, knob: str, stage: list[str], timeout: flo
     return {"repro": repro, "experiment": experiment, "fixed_cost": stage_cost, "scores": scores}
 
 
+def floor(project: Path, *, stages: int, rerun: int, imports: str = FLOOR_IMPORTS,
+          timeout: float = 600, log=print) -> dict:
+    """The floor (see the module's text) in a new project at ``project``: a chain of
+    ``stages`` stages, each ``python stage.py`` importing ``imports``; its `dvc repro`;
+    a `dvc exp run -S knob=2` whose knob the ``rerun``-th stage from the end reads, so that
+    it and those after it run again; and ``python -c <imports>``, the median of 3."""
+    if not 0 < rerun <= stages:
+        raise ValueError(f"the floor's experiment reruns {rerun} of {stages} stages")
+    project.mkdir(parents=True)
+    (project / "stage.py").write_text(FLOOR_STAGE.format(imports=imports))
+    (project / "params.yaml").write_text("knob: 1\n")
+    knobbed = stages - rerun
+    lines = ["stages:"]
+    for index in range(stages):
+        source = f"s{index - 1:02d}.txt" if index else "-"
+        lines += [f"  s{index:02d}:",
+                  f"    cmd: python stage.py {source} s{index:02d}.txt "
+                  + ("${knob}" if index == knobbed else "0"),
+                  "    deps: [stage.py" + (f", {source}]" if index else "]"),
+                  *(["    params: [knob]"] if index == knobbed else []),
+                  f"    outs: [s{index:02d}.txt]"]
+    (project / "dvc.yaml").write_text("\n".join(lines) + "\n")
+    env = scratch_env(project)
+    for args in (["git", "init", "-q"], ["dvc", "init", "-q"], ["git", "add", "-A"],
+                 ["git", "commit", "-qm", "floor"]):
+        subprocess.run(args, cwd=project, env=env, check=True, capture_output=True,
+                       timeout=120)
+    repro = timed_run(["dvc", "repro"], project, timeout=timeout, log=log)
+    experiment = timed_run(["dvc", "exp", "run", "-S", "knob=2"], project, timeout=timeout,
+                           log=log)
+    process = fixed_cost(project, ["python", "-c", imports], timeout=120, log=log)
+    return {"imports": imports, "repro": repro, "experiment": experiment,
+            "process": process}
+
+
 def measure(baseline: str, *, knob: str = KNOB, stage: list[str] = FIXED_COST_STAGE,
-            timeout: float = 3600, root: Path = ROOT, log=print) -> dict:
+            timeout: float = 3600, floor_imports: str = FLOOR_IMPORTS, root: Path = ROOT,
+            log=print) -> dict:
     """The baseline revision's pipeline, then the working tree's, each from scratch.
     ``timeout``: a repro's deadline, for a hang, not a target (on 2 cores at load
     average 10, the baseline's repro took 22 minutes)."""
@@ -257,6 +309,12 @@ def measure(baseline: str, *, knob: str = KNOB, stage: list[str] = FIXED_COST_ST
                             **measure_revision(project, knob=knob, stage=stage,
                                                timeout=timeout, log=log)}
             result["load_average"][f"after {name}"] = os.getloadavg()[0]
+        current = result["current"]
+        log(f"the floor: {len(current['repro']['stages'])} stages that import "
+            f"{floor_imports!r} …")
+        result["floor"] = floor(Path(scratch) / "floor", imports=floor_imports,
+                                stages=len(current["repro"]["stages"]),
+                                rerun=len(current["experiment"]["stages"]), log=log)
     result["ratios"] = {what: result["current"][what]["seconds"]
                         / result["baseline"][what]["seconds"] for what in TARGETS}
     result["met"] = {what: result["current"][what]["seconds"] <= target
@@ -284,6 +342,8 @@ def render(result: dict) -> str:
     lines += ["", "The fixed cost's runs: " + "; ".join(
         f"{label} " + ", ".join(f"{s:.2f}" for s in run["fixed_cost"]["runs"]) + " s"
         for label, run in (("baseline", base), ("current", current))) + "."]
+    if "floor" in result:
+        lines += ["", *render_floor(result)]
     lines += ["", "The stages the experiment ran:", ""]
     lines += [f"- {label} ({len(run['experiment']['stages'])}): "
               + ", ".join(f"{name} {s:.1f} s" for name, s in run["experiment"]["stages"].items())
@@ -311,6 +371,30 @@ def render(result: dict) -> str:
     lines += [f"| {name} | {spread(base, name)} | {spread(current, name)} | "
               f"{verdict[compared['within']]} |" for name, compared in result["scores"].items()]
     return "\n".join(lines)
+
+
+def render_floor(result: dict) -> list[str]:
+    """The floor beside each target and the current time: what is left of a target once
+    DVC and Python have had their share."""
+    found, targets, current = result["floor"], result["targets"], result["current"]
+    rows = {"repro": (f"full `dvc repro`, {len(found['repro']['stages'])} stages",
+                      found["repro"]["seconds"]),
+            "experiment": (f"`dvc exp run -S`, {len(found['experiment']['stages'])} of them "
+                           "rerun", found["experiment"]["seconds"]),
+            "fixed_cost": (f"`python -c \"{found['imports']}\"`, median of "
+                           f"{len(found['process']['runs'])}", found["process"]["seconds"])}
+    lines = ["The floor: DVC and Python alone, in a project with none of eskin's code, as "
+             "many stages as the current pipeline ran, each running "
+             f"`{found['imports']}` and writing a few bytes:", "",
+             "| floor of | target | floor | left for eskin's work | current |",
+             "|---|---|---|---|---|"]
+    for what, (label, seconds) in rows.items():
+        digits = 2 if targets[what] < 10 else 1
+        left = targets[what] - seconds
+        lines.append(f"| {label} | ≤ {targets[what]:g} s | {seconds:.{digits}f} s | "
+                     + (f"{left:.{digits}f} s" if left > 0 else "**none**")
+                     + f" | {current[what]['seconds']:.{digits}f} s |")
+    return lines
 
 
 def main() -> None:

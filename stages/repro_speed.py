@@ -1,7 +1,7 @@
 """DVC stage of `make bench`: the daily loop's speed against a baseline revision's pipeline
 (harness/repro_speed.py): the full `dvc repro` from an empty cache, a one-knob experiment,
 a training stage's fixed cost, and the headline scores beside their fold spreads, both
-revisions measured in this run."""
+revisions measured in this run; then the floor DVC and Python set under each of them."""
 
 import json
 import sys

@@ -14,6 +14,7 @@ import pytest
 
 from harness.repro_speed import (
     compare_scores,
+    floor,
     fold_scores,
     measure,
     render,
@@ -73,7 +74,7 @@ def project(tmp_path):
 def test_the_working_tree_is_timed_against_the_baseline_commit_stage_by_stage(project):
     root, baseline = project
     result = measure(baseline, knob="knob=2", stage=["python", "-c", "pass"], root=root,
-                     log=lambda line: None)
+                     floor_imports="import json", log=lambda line: None)
     base, current = result["baseline"], result["current"]
     assert list(base["repro"]["stages"]) == ["slow_start", "middle", "knobbed"]
     assert list(current["repro"]["stages"]) == ["slow_start", "middle", "added", "knobbed"]
@@ -89,8 +90,16 @@ def test_the_working_tree_is_timed_against_the_baseline_commit_stage_by_stage(pr
     assert len(current["fixed_cost"]["runs"]) == 3
     assert current["fixed_cost"]["seconds"] == sorted(current["fixed_cost"]["runs"])[1]
     assert result["scores"] == {"one.force.r2": {"within": True}}
+    # the floor: as many stages as the current repro ran, and the experiment's rerun
+    floor = result["floor"]
+    assert list(floor["repro"]["stages"]) == ["s00", "s01", "s02", "s03"]
+    assert list(floor["experiment"]["stages"]) == ["s03"]
+    assert sum(floor["repro"]["stages"].values()) <= floor["repro"]["seconds"]
+    assert len(floor["process"]["runs"]) == 3 and floor["imports"] == "import json"
     table = render(result)
     assert f"baseline ({baseline[:7]})" in table
+    assert "| full `dvc repro`, 4 stages | ≤ 60 s |" in table
+    assert "| `dvc exp run -S`, 1 of them rerun | ≤ 10 s |" in table
     assert "| added | — |" in table and "| **total** |" in table
     assert "`dvc exp run -S knob=2`" in table
 
@@ -189,6 +198,10 @@ def test_the_report_gives_each_measurement_its_ratio_and_target_and_the_scores()
               "met": {"repro": True, "experiment": False, "fixed_cost": True},
               "scores": {"one.force.r2": {"within": True}}}
     result["current"]["scores"]["one.force.r2"] = {"mean": 0.95, "std": 0.01}
+    result["floor"] = {"imports": "import pandas, sklearn.base",
+                       "repro": {"seconds": 48.0, "stages": {f"s{i:02d}": 2.0 for i in range(24)}},
+                       "experiment": {"seconds": 14.0, "stages": {"s22": 6.0, "s23": 2.0}},
+                       "process": {"runs": [1.4, 1.3, 1.6], "seconds": 1.4}}
     text = render(result)
     lines = text.splitlines()
     assert "load average (1 min) on 2 cores: start 3.0, after baseline 4.5" in text
@@ -201,3 +214,14 @@ def test_the_report_gives_each_measurement_its_ratio_and_target_and_the_scores()
     assert "- current (1): train@one-force 11.0 s" in lines
     assert "| folds | — | 1.0 s |" in lines and "| **total** | **200.0 s** | **50.0 s** |" in lines
     assert "| one.force.r2 | 0.9000 ± 0.0200 | 0.9500 ± 0.0100 | yes |" in lines
+    # the floor beside each target: what is left of it, or none
+    assert "| full `dvc repro`, 24 stages | ≤ 60 s | 48.0 s | 12.0 s | 50.0 s |" in lines
+    assert "| `dvc exp run -S`, 2 of them rerun | ≤ 10 s | 14.0 s | **none** | 12.0 s |" \
+        in lines
+    assert "| `python -c \"import pandas, sklearn.base\"`, median of 3 | ≤ 1.5 s | 1.40 s | " \
+        "0.10 s | 1.30 s |" in lines
+
+
+def test_a_floor_that_reruns_more_stages_than_it_has_is_one_clear_error(tmp_path):
+    with pytest.raises(ValueError, match="reruns 5 of 4 stages"):
+        floor(tmp_path / "floor", stages=4, rerun=5)
