@@ -18,9 +18,9 @@ and columns from the :class:`~eskin.skin.Skin` it is built for (the scene's; the
   pressing is min(1, (F/F_seat)^⅔), so light loads give less signal, and
   F_seat varies from trial to trial with the tilt (lognormal, SD
   ``seating_variation``): a light weight's error is a large share of its force,
-  a seated heavy one's a smaller share (the paper's Fig. 6). The strain spreads over neighbouring nodes
-  with a compact kernel that reaches ``reach_nodes`` nodes
-  each way and no further. A node's capacitance grows as 1/(1 − ε); a
+  a seated heavy one's a smaller share (the paper's Fig. 6). The strain spreads over
+  neighbouring nodes with a compact kernel that reaches ``reach_nodes`` nodes each way and
+  no further. A node's capacitance grows as 1/(1 − ε); a
   terminal strip sums its nodes.
 * **A hand-made skin.** The four 0.5 mm Ecoflex layers are cast, and the
   carbon-grease terminals brushed through a stencil, by hand: each node's
