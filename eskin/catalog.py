@@ -42,12 +42,20 @@ PROCESSED_DIR = Path("data/processed")
 FEATURES_DIR = Path("data/features")
 FOLDS_DIR = Path("data/folds")
 MODELS_DIR = Path("models")
-# DVC's one metrics file: every scene's and task's headline scores, `<scene>.<task>.<name>`
-# (the report stage writes it), so `dvc metrics show` is one row an experiment.
+# Every scene's and task's headline scores, `<scene>.<task>.<target>.<score>` (the report
+# stage writes it; the tracking stage logs it as the pipeline run's scores).
 METRICS = Path("reports/metrics.json")
+# DVC's metrics: a file a scene, `<scene>.json`, one headline number a question (a target
+# of one contact; two contacts' as a set), so `dvc metrics show` is a row a scene that
+# fits 120 columns and `dvc exp show` a short column a score.
+SCENE_METRICS_DIR = Path("reports/metrics")
 # What each training run did and when (not a DVC output: its times would change dvc.lock);
 # the tracking stage logs it to MLflow.
 RUNS_DIR = Path("reports/runs")
+# The tracking stage's output: what it logged to MLflow, by content only (no run ids, no
+# times), so its hash in dvc.lock is the same on every machine. Ignored by git: a fresh
+# clone lacks it, so DVC runs the tracking stage there once, and never twice.
+TRACKED = RUNS_DIR / "tracked.json"
 SCORES_DIR = Path("reports/scores")
 PREDICTIONS_DIR = Path("reports/predictions")
 LINEAGE_DIR = Path("reports/lineage")

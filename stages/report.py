@@ -1,9 +1,18 @@
 """DVC stage: predictions + scores → figures, plot data, reports/index.html,
-reports/results.md and DVC's headline metrics (reports/metrics.json)."""
+reports/results.md, the headline scores (reports/metrics.json) and DVC's metrics, a file
+a scene (reports/metrics/)."""
 
 import sys
 
-from eskin.catalog import FIGURES_DIR, METRICS, PAGE, PLOTS_DIR, PREDICTIONS_DIR, SCORES_DIR
+from eskin.catalog import (
+    FIGURES_DIR,
+    METRICS,
+    PAGE,
+    PLOTS_DIR,
+    PREDICTIONS_DIR,
+    SCENE_METRICS_DIR,
+    SCORES_DIR,
+)
 from eskin.config import load_params
 from eskin.errors import run_friendly
 from eskin.reporting import report
@@ -15,7 +24,7 @@ def main() -> str:
         report=params.report, scenes=params.scenes, scores_dir=SCORES_DIR,
         predictions_dir=PREDICTIONS_DIR, figures_dir=FIGURES_DIR, plots_dir=PLOTS_DIR,
         page_path=PAGE, results_path="reports/results.md", metrics_path=METRICS,
-        run=report.provenance()).summary
+        scene_metrics_dir=SCENE_METRICS_DIR, run=report.provenance()).summary
 
 
 if __name__ == "__main__":

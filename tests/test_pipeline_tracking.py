@@ -53,21 +53,21 @@ def test_dvc_metrics_show_lists_the_headline_metrics(scratch):
     shown = json.loads(run(["dvc", "metrics", "show", "--json"], root, env))
     files = {path: content["data"] for data in shown.values()
              for path, content in data["data"].items() if "data" in content}
-    # One file: the headline only (conditions CV, one score a target; every scheme, spread
-    # and confusion count is in reports/scores/), named by scene and task.
-    assert list(files) == ["reports/metrics.json"]
-    metrics = files["reports/metrics.json"]
+    # A file a scene: the headline only (conditions CV, one number a question; every
+    # scheme, spread and confusion count is in reports/scores/, every target's headline in
+    # reports/metrics.json).
+    assert sorted(files) == ["reports/metrics/single_force.json",
+                             "reports/metrics/two_force.json"]
+    one = files["reports/metrics/single_force.json"]
     scores = json.loads((root / "reports/scores/single_force/stretch.json").read_text())
-    assert metrics["single_force"]["stretch"] == {"r2": scores["conditions"]["stretch"]["r2"]}
-    assert set(metrics["single_force"]["force"]) == {"r2"}
-    assert set(metrics["single_force"]["detect"]["contact"]) == {"accuracy"}
-    assert set(metrics["single_force"]["localise"]) == {"x", "y"}
-    assert set(metrics["two_force"]["pairs"]) == {"pair_accuracy", "ghost_share", "force_r2"}
-    # skipped tasks (one contact's pairs, two contacts' stretch and detect) have no entry
-    assert "pairs" not in metrics["single_force"]
-    assert set(metrics["two_force"]) == {"force", "localise", "pairs"}
+    assert one["stretch"] == scores["conditions"]["stretch"]["r2"]
+    assert set(one) == {"stretch", "force", "contact", "x", "y"}  # no pairs: one contact
+    assert set(files["reports/metrics/two_force.json"]) == {"pairs", "pair_force"}
+    headline = json.loads((root / "reports/metrics.json").read_text())
+    assert set(headline["two_force"]) == {"force", "localise", "pairs"}
+    assert set(headline["two_force"]["pairs"]) == {"pair_accuracy", "ghost_share", "force_r2"}
     table = run_checked(["dvc", "metrics", "show"], root, {**env, "COLUMNS": "120"}).stdout
-    assert "single_force.stretch.r2" in table and "single_force.detect.contact.accuracy" in table
+    assert "pair_force" in table and "contact" in table
     assert "stratified" not in table and "_std" not in table
 
 
@@ -245,6 +245,30 @@ def test_the_mlflow_ui_opens_on_the_training_runs_and_shows_their_figures(scratc
     assert "index.html" in page_artifacts and "figures" in artifacts
 
 
+@needs_chromium
+def test_the_link_the_tracking_stage_prints_shows_the_headline_scores(scratch):
+    """The link `dvc repro`'s tracking stage prints opens MLflow's runs table (on the real
+    server) with each headline score as a column named with its CV scheme, and the
+    variants newest first."""
+    root, env = scratch
+    printed = run(["dvc", "repro", "--force", "--single-item", "track"], root, env)
+    link = next(word for word in printed.split() if word.startswith("http"))
+    assert "viewStateShareKey=" in link, printed
+    written = json.loads((root / "reports" / "metrics.json").read_text())
+    score = written["single_force"]["force"]["r2"]
+    with headless_chromium() as browser:
+        page = browser.new_page(viewport={"width": 1600, "height": 1000})
+        page.goto(link)
+        page.wait_for_selector("text=conditions.single_force.force.r2", timeout=60_000)
+        headers = page.eval_on_selector_all(
+            ".ag-header-cell[col-id]", "cells => cells.map(c => c.getAttribute('col-id'))")
+        page.wait_for_selector(f"text={str(score)[:7]}", timeout=30_000)  # its value
+        state = page.url
+    assert "metrics.`conditions.single_force.force.r2`" in headers, headers
+    assert "metrics.`conditions.two_force.localise.x1.accuracy`" in headers, headers
+    assert "orderByKey=attributes.start_time&orderByAsc=false" in state, state  # newest first
+
+
 def test_a_repro_groups_its_task_runs_under_one_pipeline_run(scratch):
     root, env = scratch
     import mlflow
@@ -293,7 +317,7 @@ def test_a_repro_groups_its_task_runs_under_one_pipeline_run(scratch):
         (root / "params.yaml").read_text())["sim"]["seed"])
     assert not [k for k in parent.data.params if k.split(".")[0] in ("bench", "stress", "soak",
                                                                       "fuzz")]
-    assert parent.data.metrics["single_force.detect.contact.accuracy"] == logged[
+    assert parent.data.metrics["conditions.single_force.detect.contact.accuracy"] == logged[
         "conditions.contact.accuracy"]
     assert parent.data.tags["eskin.scenes"] == "single_force,two_force"
     assert "eskin.scene" not in parent.data.tags

@@ -92,7 +92,7 @@ def build(root, out, run):
                          predictions_dir=root / "predictions", figures_dir=out / "figures",
                          plots_dir=out / "plots", page_path=out / "index.html",
                          results_path=out / "results.md", metrics_path=out / "metrics.json",
-                         run=run)
+                         scene_metrics_dir=out / "metrics", run=run)
 
 
 @pytest.fixture(scope="module")
@@ -119,7 +119,16 @@ def test_every_figure_is_written_as_png_and_svg_per_scheme(built):
             for p in (root / "figures").rglob("*.svg")} == expected
 
 
-def test_dvc_metrics_are_one_table_named_by_scene_and_task_without_skipped_tasks(built):
+def test_dvc_metrics_are_a_file_a_scene_one_number_a_target_without_skipped_tasks(built):
+    root, _ = built
+    # the fixture's two-contact scene has no pairs scores: its own targets stand
+    assert json.loads((root / "metrics" / "single_force.json").read_text()) == {
+        "stretch": 0.8, "force": 0.8, "contact": 0.93, "x": 0.93, "y": 0.93}
+    assert json.loads((root / "metrics" / "two_force.json").read_text()) == {
+        "force1": 0.8, "force2": 0.8, **{t: 0.93 for t in ("x1", "y1", "x2", "y2")}}
+
+
+def test_the_headline_is_one_table_named_by_scene_and_task_without_skipped_tasks(built):
     root, _ = built
     metrics = json.loads((root / "metrics.json").read_text())
     assert metrics == {

@@ -3,27 +3,28 @@
 `dvc exp show` lists every key of params.yaml, DVC's default params file, whatever the
 stages declare (dvc/repo/params/show.py, ``_collect_params``), and every dependency of
 every stage: params.yaml holds the pipeline's knobs only. With no options the table does
-not fit 120 columns (docs/experiments.md says why); the daily loop's view is
-``dvc exp show --only-changed --drop '.*/' --no-pager``: the experiment's name, the params
-that differ and the headline scores that differ, each dependency's hash left out.
+not fit 120 columns (docs/experiments.md says why); the daily loop's view is the README's
+``dvc exp show --only-changed --drop 'Created|models|.*/' --precision 3 --no-pager``: the
+experiment's name, the params that differ and the headline scores that differ, each
+dependency's hash left out.
 
-The headline scores are one file, reports/metrics.json (the report stage writes it),
-keyed ``<scene>.<task>.<target>.<score>`` (conditions CV; the target left out where it is
-the task), no entry for a skipped task.
+DVC's metrics are a file a scene, reports/metrics/<scene>.json (the report stage writes
+them), one conditions-CV number a question, named by its target (two contacts: as a set),
+no entry for a skipped task.
 """
 
 from __future__ import annotations
 
 import json
-import re
 from pathlib import Path
 
 import pytest
 import yaml
 from conftest import ROOT, copy_small_pipeline, run_checked
 
-HEADLINE = "reports/metrics.json"
-EXP_SHOW = ["dvc", "exp", "show", "--only-changed", "--drop", ".*/", "--no-pager"]
+METRICS_DIR = "reports/metrics"
+EXP_SHOW = ["dvc", "exp", "show", "--only-changed", "--drop", "Created|models|.*/",
+            "--precision", "3", "--no-pager"]
 WIDTH = 120
 EXPERIMENT, KNOB, VALUE = "views-rf", "train.stretch.model", "random_forest"
 SCENES, TASKS = ("single_force", "two_force"), ("stretch", "force", "detect", "localise",
@@ -67,31 +68,42 @@ def test_params_yaml_holds_only_what_the_pipelines_stages_read():
     assert declared <= sections, sorted(declared - sections)
 
 
+def test_the_readme_gives_the_exp_show_tested_here():
+    readme = (ROOT / "README.md").read_text()
+    assert "dvc exp show --only-changed --drop 'Created|models|.*/' --precision 3 --no-pager" \
+        in readme
+
+
 def test_exp_show_names_the_experiment_its_changed_param_and_score_in_120_columns(experiment):
     root, env = experiment
     table = shown(EXP_SHOW, root, env)
     assert not too_wide(table), table
-    score = json.loads((root / HEADLINE).read_text())["single_force"]["stretch"]["r2"]
+    score = json.loads((root / METRICS_DIR / "single_force.json").read_text())["stretch"]
     row = next(line for line in table.splitlines() if f"[{EXPERIMENT}]" in line)
-    assert VALUE in row and f"{score:.5g}" in row, table  # DVC shows 5 significant digits
-    assert KNOB in table and "single_force.stretch.r2" in table, table
-    assert "/" not in table, table  # no dependency's hash
+    assert VALUE in row and f"{score:.3f}".rstrip("0") in row, table
+    assert KNOB in table and "stretch" in table, table
+    assert "/" not in table and "Created" not in table, table  # no dependency's hash
 
 
-def test_metrics_show_is_one_row_of_headline_scores_named_by_scene_and_task(experiment):
-    """One file, one row: every score named <scene>.<task>..., none empty, no entry for a
-    task the scene skips. DVC draws a column per score (dvc/compare.py, metrics_table), so
-    the row is as wide as the names; `dvc metrics diff --all` is the same scores a row
-    each, which fits 120 columns."""
+def test_metrics_show_is_a_row_a_scene_that_fits_120_columns(experiment):
+    """A file a scene, a row each: one number a question, named by its target (a
+    two-contact scene's as a set), none for a task the scene skips; the table fits 120
+    columns, and so does `dvc metrics diff --all`."""
     root, env = experiment
-    header, *rows = shown(["dvc", "metrics", "show"], root, env).splitlines()
-    assert len(rows) == 1 and rows[0].split()[0] == HEADLINE, rows
-    names, values = header.split()[1:], rows[0].split()[1:]
-    assert len(values) == len(names) and "-" not in values, (names, values)
-    named = re.compile(rf"^({'|'.join(SCENES)})\.({'|'.join(TASKS)})\.")
-    assert all(named.match(name) for name in names), names
-    for skipped in ("single_force.pairs.", "two_force.stretch.", "two_force.detect."):
-        assert not any(name.startswith(skipped) for name in names), names
+    table = shown(["dvc", "metrics", "show"], root, env)
+    assert not too_wide(table), table
+    header, *rows = table.splitlines()
+    names = header.split()[1:]
+    by_scene = {row.split()[0]: dict(zip(names, row.split()[1:], strict=True)) for row in rows}
+    assert set(by_scene) == {f"{METRICS_DIR}/{scene}.json" for scene in SCENES}, table
+    one, two = by_scene[f"{METRICS_DIR}/single_force.json"], by_scene[
+        f"{METRICS_DIR}/two_force.json"]
+    assert {k for k, v in one.items() if v != "-"} == {"stretch", "force", "contact", "x", "y"}
+    assert {k for k, v in two.items() if v != "-"} == {"pairs", "pair_force"}
+    written = json.loads((root / METRICS_DIR / "two_force.json").read_text())
+    pairs = json.loads((root / "reports/scores/two_force/pairs.json").read_text())
+    assert written == {"pairs": pairs["conditions"]["pair_accuracy"],
+                       "pair_force": pairs["conditions"]["force_r2"]}
 
     listing = shown(["dvc", "metrics", "diff", "--all"], root, env)
     assert not too_wide(listing), listing

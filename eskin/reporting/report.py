@@ -246,11 +246,13 @@ class Reported:
 
 def report(*, report: Report, scenes: Mapping[str, Scene], scores_dir: Path,
            predictions_dir: Path, figures_dir: Path, plots_dir: Path, page_path: Path,
-           results_path: Path, metrics_path: Path, run: Provenance | None = None) -> Reported:
+           results_path: Path, metrics_path: Path, scene_metrics_dir: Path | None = None,
+           run: Provenance | None = None) -> Reported:
     """Figures, plot data, the page, the results and DVC's metrics of every scene in
     ``scenes`` (the ``scenes`` section: which, and their kinds), with the ``report``
     section; ``run``: which commit and experiment the page says it shows
-    (:func:`provenance`)."""
+    (:func:`provenance`); ``scene_metrics_dir``: where DVC's metrics go, a file a scene
+    (:func:`scene_metrics`)."""
     settings = report
     kinds = {name: scene_kind(scene).name for name, scene in scenes.items()}
     skins = {name: scene_skin(scene) for name, scene in scenes.items()}
@@ -301,6 +303,16 @@ def report(*, report: Report, scenes: Mapping[str, Scene], scores_dir: Path,
     Path(page_path).write_text(render_page(scenes, page_figures, run or Provenance(), href))
     Path(results_path).write_text(results_markdown(scenes))
     Path(metrics_path).write_text(json.dumps(headline_metrics(scores), indent=2) + "\n")
+    if scene_metrics_dir is not None:
+        scene_metrics_dir = Path(scene_metrics_dir)
+        scene_metrics_dir.mkdir(parents=True, exist_ok=True)
+        for stale in scene_metrics_dir.glob("*.json"):  # a scene since removed
+            stale.unlink()
+        for scene in kinds:
+            numbers = scene_metrics(scores[scene])
+            if numbers:
+                (scene_metrics_dir / f"{scene}.json").write_text(
+                    json.dumps(numbers, indent=2) + "\n")
     return Reported(kinds, len(jobs), figures_dir, plots_dir, Path(page_path), Path(results_path),
                     f"report: {len(kinds)} scene(s), {len(jobs)} figures (PNG + SVG) in "
                     f"{figures_dir}, plot data in {plots_dir}, {page_path}, results in "
@@ -331,3 +343,36 @@ def headline_metrics(scores: Mapping[str, Mapping[str, dict]]) -> dict[str, dict
                     entry.update(score if target == task_name else {target: score})
             metrics.setdefault(scene, {})[task_name] = entry
     return metrics
+
+
+# DVC's name for a two-contact scene's scores as a set (eskin/evaluation/pairs.py).
+SCENE_PAIRS_METRICS = {"pair_accuracy": "pairs", "force_r2": "pair_force"}
+
+
+def scene_metrics(by_task: Mapping[str, dict]) -> dict[str, float]:
+    """DVC's metrics of one scene: one number a question, under the headline scheme, named
+    by its target (``stretch``, ``force``, ``contact``, ``x``, ``y``: R² for a regression,
+    accuracy otherwise). Where the scene's contacts are scored as a set (``pairs``: both
+    placed right; ``pair_force``: their forces' R²), those stand for each contact's own
+    targets (``x1`` … ``force2``), which the full headline (``metrics.json``) keeps."""
+    from eskin.learning.tasks import get_task
+
+    pairs = by_task.get(PAIRS, {})
+    as_set = pairs.get("status") == "scored" and bool(pairs.get(HEADLINE_SCHEME))
+    out: dict[str, float] = {}
+    for task_name, doc in by_task.items():
+        scheme = doc.get(HEADLINE_SCHEME)
+        if doc.get("status") not in ("trained", "scored") or not scheme:
+            continue
+        if task_name == PAIRS:
+            out.update({name: scheme[score] for score, name in SCENE_PAIRS_METRICS.items()
+                        if score in scheme})
+            continue
+        task, labelled = get_task(doc["kind"], task_name), get_kind(doc["kind"])
+        # each contact's own position and force (not a total force): the set stands for them
+        per_contact = {*labelled.node_columns,
+                       *([] if labelled.total_force else labelled.force_columns)}
+        for target in task.targets:
+            if not (as_set and labelled.contacts > 1 and target in per_contact):
+                out[target] = scheme[target][task.headline_metric]
+    return out

@@ -48,7 +48,10 @@ def _seconds(runs: pd.DataFrame) -> pd.Series:
 def split_runs(runs: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
     """(pipeline runs, task and scoring runs) of an ``mlflow.search_runs`` frame."""
     if runs.empty:
-        raise NoRunsError("no runs in the tracking store: run `dvc repro` (or `dvc exp run`)")
+        from eskin.tracking import runs as tracking
+
+        raise NoRunsError("no runs in the tracking store: run "
+                          f"{tracking.log_pipeline_command()} (or `dvc exp run`)")
     kind = _tag(runs, "eskin.kind")
     return runs[kind == "pipeline"], runs[kind.isin(TASK_KINDS)]
 
@@ -346,7 +349,8 @@ def load_runs(experiment: str | None = None) -> pd.DataFrame:
     experiment_ = mlflow.get_experiment_by_name(name)
     if experiment_ is None:
         raise NoRunsError(f"no MLflow experiment {name!r} at {runs.tracking_uri()}: "
-                          "run `dvc repro` first (or set MLFLOW_TRACKING_URI)")
+                          f"run {runs.log_pipeline_command()} first "
+                          "(or set MLFLOW_TRACKING_URI)")
     # A run a killed stage left RUNNING is shown as what it is: FAILED.
     runs.settle_stale_runs(client, [experiment_.experiment_id])
     return mlflow.search_runs(experiment_names=[name], output_format="pandas")

@@ -235,7 +235,8 @@ def promote(scene: str, alias: str = "champion", *, variant: str | None = None,
         experiment = client.get_experiment_by_name(runs.EXPERIMENT)
         if experiment is None:
             raise NoRunsError(f"no MLflow experiment {runs.EXPERIMENT!r} at "
-                              f"{runs.tracking_uri()}: run `dvc repro` to log one")
+                              f"{runs.tracking_uri()}: run {runs.log_pipeline_command()} "
+                              "to log one")
         ids = [experiment.experiment_id]
         if run_id:
             pipeline = _given_pipeline_run(client, ids, run_id)
@@ -356,8 +357,11 @@ def _workspace_pipeline_run(client, ids: list[str], scene: str, root: Path):
         if all(run.data.tags.get("eskin.model_md5") == wanted.get(task)
                for task, run in logged.items()):
             return pipeline
+    from eskin.tracking import runs
+
     raise NoRunsError(f"no pipeline run logged the {scene} models dvc.lock records: run "
-                      "`dvc repro` (its track stage logs them), or name one with "
+                      f"{runs.log_pipeline_command()} (its track stage logs them), or name "
+                      "one with "
                       f"--experiment ({_variants(client, ids)}) or --run")
 
 

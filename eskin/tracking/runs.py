@@ -82,6 +82,17 @@ def tracking_uri() -> str:
     return os.environ.get("MLFLOW_TRACKING_URI") or store.own_uri(project_root())
 
 
+def log_pipeline_command() -> str:
+    """The command that fills an empty store, as the workspace stands: `dvc repro`, unless
+    its tracking stage already ran here (into another store, or one since deleted), when
+    DVC would skip it."""
+    from eskin.catalog import TRACKED
+
+    if (project_root() / TRACKED).exists():
+        return "`dvc repro --force --single-item track`"
+    return "`dvc repro`"
+
+
 def connect() -> MlflowClient:
     """Point MLflow (its fluent API too) at the project's store; a client on it."""
     mlflow.set_tracking_uri(tracking_uri())
@@ -260,13 +271,19 @@ def ensure_experiment() -> str:
         return _experiment_id(connect(), EXPERIMENT)
 
 
-def ui_url(experiment_id: str, run_id: str | None = None, artifacts: bool = False) -> str:
-    """The MLflow UI's page of an experiment (or one of its runs, or the run's artifacts),
-    on the tracking server, or on `mlflow ui`'s default address for a local store."""
+def ui_url(experiment_id: str, run_id: str | None = None, artifacts: bool = False,
+           view: str | None = None) -> str:
+    """The MLflow UI's page of an experiment (in a shared ``view`` of its runs table, or
+    one of its runs, or the run's artifacts), on the tracking server, or on `mlflow ui`'s
+    default address for a local store."""
     uri = tracking_uri()
     base = uri.rstrip("/") if uri.startswith(("http://", "https://")) else "http://127.0.0.1:5000"
     page = f"#/experiments/{experiment_id}" + (f"/runs/{run_id}" if run_id else "") + (
         "/artifacts" if run_id and artifacts else "")
+    if view and not run_id:
+        # the runs table's own route: from the experiment's, the UI redirects there and
+        # drops the share key
+        return f"{base}/{page}/runs?viewStateShareKey={view}&{TRAINING_VIEW}"
     return f"{base}/{page}?{TRAINING_VIEW}"
 
 
@@ -337,7 +354,10 @@ def _track_pipeline(params, scenes, tasks, headline, page, log) -> Tracked:
     key = pipeline_key(params, commit)
     variant = variant_name(key)
     records = {(t.scene, t.task): _record(t) for t in tasks}
-    starts = [r["started"] for r in records.values() if r]
+    # This pipeline's own training: a record that names no run yet. A reused task's record
+    # names the run that trained it earlier; its times are that run's, not this one's.
+    fresh = [r for r in records.values() if r and not r.get("run_id")]
+    starts = [r["started"] for r in fresh]
     tags = {"eskin.git_commit": commit, "mlflow.source.git.commit": commit,
             "eskin.dvc_experiment": dvc_experiment(), PIPELINE_TAG: key}
     parent = parent_run(client, experiment_id, key, {**tags, "eskin.scenes": ",".join(scenes)},
@@ -376,14 +396,69 @@ def _track_pipeline(params, scenes, tasks, headline, page, log) -> Tracked:
         if record:  # the record now names its run: a later pipeline that reuses the task
             _write_record(files.record_path, {**record, "run_id": run_id})  # points at it
         done[name] = "trained"
-    ends = [r["ended"] for r in records.values() if r]
+    ends = [r["ended"] for r in fresh]
     client.log_batch(parent, metrics=[Metric(k, float(v), int(1000 * time.time()), 0)
-                                      for k, v in flatten(headline).items()])
+                                      for k, v in headline_metrics(headline).items()])
+    share_key = headline_view(client, experiment_id, headline)
     if page is not None and Path(page).exists():
         client.log_artifact(parent, str(page))
-    end = max([int(1000 * time.time())] + [int(1000 * e) for e in ends])
-    client.set_terminated(parent, end_time=end)
-    return Tracked(parent, variant, done, ui_url(experiment_id, parent))
+    if any(what != "present" for what in done.values()) or not done:
+        # A pipeline run ends when its last logging did: a repro that logged nothing new
+        # (DVC ran the stage again on the same outputs) leaves its duration alone.
+        end = max([int(1000 * time.time())] + [int(1000 * e) for e in ends])
+        client.set_terminated(parent, end_time=end)
+    return Tracked(parent, variant, done, ui_url(experiment_id, view=share_key))
+
+
+def headline_metrics(headline: Mapping[str, Any]) -> dict[str, float]:
+    """A pipeline run's headline scores under names that say their CV scheme, as a task
+    run's do: ``conditions.single_force.force.r2`` (the task run's ``conditions.force.r2``)."""
+    from eskin.catalog import HEADLINE_SCHEME
+
+    return {k: float(v) for k, v in flatten({HEADLINE_SCHEME: headline}).items()}
+
+
+# MLflow's shared view state: an experiment tag ``mlflow.sharedViewState.<key>`` holds the
+# runs table's state as JSON, and ``?viewStateShareKey=<key>`` opens the table in it (the
+# UI's own "Share" button writes the same tag). eskin writes one: the pipeline runs, newest
+# first, with every headline score as a column.
+SHARED_VIEW_TAG, HEADLINE_VIEW = "mlflow.sharedViewState.", "eskin-headline"
+
+
+def headline_view(client: MlflowClient, experiment_id: str,
+                  headline: Mapping[str, Any]) -> str:
+    """Write (or widen) the headline view of the experiment's runs table; its share key."""
+    tag = SHARED_VIEW_TAG + HEADLINE_VIEW
+    before = client.get_experiment(experiment_id).tags.get(tag)
+    columns = []
+    if before:
+        with contextlib.suppress(ValueError, AttributeError):
+            columns = list(json.loads(before).get("selectedColumns", []))
+    # Every variant's columns stay: a scene that one variant lacks keeps its column.
+    columns += [f"metrics.`{name}`" for name in headline_metrics(headline)
+                if f"metrics.`{name}`" not in columns]
+    # Wide enough for a whole name (the UI cuts a header at its column's width).
+    widths = {column: 24 + 6 * len(column) for column in columns}
+    state = {"searchFilter": "", "orderByKey": "attributes.start_time", "orderByAsc": False,
+             "selectedColumns": ["attributes.`Run Name`", *columns],
+             # the UI applies widths to the columns its order names
+             "columnOrder": ["attributes.`Run Name`", "runDateAndNestInfo", "duration",
+                             *columns], "columnWidths": widths,
+             "runsExpanded": {}, "runsPinned": [], "runsHidden": []}
+    client.set_experiment_tag(experiment_id, tag, json.dumps(state))
+    return HEADLINE_VIEW
+
+
+def tracked_record(tasks: list[TaskFiles], headline: Mapping[str, Any],
+                   params: Mapping[str, Any]) -> dict[str, Any]:
+    """What the tracking stage logged, by content alone (no run id, time or commit), so
+    that the same pipeline outputs give the same file on any machine: its hash in dvc.lock
+    does not move when a fresh clone logs them again."""
+    text = json.dumps(params, sort_keys=True, default=str)
+    return {"params_sha256": hashlib.sha256(text.encode()).hexdigest(),
+            "headline": headline_metrics(headline),
+            "tasks": {f"{t.scene}/{t.task}": t.scores.get("model_md5") or _md5(t.scores_path)
+                      for t in tasks}}
 
 
 def _md5(path: Path) -> str:
