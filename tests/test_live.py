@@ -432,6 +432,8 @@ def test_the_live_view_shows_a_press_where_and_as_hard_as_it_is(stack, tmp_path)
                          for name in ("contact", "force", "stretch", "seq", "rate")}
                 cell = page.inner_text("#cell-5-5")
                 bar = page.eval_on_selector("#bar-x5", "bar => bar.style.height")
+                scale = {name: page.inner_text(f"#{name}")
+                         for name in ("tick-top", "tick-middle", "channels")}
                 page.screenshot(path=str(tmp_path / "live_view.png"))
         finally:
             stop.set()
@@ -439,10 +441,13 @@ def test_the_live_view_shows_a_press_where_and_as_hard_as_it_is(stack, tmp_path)
     assert not failure, failure
     assert shown["contact"].startswith("touch (p = ")
     assert abs(float(shown["force"].removesuffix(" N")) - 3.2536) < 0.5
-    assert abs(float(cell) - 3.2536) < 0.5
+    assert cell.endswith(" N") and abs(float(cell.removesuffix(" N")) - 3.2536) < 0.5
     assert abs(float(shown["stretch"]) - 1.0) < 0.02
     assert 60 < float(shown["rate"]) < 100  # the board's 12 ms frames: 83 a second
-    assert float(bar.removesuffix("%")) > 50  # x5 carries the press
+    # x5 carries the press: above half of the axis, a round number of ADC counts
+    assert float(bar.removesuffix("%")) > 50
+    assert scale["tick-top"] in ("50", "100", "200") and "in ADC counts" in scale["channels"]
+    assert float(scale["tick-middle"]) == float(scale["tick-top"]) / 2
 
 
 def test_stream_events_beyond_the_backlog_kept_during_a_command_are_reported(stack):

@@ -4,10 +4,10 @@ A person pressing the skin looks at it: the skin's map of nodes (size_x × size_
 a row/column skin, 10 × 10 on the paper's) with the estimated contact(s)
 (marked by force), the force, the location, the stretch, whether there is contact and
 how sure the detector is, the drift since the tare, every channel's change from the
-untouched reading as bars, and the frame rate; a button (and the key t) asks for a
-re-tare (``POST /tare``). The page holds an ``EventSource`` on ``/events``; every client
-is sent the newest state only (a slow browser skips frames, nothing queues), and
-``/state`` answers it once as JSON.
+untouched reading as bars on an axis in ADC counts, and the frame rate; a button (and
+the key t) asks for a re-tare (``POST /tare``). The page holds an ``EventSource`` on
+``/events``; every client is sent the newest state only (a slow browser skips frames,
+nothing queues), and ``/state`` answers it once as JSON.
 
 A page, not a terminal view: it draws the map as the skin is laid out, any machine on the
 bench can open it (through an SSH tunnel: it binds to 127.0.0.1 only), and it is tested
@@ -39,11 +39,19 @@ main {{ display: flex; gap: 2em; align-items: flex-start; }}
 #readout p {{ margin: .3em 0; font-size: 1.1em; }}
 #readout b {{ display: inline-block; min-width: 9.5em; font-weight: 600; color: #555; }}
 #contact.touch {{ color: #b3261e; font-weight: 700; }}
+#channels {{ margin: 1.5em 0 0; }}
+#channels figcaption {{ font-size: .85em; color: #555; margin-bottom: .4em; }}
+#chart {{ display: flex; gap: 6px; height: 8em; }}
+#axis {{ width: 3.5em; height: 100%; display: flex; flex-direction: column;
+  justify-content: space-between; align-items: flex-end; font-size: .7em; color: #555;
+  border-right: 1px solid #999; padding-right: 4px; line-height: 0; }}
 #bars {{ display: grid; grid-template-columns: repeat({terminals}, 30px); gap: 3px;
-  align-items: end; height: 8em; margin-top: 1.5em; }}
+  align-items: end; height: 100%;
+  background: linear-gradient(#ccc 1px, transparent 1px) 0 0 / 100% 50%; }}
 #bars div {{ background: #4a78b5; min-height: 1px; }}
 #barlabels {{ display: grid; grid-template-columns: repeat({terminals}, 30px); gap: 3px;
-  font-size: .7em; color: #777; text-align: center; }}
+  font-size: .7em; color: #777; text-align: center;
+  margin-left: calc(3.5em + 11px); }} /* the axis' width, its padding, border and gap */
 </style></head>
 <body>
 <h1>eskin live: <span id="scene">{scene}</span> ({kind}) on <span id="device">{device}</span></h1>
@@ -63,7 +71,13 @@ main {{ display: flex; gap: 2em; align-items: flex-start; }}
 re-tare (t)</button></p>
 </div>
 </main>
-<div id="bars"></div><div id="barlabels"></div>
+<figure id="channels">
+<figcaption>each channel's change from the untouched reading, in ADC counts
+(the frames' unit; blue above it, grey below)</figcaption>
+<div id="chart"><div id="axis"><span id="tick-top">20</span><span id="tick-middle">10</span>
+<span>0</span></div><div id="bars"></div></div>
+<div id="barlabels"></div>
+</figure>
 <script>
 const map = document.getElementById("map");
 map.appendChild(document.createElement("div"));
@@ -86,6 +100,13 @@ for (const name of names) {{
 }}
 const text = (id, value) => {{ document.getElementById(id).textContent = value; }};
 const fixed = (v, digits) => v === null || v === undefined ? "–" : v.toFixed(digits);
+// The bars' full height: a round number of counts at or above the largest change (20 at
+// least, so that noise stays low), so that the axis reads in plain numbers.
+function scaleTop(change) {{
+  const most = Math.max(20, ...change.map(Math.abs));
+  const power = 10 ** Math.floor(Math.log10(most));
+  return [1, 2, 5, 10].map(step => step * power).find(top => top >= most);
+}}
 let marked = [], first = null;
 function show(state) {{
   if (state.tare) text("tared", state.tare.reason === "request"
@@ -107,7 +128,7 @@ function show(state) {{
     const shade = total ? (e.force || 0) / 2 : (f || 0);
     const strength = Math.max(0.25, Math.min(1, shade / 6));
     cell.style.background = `rgba(179, 38, 30, ${{strength}})`;
-    cell.textContent = total ? "" : fixed(f, 1);
+    cell.textContent = total ? "" : `${{fixed(f, 1)}} N`;
     marked.push(cell);
   }}
   const contact = document.getElementById("contact");
@@ -127,7 +148,9 @@ function show(state) {{
     text("rate", ((e.seq - first[0]) / (e.t_ms - first[1]) * 1000).toFixed(1));
   text("lost", `${{state.lost}}, ${{state.rejected}}`);
   const change = e.change_counts || [];
-  const top = Math.max(20, ...change.map(Math.abs));
+  const top = scaleTop(change);
+  text("tick-top", `${{top}}`);
+  text("tick-middle", `${{top / 2}}`);
   change.forEach((v, i) => {{
     const bar = document.getElementById("bar-" + names[i]);
     bar.style.height = `${{Math.abs(v) / top * 100}}%`;
