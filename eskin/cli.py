@@ -154,15 +154,26 @@ def _live(args: argparse.Namespace) -> int:
                 broadcast = resources.enter_context(LineBroadcast(args.serve, notify=note))
                 note(f"serving the JSON lines on 127.0.0.1:{broadcast.port}")
             if args.view is not None:
-                from eskin.deploy.view import LiveView
+                from eskin.deploy.view import LiveView, Pressing
+                from eskin.device.board import MAX_NEWTONS
+                from eskin.kinds import KINDS
 
+                # Only the simulated board can be pressed from the page: through its SIM
+                # commands, on this link.
+                pressing = Pressing.of_scene(
+                    getattr(scene_params, "forces", ()), KINDS[stack.kind].contacts,
+                    max_n=MAX_NEWTONS) if args.simulated else None
                 view = resources.enter_context(LiveView(
                     scene=args.scene, kind=stack.kind, device=hello.device_id, skin=stack.skin,
-                    port=args.view))
-                note(f"the live view is at {view.url}")
+                    port=args.view, pressing=pressing))
+                note(f"the live view is at {view.url}" + (
+                    f"; click a node to press the simulated skin there (or `eskin press X Y "
+                    f"NEWTONS --view {view.port}`)" if pressing else ""))
         except OSError as err:  # the port is taken, say
             raise ValueError(f"cannot serve on 127.0.0.1 ({err.strerror or err})") from None
         def requests() -> list[str]:  # re-tare from the page or a socket client
+            if view is not None and view.pressing is not None:
+                view.carry_out_presses(link.command)  # between two batches of the stream
             return [*(view.requests() if view else ()),
                     *(broadcast.requests() if broadcast else ())]
 
@@ -183,6 +194,25 @@ def _live(args: argparse.Namespace) -> int:
                     break
         except KeyboardInterrupt:  # how a live session ends
             note(f"stopped after {estimates} estimates")
+    return 0
+
+
+def _press(args: argparse.Namespace) -> int:
+    from eskin.deploy.view import press_on_view
+
+    wrong = (args.force_n is not None or (args.x is None) != (args.y is None)
+             if args.release else None in (args.x, args.y, args.force_n))
+    if wrong:
+        raise ValueError("eskin press takes X Y NEWTONS (e.g. eskin press 6 4 5.2), or "
+                         "--release (with X Y: that node's weight only)")
+    if args.release:
+        request = {"release": True} if args.x is None else {
+            "x": args.x, "y": args.y, "release": True}
+    else:
+        request = {"x": args.x, "y": args.y, "force_n": args.force_n}
+    weights = press_on_view(args.view, request)
+    print("pressed: " + ("nothing" if not weights else "; ".join(
+        f"{w['force_n']:g} N on x {w['x']}, y {w['y']}" for w in weights)))
     return 0
 
 
@@ -300,6 +330,24 @@ def build_parser() -> argparse.ArgumentParser:
     live.add_argument("--any-device", action="store_true",
                       help="use the stack on a board other than the one it was trained on")
     live.set_defaults(run=_live)
+
+    press = commands.add_parser(
+        "press", help="press the simulated skin of a running `eskin live --simulated --view "
+        "PORT`, as a click on its page does",
+        description="Press (or release) the simulated skin of a running `eskin live "
+        "--simulated --view PORT`.",
+        epilog="example: eskin press 6 4 5.2\n         eskin press --release",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    press.add_argument("x", type=int, nargs="?", metavar="X", help="the node's x (row), 1..R")
+    press.add_argument("y", type=int, nargs="?", metavar="Y", help="the node's y (column), 1..C")
+    press.add_argument("force_n", type=float, nargs="?", metavar="NEWTONS",
+                       help="the weight, in newtons (the scene's levels read best)")
+    press.add_argument("--release", action="store_true",
+                       help="lift every weight (with X Y: the one on that node)")
+    press.add_argument("--view", type=int, default=8050, metavar="PORT",
+                       help="the live view's port, as given to `eskin live --view` "
+                       "(default 8050)")
+    press.set_defaults(run=_press)
 
     featurize = commands.add_parser("featurize", help="build data/features/<scene>.parquet "
                                     "and the fitted transform (featurize.method)")

@@ -8,8 +8,15 @@ arrive, must equal its batch predictions for the same frames.
 from __future__ import annotations
 
 import contextlib
+import json
+import queue
+import socket
+import subprocess
+import sys
 import threading
 import time
+import urllib.error
+import urllib.request
 
 import numpy as np
 import pandas as pd
@@ -27,13 +34,14 @@ from eskin.deploy.live import (
     stream_events,
 )
 from eskin.deploy.stack import ExportedStack, SkinStack, StackError
-from eskin.deploy.view import LiveView
+from eskin.deploy.view import LiveView, Pressing, PressRefused
 from eskin.device.host import HostProtocol, StreamFrame, StreamGap
 from eskin.device.link import SerialLink
 from eskin.device.physics import skin_params
 from eskin.device.protocol import encode_frame
 from eskin.skin import PAPER_SKIN
 from tests.conftest import (
+    ROOT,
     acquire_step,
     headless_chromium,
     ingest_step,
@@ -485,3 +493,232 @@ def test_without_a_tare_there_is_no_drift_or_change_to_report(stack):
     records = list(live_estimates(skin, [frames], tare_frames=0, with_change=True))
     assert [r["seq"] for r in records] == [0, 1, 2]
     assert all(r["drift_counts"] is None and r["change_counts"] is None for r in records)
+
+
+# --- Pressing the simulated skin from the view, and from the terminal (issue 53) --------
+
+
+@pytest.fixture(scope="module")
+def live_view(stack, tmp_path_factory):
+    """`eskin live single_force --simulated --view 0` in its own process, as a user runs
+    it, on the small stack (exported): the view's port, once it shows frames."""
+    _, skin = stack
+    onnx = write_stack(skin, tmp_path_factory.mktemp("press") / "stack.onnx", sources={})
+    process = subprocess.Popen(
+        [sys.executable, "-m", "eskin", "live", "single_force", "--simulated", "--onnx",
+         str(onnx), "--view", "0", "--quiet", "--tare-frames", str(TARE)],
+        cwd=ROOT, stderr=subprocess.PIPE, text=True)
+    said: queue.Queue = queue.Queue()
+    threading.Thread(target=lambda: [said.put(line) for line in process.stderr],
+                     daemon=True).start()
+    lines, port = [], None
+    try:
+        deadline = time.monotonic() + 120
+        while port is None:
+            line = said.get(timeout=max(0.1, deadline - time.monotonic()))
+            lines.append(line)
+            if "the live view is at " in line:
+                port = int(line.split("http://127.0.0.1:")[1].split("/")[0])
+        while view_state(port)["estimate"] is None:  # the tare's frames first
+            assert time.monotonic() < deadline, lines
+            time.sleep(0.2)
+        yield port, lines
+    finally:
+        process.terminate()
+        process.wait(timeout=30)
+    assert process.returncode in (0, 128 + 15), lines
+
+
+def view_state(port: int) -> dict:
+    with urllib.request.urlopen(f"http://127.0.0.1:{port}/state", timeout=5) as answer:
+        return json.loads(answer.read())
+
+
+def eskin(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "eskin", *args], cwd=ROOT, text=True,
+                          capture_output=True, timeout=120)
+
+
+def wait_for_estimate(port: int, wanted, seconds: float = 30.0) -> dict:
+    """The first estimate the view serves for which ``wanted`` holds."""
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        estimate = view_state(port)["estimate"]
+        if wanted(estimate):
+            return estimate
+        time.sleep(0.1)
+    raise AssertionError(f"no such estimate within {seconds} s; the last: {estimate}")
+
+
+@needs_chromium
+def test_a_click_on_the_view_presses_the_simulated_skin_there_with_the_weight_set(
+        live_view, tmp_path):
+    """A newcomer's case: set a weight on the page, click node (6, 4), see the contact
+    there and about that heavy; click it again, and the weight is lifted."""
+    port, _ = live_view
+    chosen = 3.2536  # the small scene's weight; the page offers 5.2136 (params.yaml's)
+    with headless_chromium() as browser:
+        page = browser.new_page(viewport={"width": 1400, "height": 900})
+        page.goto(f"http://127.0.0.1:{port}/")
+        page.wait_for_function("document.getElementById('seq').textContent !== '–'",
+                               timeout=30_000)
+        offered = page.input_value("#weight")
+        assert page.inner_text("#contact").startswith("no touch")
+        page.fill("#weight", str(chosen))
+        page.click("#cell-6-4")
+        page.wait_for_function(
+            "document.getElementById('location').textContent === 'x 6, y 4'", timeout=30_000)
+        time.sleep(0.5)  # the ramp's 100 ms, and a few frames at the full load
+        shown = {name: page.inner_text(f"#{name}") for name in ("contact", "force", "pressed")}
+        cell = page.inner_text("#cell-6-4")
+        outlined = page.eval_on_selector("#cell-6-4", "cell => cell.classList.contains('pressed')")
+        ticks = [page.inner_text(f"#tick-{name}") for name in ("top", "middle")]
+        bars = page.eval_on_selector_all(
+            "#bars div", "bars => bars.map(bar => [bar.id, bar.style.height, bar.title])")
+        caption = page.inner_text("#channels figcaption")
+        page.screenshot(path=str(tmp_path / "live_press.png"))
+        page.click("#cell-6-4")  # again: lifted
+        page.wait_for_function(
+            "document.getElementById('contact').textContent.startsWith('no touch')",
+            timeout=30_000)
+        after = page.inner_text("#pressed")
+    assert offered == "5.2136"  # the scene's heaviest level
+    assert shown["contact"].startswith("touch (p = ")
+    assert abs(float(shown["force"].removesuffix(" N")) - chosen) < 0.5
+    assert shown["pressed"] == f"{chosen} N on x 6, y 4" and outlined
+    assert cell.endswith(" N") and abs(float(cell.removesuffix(" N")) - chosen) < 0.5
+    # The bars on their axis: a round number of ADC counts at the top, each bar as tall
+    # as its change is on that axis, the tallest of the rows and of the columns by the
+    # pressed node.
+    assert "ADC counts" in caption
+    top, middle = (float(tick) for tick in ticks)
+    assert top in (20, 50, 100, 200, 500, 1000) and middle == top / 2
+    counts = {name.removeprefix("bar-"): float(title.split(": ")[1].removesuffix(" counts"))
+              for name, _, title in bars}
+    for name, height, _ in bars:
+        assert abs(float(height.removesuffix("%")) - abs(counts[name[4:]]) / top * 100) < 0.01
+    assert max(map(abs, counts.values())) <= top < 2.5 * max(map(abs, counts.values()))
+    assert max((c for c in counts if c.startswith("x")), key=counts.get) in ("x5", "x6", "x7")
+    assert max((c for c in counts if c.startswith("y")), key=counts.get) in ("y3", "y4", "y5")
+    assert after == "nothing pressed" and view_state(port)["pressed"] == []
+
+
+def test_eskin_press_presses_the_running_view_and_releases(live_view):
+    port, _ = live_view
+    done = eskin("press", "2", "8", "3.2536", "--view", str(port))
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "pressed: 3.2536 N on x 2, y 8"
+    assert view_state(port)["pressed"] == [{"x": 2, "y": 8, "force_n": 3.2536}]
+    estimate = wait_for_estimate(port, lambda e: e["contact"] and (e["x"], e["y"]) == (2, 8))
+    assert abs(estimate["force"] - 3.2536) < 0.5
+    done = eskin("press", "--release", "--view", str(port))
+    assert (done.returncode, done.stdout.strip()) == (0, "pressed: nothing"), done.stderr
+    wait_for_estimate(port, lambda e: not e["contact"])
+
+
+def test_eskin_press_off_the_skin_is_refused_by_the_view_in_one_line(live_view):
+    port, _ = live_view
+    done = eskin("press", "11", "4", "3.2", "--view", str(port))
+    assert done.returncode == 1 and done.stdout == ""
+    assert done.stderr == (f"eskin: error: the live view on 127.0.0.1:{port}: x 11 is no "
+                           "node of the 10 × 10 row/column skin (20 terminals): x is a whole "
+                           "number 1..10\n")
+    assert view_state(port)["pressed"] == []
+
+
+def test_eskin_press_with_no_view_running_says_so_in_one_line():
+    with socket.socket() as free:  # a port nothing listens on
+        free.bind(("127.0.0.1", 0))
+        port = free.getsockname()[1]
+    done = eskin("press", "6", "4", "5.2", "--view", str(port))
+    assert done.returncode == 1 and done.stdout == ""
+    assert done.stderr.startswith(f"eskin: error: no live view on 127.0.0.1:{port} ")
+    assert f"eskin live <scene> --simulated --view {port}" in done.stderr
+    assert done.stderr.count("\n") == 1
+
+
+@needs_chromium
+def test_a_view_of_a_real_board_offers_no_pressing_and_says_why():
+    """No pressing on a real board: the page says why, and POST /press is refused."""
+    with LiveView(scene="single_force", kind="single_force", device="lab2-skin1",
+                  skin=PAPER_SKIN) as view:
+        with headless_chromium() as browser:
+            page = browser.new_page()
+            page.goto(view.url)
+            why = page.inner_text("#press-off")
+            controls = page.query_selector_all("#weight, #release")
+            page.click("#cell-6-4")  # nothing happens
+            pressable = page.eval_on_selector("#map", "map => map.classList.contains('pressable')")
+        request = urllib.request.Request(f"{view.url}press", method="POST",
+                                         data=b'{"x": 6, "y": 4, "force_n": 5.2}')
+        with pytest.raises(urllib.error.HTTPError) as refused:
+            urllib.request.urlopen(request, timeout=5)
+        assert view.requests() == [] and view._presses == []
+    assert "needs the simulated board" in why and "by hand" in why
+    assert controls == [] and not pressable
+    assert refused.value.code == 409
+    assert "real board" in json.loads(refused.value.read())["error"]
+
+
+def ask(view: LiveView, body: dict, send) -> list | PressRefused:
+    """``POST /press``'s part on the server's thread, the loop's on this one (``send``
+    standing for the link): what the requester is answered."""
+    outcome: list = []
+
+    def request() -> None:
+        try:
+            outcome.append(view.press(json.dumps(body).encode(), wait_s=10))
+        except PressRefused as err:
+            outcome.append(err)
+
+    asker = threading.Thread(target=request)
+    asker.start()
+    while not view._presses and asker.is_alive():
+        time.sleep(0.01)
+    view.carry_out_presses(send)
+    asker.join()
+    return outcome[0]
+
+
+def test_press_requests_become_the_simulated_boards_commands():
+    """Carried out on the loop's side: none during the tare; a weight laid, a second one
+    on a two-contact skin, a third lifts the oldest, one lifted, all lifted; and one the
+    board refuses is told to its requester."""
+    from eskin.errors import EskinError
+
+    sent: list[str] = []
+    with LiveView(scene="two_force", kind="two_force", device="sim", skin=PAPER_SKIN,
+                  pressing=Pressing.of_scene([1.2936, 5.2136], contacts=2, max_n=50)) as view:
+        taring = ask(view, {"x": 6, "y": 4, "force_n": 5.2136}, sent.append)
+        view.show({"seq": 1, "t_ms": 12})  # frames are shown: the tare is over
+        answers = [ask(view, body, sent.append) for body in (
+            {"x": 6, "y": 4, "force_n": 5.2136}, {"x": 2, "y": 9, "force_n": 1.2936},
+            {"x": 7, "y": 7, "force_n": 3.0}, {"x": 2, "y": 9, "release": True},
+            {"release": True})]
+        wrong = [ask(view, body, sent.append) for body in (
+            {"x": 6, "y": 4, "force_n": 0}, {"x": 6, "y": 4, "force_n": 51},
+            {"x": 0, "y": 4, "force_n": 1}, {"x": 6, "y": 4.5, "force_n": 1}, ["release"])]
+
+        tried: list[str] = []
+
+        def refuse(command: str) -> None:
+            tried.append(command)
+            if command.startswith("SIM PRESS"):
+                raise EskinError(f"#ERR SIM refused {command!r}")
+
+        refused = ask(view, {"x": 1, "y": 1, "force_n": 2}, refuse)
+        pressed = json.loads(view.state_json())["pressed"]
+    assert isinstance(taring, PressRefused) and taring.status == 409
+    assert "tare" in str(taring)
+    weight = {"x": 6, "y": 4, "force_n": 5.2136}
+    light, third = {"x": 2, "y": 9, "force_n": 1.2936}, {"x": 7, "y": 7, "force_n": 3.0}
+    assert answers == [[weight], [weight, light], [light, third], [third], []]
+    assert sent == ["SIM CLEAR", "SIM PRESS 6 4 5.2136 100",
+                    "SIM CLEAR", "SIM PRESS 6 4 5.2136", "SIM PRESS 2 9 1.2936 100",
+                    "SIM CLEAR", "SIM PRESS 2 9 1.2936", "SIM PRESS 7 7 3.0 100",
+                    "SIM CLEAR", "SIM PRESS 7 7 3.0",
+                    "SIM CLEAR"]
+    assert [(w.status, str(w).split(":")[0].split(" ")[0]) for w in wrong] == [
+        (400, "force_n"), (400, "force_n"), (400, "x"), (400, "y"), (400, "not")]
+    assert refused.status == 502 and "#ERR SIM refused 'SIM PRESS 1 1 2.0 100'" in str(refused)
+    assert tried == ["SIM CLEAR", "SIM PRESS 1 1 2.0 100"] and pressed == []  # cleared

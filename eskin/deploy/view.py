@@ -5,9 +5,13 @@ a row/column skin, 10 × 10 on the paper's) with the estimated contact(s)
 (marked by force), the force, the location, the stretch, whether there is contact and
 how sure the detector is, the drift since the tare, every channel's change from the
 untouched reading as bars on an axis in ADC counts, and the frame rate; a button (and
-the key t) asks for a re-tare (``POST /tare``). The page holds an ``EventSource`` on
-``/events``; every client is sent the newest state only (a slow browser skips frames,
-nothing queues), and ``/state`` answers it once as JSON.
+the key t) asks for a re-tare (``POST /tare``). On the simulated board a click on a node
+presses the skin there with the weight set on the page, and a second click lifts it
+(``POST /press``, which ``eskin press`` sends too): the live loop hands it to the board
+as its ``SIM`` commands, on the link it streams on (:meth:`LiveView.carry_out_presses`).
+A real board is pressed by hand, and the page says so. The page holds an
+``EventSource`` on ``/events``; every client is sent the newest state only (a slow
+browser skips frames, nothing queues), and ``/state`` answers it once as JSON.
 
 A page, not a terminal view: it draws the map as the skin is laid out, any machine on the
 bench can open it (through an SSH tunnel: it binds to 127.0.0.1 only), and it is tested
@@ -17,13 +21,23 @@ the way the report page is, in headless Chromium, reading what the page shows.
 from __future__ import annotations
 
 import json
+import math
 import threading
+from collections.abc import Callable, Sequence
+from concurrent.futures import Future, wait
+from dataclasses import dataclass
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Any
 
+from eskin.errors import EskinError
 from eskin.skin import AnySkin
 
 KEEPALIVE_S = 10.0  # an idle stream sends a comment this often, so a dead client is noticed
+# A press from the page ramps in as a hand lays a weight (make bench's live hour's
+# press_ramp_ms): the stack sees the load rise, as it would on the bench.
+PRESS_RAMP_MS = 100
+PRESS_WAIT_S = 10.0  # how long POST /press waits for the live loop to carry it out
+MAX_BODY_BYTES = 1024  # a press request is a short JSON object
 
 PAGE = """<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>eskin live: {scene}</title>
@@ -34,11 +48,19 @@ main {{ display: flex; gap: 2em; align-items: flex-start; }}
 #map {{ display: grid; grid-template-columns: 1.6em repeat({size_x}, 2.6em); gap: 3px; }}
 #map div {{ height: 2.6em; display: flex; align-items: center; justify-content: center;
   font-size: .75em; color: #777; }}
-#map .cell {{ background: #e4e7eb; border-radius: 4px; color: #222; }}
+#map .cell {{ background: #e4e7eb; border-radius: 4px; color: #222; box-sizing: border-box; }}
+#map.pressable .cell {{ cursor: pointer; }}
+#map.pressable .cell:hover {{ outline: 2px solid #8fb0dc; }}
+#map .cell.pressed {{ border: 3px dashed #1a5fb4; }}
 #readout {{ min-width: 17em; }}
 #readout p {{ margin: .3em 0; font-size: 1.1em; }}
 #readout b {{ display: inline-block; min-width: 9.5em; font-weight: 600; color: #555; }}
 #contact.touch {{ color: #b3261e; font-weight: 700; }}
+#press {{ margin-top: 1em; border: 1px solid #ccd; border-radius: 6px; max-width: 24em; }}
+#press legend {{ font-weight: 600; color: #555; }}
+#press p {{ font-size: .95em; }}
+#weight {{ width: 6.5em; font-size: 1em; }}
+#press-error {{ color: #b3261e; }}
 #channels {{ margin: 1.5em 0 0; }}
 #channels figcaption {{ font-size: .85em; color: #555; margin-bottom: .4em; }}
 #chart {{ display: flex; gap: 6px; height: 8em; }}
@@ -69,6 +91,7 @@ main {{ display: flex; gap: 2em; align-items: flex-start; }}
 <p><b>tare</b><span id="tared">–</span></p>
 <p><button id="tare" title="the next frames become the untouched reading (key t)">
 re-tare (t)</button></p>
+{press_panel}
 </div>
 </main>
 <figure id="channels">
@@ -79,6 +102,7 @@ re-tare (t)</button></p>
 <div id="barlabels"></div>
 </figure>
 <script>
+const pressing = {pressing};
 const map = document.getElementById("map");
 map.appendChild(document.createElement("div"));
 for (let x = 1; x <= {size_x}; x++) {{
@@ -89,6 +113,7 @@ for (let y = {size_y}; y >= 1; y--) {{
   for (let x = 1; x <= {size_x}; x++) {{
     const cell = document.createElement("div");
     cell.className = "cell"; cell.id = `cell-${{x}}-${{y}}`; map.appendChild(cell);
+    if (pressing) cell.onclick = () => pressAt(x, y);
   }}
 }}
 const names = {names};
@@ -107,12 +132,23 @@ function scaleTop(change) {{
   const power = 10 ** Math.floor(Math.log10(most));
   return [1, 2, 5, 10].map(step => step * power).find(top => top >= most);
 }}
-let marked = [], first = null;
+let marked = [], first = null, pressed = [];
+function showPressed(weights) {{
+  pressed = weights || [];
+  for (const cell of document.querySelectorAll(".cell.pressed")) cell.classList.remove("pressed");
+  for (const w of pressed) {{
+    const cell = document.getElementById(`cell-${{w.x}}-${{w.y}}`);
+    if (cell) cell.classList.add("pressed");
+  }}
+  if (pressing) text("pressed", pressed.length === 0 ? "nothing pressed"
+    : pressed.map(w => `${{w.force_n}} N on x ${{w.x}}, y ${{w.y}}`).join("; "));
+}}
 function show(state) {{
   if (state.tare) text("tared", state.tare.reason === "request"
     ? `again at frame ${{state.tare.at_seq}}, on ${{state.tare.frames}} frames`
     : `${{state.tare.frames}} frames at start`);
   if (state.taring) text("tared", "taring: keep the skin untouched");
+  showPressed(state.pressed);
   const e = state.estimate;
   if (!e) return;
   for (const cell of marked) {{ cell.style.background = ""; cell.textContent = ""; }}
@@ -161,12 +197,153 @@ function show(state) {{
 // Re-tare: the next frames become the untouched reading (keep the skin untouched).
 const tare = () => fetch("/tare", {{method: "POST"}});
 document.getElementById("tare").onclick = tare;
-document.addEventListener("keydown", event => {{ if (event.key === "t") tare(); }});
+// Press: the weight set on the page on a clicked node; a click on a pressed node lifts it.
+async function press(body) {{
+  const answer = await fetch("/press", {{method: "POST", body: JSON.stringify(body),
+                                        headers: {{"Content-Type": "application/json"}}}});
+  const reply = await answer.json();
+  text("press-error", answer.ok ? "" : reply.error);
+  if (answer.ok) showPressed(reply.pressed);
+}}
+function pressAt(x, y) {{
+  if (pressed.some(w => w.x === x && w.y === y)) return press({{x, y, release: true}});
+  return press({{x, y, force_n: Number(document.getElementById("weight").value)}});
+}}
+if (pressing) document.getElementById("release").onclick = () => press({{release: true}});
+document.addEventListener("keydown", event => {{
+  if (event.target.tagName === "INPUT") return;
+  if (event.key === "t") tare();
+  if (event.key === "r" && pressing) press({{release: true}});
+}});
+if (pressing) map.classList.add("pressable");
 const events = new EventSource("/events");
 events.onmessage = message => show(JSON.parse(message.data));
 </script>
 </body></html>
 """
+
+# The page's press controls: on the simulated board, and instead of them on a real one.
+PRESS_PANEL = """<fieldset id="press"><legend>press the simulated skin</legend>
+<p><label>weight <input id="weight" type="number" min="{lightest}" max="{heaviest}"
+step="any" value="{weight}" list="levels"> N</label>
+<datalist id="levels">{levels}</datalist></p>
+<p>Click a node to lay the weight on it ({weights}); click it again, or
+<button id="release" title="lift every weight (key r)">release (r)</button>, to lift it.
+The trained levels: {named_levels}.</p>
+<p><b>pressed</b><span id="pressed">nothing pressed</span></p>
+<p id="press-error"></p>
+</fieldset>"""
+NO_PRESS_PANEL = """<p id="press-off">Pressing from this page needs the simulated board
+(<code>eskin live {scene} --simulated</code>): it drives the simulated skin through the
+board's <code>SIM</code> commands, which a real board has not got. Press this skin by
+hand.</p>"""
+
+
+@dataclass(frozen=True)
+class Weight:
+    """A weight lying on node (x, y) of the simulated skin."""
+
+    x: int
+    y: int
+    force_n: float
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"x": self.x, "y": self.y, "force_n": self.force_n}
+
+
+@dataclass(frozen=True)
+class Pressing:
+    """How the page may press the simulated skin: the weight it offers first, the scene's
+    trained levels (N), how many weights may lie at once (the scene's contacts), and the
+    heaviest the board takes."""
+
+    weight_n: float
+    levels: tuple[float, ...]
+    contacts: int = 1
+    max_n: float = 50.0
+
+    @classmethod
+    def of_scene(cls, forces: Sequence[float], contacts: int, *, max_n: float) -> Pressing:
+        """The scene's heaviest level first: a light weight reads through its seating, and
+        its estimate is the least sure (docs/simulator.md)."""
+        levels = tuple(sorted({float(f) for f in forces if f > 0}))
+        return cls(levels[-1] if levels else 1.0, levels, contacts, max_n)
+
+    def panel(self) -> str:
+        weights = ("one weight at a time: a click elsewhere moves it" if self.contacts == 1
+                   else f"up to {self.contacts} weights; a further click lifts the oldest")
+        return PRESS_PANEL.format(
+            weight=self.weight_n, lightest=min(0.1, self.weight_n), heaviest=self.max_n,
+            weights=weights,
+            levels="".join(f'<option value="{level}">' for level in self.levels),
+            named_levels=", ".join(f"{level:g}" for level in self.levels) + " N"
+            if self.levels else "none declared")
+
+
+@dataclass(frozen=True)
+class PressRequest:
+    """What ``POST /press`` asks: lay ``force_n`` on (x, y), or lift the weight there
+    (``release``), or lift every weight (``release`` and no node)."""
+
+    x: int | None = None
+    y: int | None = None
+    force_n: float | None = None
+
+    @property
+    def release(self) -> bool:
+        return self.force_n is None
+
+    @classmethod
+    def parse(cls, body: bytes, skin: AnySkin, pressing: Pressing) -> PressRequest:
+        """The request in ``body``, or ValueError saying what is wrong with it."""
+        example = ('{"x": 6, "y": 4, "force_n": 5.2}, {"x": 6, "y": 4, "release": true} '
+                   'or {"release": true}')
+        try:
+            message = json.loads(body)
+        except (ValueError, UnicodeDecodeError):
+            raise ValueError(f"not JSON: send {example}") from None
+        if not isinstance(message, dict):
+            raise ValueError(f"not a JSON object: send {example}")
+        node = [message.get(name) for name in ("x", "y")]
+        if message.get("release") is True and node == [None, None]:
+            return cls()
+        for name, value, top in (("x", node[0], skin.size_x), ("y", node[1], skin.size_y)):
+            if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= top:
+                raise ValueError(f"{name} {value!r} is no node of the {skin.describe()}: "
+                                 f"{name} is a whole number 1..{top}")
+        if message.get("release") is True:
+            return cls(*node)
+        force = message.get("force_n")
+        if isinstance(force, bool) or not isinstance(force, (int, float)) \
+                or not math.isfinite(force) or not 0 < force <= pressing.max_n:
+            raise ValueError(f"force_n {force!r}: give the weight in newtons, more than 0 "
+                             f"and at most {pressing.max_n:g} (the board's heaviest)")
+        return cls(*node, float(force))
+
+    def applied_to(self, weights: list[Weight], contacts: int) -> list[Weight]:
+        """The weights that lie once this request is carried out."""
+        if self.x is None:
+            return []
+        kept = [w for w in weights if (w.x, w.y) != (self.x, self.y)]
+        if self.release:
+            return kept
+        return [*kept, Weight(self.x, self.y, self.force_n)][-contacts:]
+
+
+def sim_commands(before: list[Weight], after: list[Weight]) -> list[str]:
+    """The simulated board's commands that take its weights from ``before`` to ``after``.
+    It lifts weights only all at once (``SIM CLEAR``), so those that stay are laid again,
+    at once; a new one ramps in (:data:`PRESS_RAMP_MS`)."""
+    return ["SIM CLEAR", *(f"SIM PRESS {w.x} {w.y} {w.force_n!r}"
+                           + ("" if w in before else f" {PRESS_RAMP_MS}") for w in after)]
+
+
+class PressRefused(EskinError):
+    """A press the view could not carry out: ``status`` is the HTTP status it answers."""
+
+    def __init__(self, status: int, message: str) -> None:
+        super().__init__(message)
+        self.status = status
 
 
 def bar_names(skin: AnySkin) -> list[str]:
@@ -179,13 +356,19 @@ class LiveView:
     """Serve the page; :meth:`show` each record of :func:`eskin.deploy.live.live_estimates`."""
 
     def __init__(self, *, scene: str, kind: str, device: str, skin: AnySkin,
-                 port: int = 0) -> None:
+                 port: int = 0, pressing: Pressing | None = None) -> None:
+        """``pressing``: the page may press the skin (the simulated board only)."""
+        panel = NO_PRESS_PANEL.format(scene=scene) if pressing is None else pressing.panel()
         self.page = PAGE.format(scene=scene, kind=kind, device=device, size_x=skin.size_x,
                                 size_y=skin.size_y, terminals=skin.terminals,
-                                names=json.dumps(bar_names(skin))).encode()
+                                names=json.dumps(bar_names(skin)), press_panel=panel,
+                                pressing=json.dumps(pressing is not None)).encode()
+        self.skin, self.pressing = skin, pressing
         self._state: dict[str, Any] = {"estimate": None, "lost": 0, "rejected": 0, "tare": None,
-                                       "taring": False}
+                                       "taring": False, "pressed": []}
         self._requests: list[str] = []
+        self._presses: list[tuple[PressRequest, Future]] = []
+        self._weights: list[Weight] = []
         self._version = 0
         self._changed = threading.Condition()
         self._closed = False
@@ -209,8 +392,27 @@ class LiveView:
                 if self.path == "/tare":
                     view.request("tare")
                     self._send(202, "application/json", b'{"requested":"tare"}')
+                elif self.path == "/press":
+                    try:
+                        weights = view.press(self._body())
+                    except PressRefused as err:
+                        self._send(err.status, "application/json",
+                                   json.dumps({"error": str(err)}).encode())
+                    else:
+                        self._send(200, "application/json",
+                                   json.dumps({"pressed": weights}).encode())
                 else:
                     self._send(404, "text/plain", b"not found\n")
+
+            def _body(self) -> bytes:
+                try:
+                    length = int(self.headers.get("Content-Length", "0"))
+                except ValueError:
+                    length = -1
+                if not 0 <= length <= MAX_BODY_BYTES:
+                    raise PressRefused(400, f"a press request is a JSON object of at most "
+                                       f"{MAX_BODY_BYTES} bytes, with its Content-Length")
+                return self.rfile.read(length)
 
             def _send(self, status: int, kind: str, body: bytes) -> None:
                 self.send_response(status)
@@ -262,6 +464,64 @@ class LiveView:
             out, self._requests = self._requests, []
         return out
 
+    def press(self, body: bytes, *, wait_s: float = PRESS_WAIT_S) -> list[dict[str, Any]]:
+        """Carry out the press request ``body`` (``POST /press``) through the live loop
+        (:meth:`carry_out_presses`), and give the weights that lie after it; PressRefused
+        (with the HTTP status to answer) when it is not carried out."""
+        if self.pressing is None:
+            raise PressRefused(409, "this live view reads a real board, pressed by hand: "
+                               "pressing from the view needs `eskin live --simulated`")
+        try:
+            request = PressRequest.parse(body, self.skin, self.pressing)
+        except ValueError as err:
+            raise PressRefused(400, str(err)) from None
+        with self._changed:
+            if self._state["estimate"] is None or self._state["taring"]:
+                raise PressRefused(409, "the tare is under way: keep the skin untouched, "
+                                   "and press once the view shows frames")
+            done: Future = Future()
+            self._presses.append((request, done))
+        wait([done], timeout=wait_s)
+        if done.cancel():  # not taken in time, and now it never will be
+            raise PressRefused(504, f"the live loop did not take the press within "
+                               f"{wait_s:g} s: is the board streaming?")
+        try:
+            return done.result(timeout=wait_s)  # taken: carried out, or about to be
+        except Exception as err:  # the board refused, or the link failed
+            raise PressRefused(502, f"the board did not take the press: {err}") from None
+
+    def carry_out_presses(self, send: Callable[[str], object]) -> None:
+        """Send the board the commands of the press requests waiting (``send``: the live
+        loop's ``link.command``, between two batches of the stream, on the loop's thread);
+        each requester is told the weights that lie after it, or why it failed."""
+        with self._changed:
+            waiting, self._presses = self._presses, []
+        for request, done in waiting:
+            if not done.set_running_or_notify_cancel():
+                continue  # its requester stopped waiting
+            wanted = request.applied_to(self._weights, self.pressing.contacts)
+            laid: list[Weight] | None = None  # None until the board's weights are lifted
+            try:
+                for command, weight in zip(sim_commands(self._weights, wanted),
+                                           [None, *wanted], strict=True):
+                    send(command)
+                    laid = [] if weight is None else [*laid, weight]
+            except BaseException as err:
+                self._lay(self._weights if laid is None else laid)  # what the board has
+                done.set_exception(err)
+                if not isinstance(err, EskinError):
+                    raise
+            else:
+                self._lay(laid)
+                done.set_result([w.as_dict() for w in laid])
+
+    def _lay(self, weights: list[Weight]) -> None:
+        with self._changed:
+            self._weights = weights
+            self._state["pressed"] = [w.as_dict() for w in weights]
+            self._version += 1
+            self._changed.notify_all()
+
     def state_json(self) -> str:
         return json.dumps(self._state, separators=(",", ":"), allow_nan=False)
 
@@ -291,3 +551,38 @@ class LiveView:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def press_on_view(port: int, request: dict[str, Any], *, timeout_s: float = 2 * PRESS_WAIT_S
+                  ) -> list[dict[str, Any]]:
+    """``POST /press`` to the live view on 127.0.0.1:``port`` (``eskin press``): the
+    weights that lie after it, or an EskinError saying in one line why not."""
+    import http.client
+    import urllib.error
+    import urllib.request
+
+    where = f"127.0.0.1:{port}"
+    call = urllib.request.Request(f"http://{where}/press", data=json.dumps(request).encode(),
+                                  headers={"Content-Type": "application/json"}, method="POST")
+    try:
+        with urllib.request.urlopen(call, timeout=timeout_s) as answer:
+            return json.loads(answer.read())["pressed"]
+    except urllib.error.HTTPError as err:
+        try:
+            said = json.loads(err.read())["error"]
+        except (ValueError, KeyError, TypeError):
+            said = (f"it answered {err.code} {err.reason} to POST /press: is it an eskin "
+                    "live view (`eskin live --view`) of this version?")
+        raise EskinError(f"the live view on {where}: {said}") from None
+    except urllib.error.URLError as err:
+        reason = getattr(err.reason, "strerror", None) or err.reason
+        raise EskinError(f"no live view on {where} ({reason}): start one with `eskin live "
+                         f"<scene> --simulated --view {port}`, or give its port with "
+                         "--view PORT") from None
+    except (http.client.HTTPException, ConnectionError, ValueError, KeyError) as err:
+        raise EskinError(f"{where} is not an eskin live view (it answered POST /press "
+                         f"with {type(err).__name__}): give the view's port with --view "
+                         "PORT") from None
+    except TimeoutError:
+        raise EskinError(f"the live view on {where} did not answer within {timeout_s:g} s")\
+            from None
