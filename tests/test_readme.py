@@ -31,8 +31,8 @@ def readme_commands(readme: str) -> list[str]:
 def test_the_readme_section_is_read_whole():
     commands = readme_commands((ROOT / "README.md").read_text())
     assert commands[0] == "source .venv/bin/activate"
-    assert any(c.startswith("dvc exp run -n force-rf") for c in commands)
-    assert "eskin promote single_force --experiment force-rf" in commands
+    assert any(c.startswith("dvc exp run -n force-hgb") for c in commands)
+    assert "eskin promote single_force --experiment force-hgb" in commands
     assert all("#" not in c for c in commands if not c.startswith("mlflow")), commands
 
 

@@ -364,8 +364,10 @@ def _track_pipeline(params, scenes, tasks, headline, page, log) -> Tracked:
                         params, int(1000 * min(starts)) if starts else None)
     present = {(r.data.tags.get("eskin.scene"), r.data.tags.get("eskin.task"),
                 r.data.tags.get("eskin.model_md5") or r.data.tags.get("eskin.scores_md5"))
+               # a run a killed stage left (FAILED) is logged again, whole
                for r in client.search_runs([experiment_id],
-                                           f"tags.`mlflow.parentRunId` = '{parent}'",
+                                           f"tags.`mlflow.parentRunId` = '{parent}' "
+                                           "and attributes.status = 'FINISHED'",
                                            max_results=1000)}
     # pid and host: a run left RUNNING by a killed process is settled the next time
     common = {**tags, **process_tags(), "mlflow.parentRunId": parent}
@@ -438,7 +440,8 @@ def headline_view(client: MlflowClient, experiment_id: str,
     columns += [f"metrics.`{name}`" for name in headline_metrics(headline)
                 if f"metrics.`{name}`" not in columns]
     # Wide enough for a whole name (the UI cuts a header at its column's width).
-    widths = {column: 24 + 6 * len(column) for column in columns}
+    widths = {"attributes.`Run Name`": 160,
+              **{column: 24 + 6 * len(column) for column in columns}}
     state = {"searchFilter": "", "orderByKey": "attributes.start_time", "orderByAsc": False,
              "selectedColumns": ["attributes.`Run Name`", *columns],
              # the UI applies widths to the columns its order names
