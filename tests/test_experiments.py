@@ -134,7 +134,8 @@ def test_audit_groups_runs_by_dataset_version_and_marks_the_workspace(runs):
 def test_tables_render_in_every_format(runs, fmt, monkeypatch):
     monkeypatch.setenv("COLUMNS", "250")  # a row per variant (narrower: tested below)
     text = compare.render(compare.variant_table(runs), fmt)
-    assert "force-rf" in text and "2026-11-23 10:07:20" in text
+    # to the second in a file, to the minute on a terminal
+    assert "force-rf" in text and ("2026-11-23 10:07" + ("" if fmt == "table" else ":20")) in text
     if fmt == "csv":
         back = pd.read_csv(io.StringIO(text))
         assert back["force R²"].tolist() == [0.60, 0.58, 0.55]
@@ -165,3 +166,57 @@ def test_params_come_back_from_their_mlflow_strings():
     assert compare.parse_param("['stratified', 'conditions']") == ["stratified", "conditions"]
     assert compare.parse_param("10") == 10
     assert compare.parse_param("random_forest") == "random_forest"
+
+
+@pytest.mark.parametrize("fmt", ["table", "markdown"])
+def test_a_column_of_scores_has_one_number_format(fmt, monkeypatch):
+    """0.94 beside 0.8585 read as two precisions: every number of a column has the digits
+    its largest needs for 4 significant ones."""
+    monkeypatch.setenv("COLUMNS", "250")
+    rows = [pipeline("P1", 0, "default", "physics_profile"),
+            task("a", 1, 171.6, "P1", "single_force", "force", "d1", conditions__force__r2=0.94,
+                 conditions__force1__r2=-12.5),
+            pipeline("P2", 5, "force-rf", "random_forest"),
+            task("b", 6, 9.0, "P2", "single_force", "force", "d1",
+                 conditions__force__r2=0.858512, conditions__force1__r2=0.5)]
+    text = compare.render(compare.variant_table(pd.DataFrame(rows)), fmt)
+    cells = {line[0]: line for line in (row.replace("|", " ").split()
+                                        for row in text.splitlines()) if line}
+    assert {"0.9400", "-12.50", "171.6"} <= set(cells["default"]), text
+    assert {"0.8585", "0.50", "9.0"} <= set(cells["force-rf"]), text
+
+
+def test_the_audit_fits_120_columns_without_breaking_a_cell(monkeypatch, capsys):
+    """`eskin audit` at 120 columns, on a store whose runs have the pipeline's longest
+    names (two_force/localise, hist_gradient_boosting): every cell on one line, whole."""
+    from eskin import cli
+
+    parent = "f" * 32
+    rows = [run(parent, 0, 0, **{"tags.eskin.kind": "pipeline",
+                                 "tags.mlflow.runName": "repro-5fe26a26"})]
+    names = [("single_force", "stretch", "paper"), ("single_force", "force", "physics_profile"),
+             ("single_force", "detect", "hist_gradient_boosting"),
+             ("single_force", "localise", "logistic"), ("two_force", "force", "active_terminals"),
+             ("two_force", "localise", "active_terminals")]
+    for k, (scene, name, model) in enumerate(names):
+        rows.append(run(f"{k:032x}", k + 1, 37, **{
+            "tags.eskin.kind": "task", "tags.mlflow.parentRunId": parent,
+            "tags.eskin.scene": scene, "tags.eskin.task": name, "tags.eskin.model": model,
+            "tags.eskin.dataset_digest": ("a60afd9562901fe9a35d926161ab5790" if k < 4
+                                          else "b60899891a86e54d9bd4781c10d960f5"),
+            "tags.eskin.git_commit": "cf46b9c8aa", "tags.eskin.dataset_rows": "24240",
+            "tags.eskin.dataset_source": "simulated (seed 20230529)"}))
+    monkeypatch.setattr(compare, "load_runs", lambda: pd.DataFrame(rows))
+    monkeypatch.setattr(compare, "workspace_digests", lambda root, scenes: {})
+    monkeypatch.setattr(compare, "commit_dates", lambda root, digests: {
+        d: "2026-11-26 160d4d1" for d in digests})
+    monkeypatch.setenv("COLUMNS", "120")
+    assert cli.main(["audit"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert max(map(len, lines)) <= 120, "\n".join(lines)
+    cells = {f"{k:032x}" for k in range(len(names))} | {f"{s}/{t}" for s, t, _ in names} | \
+        {m for _, _, m in names} | {"simulated (seed 20230529)", "2026-11-26 160d4d1",
+                                    "repro-5fe26a26"} | \
+        {f"2026-11-23 10:{k:02d}" for k in range(1, len(names) + 1)}
+    broken = {cell for cell in cells if not any(cell in line for line in lines)}
+    assert not broken, "\n".join(lines)

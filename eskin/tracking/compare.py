@@ -223,104 +223,116 @@ def _first(values: pd.Series) -> str:
     return str(values.iloc[0]) if len(values) else ""
 
 
-# Columns that hold identifiers a reader copies (``eskin audit --run <id>``, a DVC md5):
-# never wrapped, folded or cut, in any format, at any terminal width.
-WHOLE_COLUMNS = ("run", "dataset md5")
+# A table's times, to the minute: a reader places a run by them, and the seconds would
+# take three more columns of a terminal (markdown and csv keep them).
+TABLE_TIME = "%Y-%m-%d %H:%M"
+FULL_TIME = "%Y-%m-%d %H:%M:%S"
+MISSING = "—"
+SIGNIFICANT = 4  # digits of a column's largest number
 
 
 def render(table: pd.DataFrame, fmt: str) -> str:
-    """A table as ``table`` (aligned text), ``markdown`` or ``csv``."""
+    """A table as ``table`` (aligned text), ``markdown`` or ``csv``. In text and markdown,
+    each column of numbers has one format: as many decimals as give its largest value
+    :data:`SIGNIFICANT` digits (0.9400 beside 0.8585, not 0.94), missing as —."""
+    if fmt not in ("table", "markdown", "csv"):
+        raise ValueError(f"format must be table, markdown or csv, got {fmt!r}")
     table = table.copy()
     for column in table.columns:
         if pd.api.types.is_datetime64_any_dtype(table[column]):
-            table[column] = table[column].dt.strftime("%Y-%m-%d %H:%M:%S")
+            table[column] = table[column].dt.strftime(TABLE_TIME if fmt == "table"
+                                                      else FULL_TIME)
     if fmt == "csv":
         return table.to_csv(index=False)
+    header = [str(c) for c in table.columns]
+    numeric = [pd.api.types.is_numeric_dtype(table[c]) for c in table.columns]
+    columns = [_column_cells(table[c]) for c in table.columns]
+    rows = [list(row) for row in zip(*columns, strict=True)] if len(table) else []
     if fmt == "markdown":
-        # tabulate's missingval stands in for None only, not NaN.
-        cells = table.astype(object).where(table.notna(), None)
-        return cells.to_markdown(index=False, floatfmt=".4g", missingval="—") + "\n"
-    if fmt == "table":
-        return _rich_table(table)
-    raise ValueError(f"format must be table, markdown or csv, got {fmt!r}")
+        from tabulate import tabulate
+
+        # numparse off: tabulate would read the cells as numbers and format them again
+        return tabulate(rows, header, tablefmt="pipe", disable_numparse=True,
+                        colalign=["right" if n else "left" for n in numeric]) + "\n"
+    return _rich_table(header, rows, numeric)
 
 
-def _rich_table(table: pd.DataFrame) -> str:
-    """Aligned text as wide as the terminal (``COLUMNS``): a row per variant where that
-    fits, else turned on its side (a column per variant, a row per field), which is how a
-    few variants of many scores read best; numbers to 4 significant digits, missing as —.
+def _column_cells(values: pd.Series) -> list[str]:
+    """A column's cells as text, numbers in the column's one format."""
+    if pd.api.types.is_bool_dtype(values) or not pd.api.types.is_numeric_dtype(values):
+        return [MISSING if v is None or v is pd.NaT or (isinstance(v, float) and np.isnan(v))
+                else str(v) for v in values]
+    if pd.api.types.is_integer_dtype(values):
+        return [str(v) for v in values]
+    largest = float(np.nanmax(np.abs(values))) if values.notna().any() else 0.0
+    whole_digits = len(str(int(largest))) if largest >= 1 else 0
+    decimals = max(0, SIGNIFICANT - whole_digits)
+    return [MISSING if np.isnan(v) else f"{v:.{decimals}f}" for v in values.astype(float)]
 
-    Identifiers (:data:`WHOLE_COLUMNS`) are never wrapped or folded: in a row they keep
-    their width; on its side, where they head the columns, the table is cut into as many
-    tables as it takes for each to fit, every id whole above its column."""
+
+def _rich_table(header: list[str], rows: list[list[str]], numeric: list[bool]) -> str:
+    """Aligned text no wider than the terminal (``COLUMNS``), no cell ever wrapped: a row
+    per item where that fits, else turned on its side (a column per item, a row per
+    field), which is how a few variants of many scores read best, cut into as many tables
+    as it takes for each to fit. So an identifier a reader copies (``eskin audit --run
+    <id>``, a DVC md5) is whole on one line, and a date is never cut in two."""
     import shutil
 
-    def cell(value: Any) -> str:
-        if isinstance(value, float | np.floating):
-            return "—" if np.isnan(value) else f"{value:.4g}"
-        return "—" if value is None or value is pd.NaT else str(value)
-
-    header = [str(c) for c in table.columns]
-    rows = [[cell(v) for v in row] for row in table.itertuples(index=False)]
-    numeric = [pd.api.types.is_numeric_dtype(table[c]) for c in table.columns]
-    whole = [h in WHOLE_COLUMNS for h in header]
     width = shutil.get_terminal_size((160, 24)).columns
-    natural = sum(_widest(i, header, rows) + 2 for i in range(len(header)))
-    if natural <= width or not rows:
-        return _print_table(header, rows, numeric, whole, width)
+    widths = [_widest(i, header, rows) for i in range(len(header))]
+    if _table_width(widths) <= width or not rows:
+        return _print_table(header, rows, numeric, width)
     # on its side: the first column's values head the columns
-    ids_lead = whole[0]
     fields = [[h, *(r[i] for r in rows)] for i, h in enumerate(header) if i]
     side_header = [header[0], *(r[0] for r in rows)]
-    if not ids_lead:
-        return _print_table(side_header, fields, [False, *[True] * len(rows)],
-                            [False] * len(side_header), width)
-    label = max(len(h) for h in header[1:]) + 2
-    id_width = max(len(r[0]) for r in rows) + 3
-    per_table = max(1, (width - label) // id_width)
-    parts = []
-    for start in range(0, len(rows), per_table):
-        chunk = slice(1 + start, 1 + start + per_table)
-        parts.append(_print_table(
-            [side_header[0], *side_header[chunk]], [[f[0], *f[chunk]] for f in fields],
-            [False] * (1 + len(side_header[chunk])),
-            [False, *[True] * len(side_header[chunk])], width))
-    return "\n".join(parts)
+    mostly_numbers = 2 * sum(numeric[1:]) > len(numeric) - 1  # scores: right-aligned
+    side_numeric = [False, *[mostly_numbers] * len(rows)]
+    side_widths = [_widest(i, side_header, fields) for i in range(len(side_header))]
+    parts, chunk = [], [0]
+    for i in range(1, len(side_header)):
+        if len(chunk) > 1 and _table_width([side_widths[j] for j in (*chunk, i)]) > width:
+            parts.append(chunk)
+            chunk = [0]
+        chunk.append(i)
+    parts.append(chunk)
+    return "\n".join(_print_table([side_header[j] for j in part],
+                                  [[f[j] for j in part] for f in fields],
+                                  [side_numeric[j] for j in part], width) for part in parts)
 
 
 def _widest(i: int, header: list[str], rows: list[list[str]]) -> int:
     return max([len(header[i]), *(len(r[i]) for r in rows)])
 
 
+def _table_width(widths: list[int]) -> int:
+    """How wide :func:`_print_table` prints columns this wide: 3 characters between two."""
+    return sum(widths) + 3 * (len(widths) - 1)
+
+
 def _print_table(header: list[str], rows: list[list[str]], numeric: list[bool],
-                 whole: list[bool], width: int) -> str:
-    """One rich table, ``whole`` columns as wide as their widest cell and never broken
-    (the console is widened for them if it must: a line then wraps on screen, but no id
-    is broken in the text), the others folded into what is left."""
+                 width: int) -> str:
+    """One rich table, every column as wide as its widest cell and never wrapped (the
+    console is widened if one column on its side is wider than the terminal: a line
+    then wraps on screen, but no cell is broken in the text)."""
     from rich import box
     from rich.console import Console
     from rich.table import Table
 
     shown = Table(box=box.SIMPLE_HEAD, show_edge=False, pad_edge=False)
-    for i, (name, is_number, keep) in enumerate(zip(header, numeric, whole, strict=True)):
-        if keep:
-            shown.add_column(name, justify="left", no_wrap=True,
-                             min_width=_widest(i, header, rows))
-        else:
-            shown.add_column(name, justify="right" if is_number else "left", overflow="fold")
+    for name, is_number in zip(header, numeric, strict=True):
+        shown.add_column(name, justify="right" if is_number else "left", no_wrap=True)
     for row in rows:
         shown.add_row(*row)
-    least = sum(_widest(i, header, rows) + 3 for i, keep in enumerate(whole) if keep) + \
-        6 * (len(header) - sum(whole))
-    console = Console(file=io.StringIO(), width=max(width, least), color_system=None,
-                      highlight=False)
+    widths = [_widest(i, header, rows) for i in range(len(header))]
+    console = Console(file=io.StringIO(), width=max(width, _table_width(widths)),
+                      color_system=None, highlight=False)
     console.print(shown)
     return console.file.getvalue()
 
 
 def render_versions(runs: pd.DataFrame, versions: pd.DataFrame, fmt: str) -> str:
     """``eskin audit``: the dataset versions and the runs each trained, every run id whole
-    (:data:`WHOLE_COLUMNS`) in every format. ``csv``: a row per version, its runs' ids in
+    in every format. ``csv``: a row per version, its runs' ids in
     ``run ids`` (space-separated); ``table`` and ``markdown``: the versions, then each
     version's runs under its md5."""
     if fmt == "csv":
