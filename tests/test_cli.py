@@ -1,6 +1,9 @@
 """The command line as a new user meets it: ``eskin --help`` and each command's."""
 
 import argparse
+import os
+import subprocess
+import sys
 
 from eskin.cli import build_parser
 
@@ -29,3 +32,28 @@ def test_the_top_help_is_plain_text_with_examples():
                         if line.startswith("  eskin ")]
     known = {name for path, _ in _commands(build_parser()) for name in path[1:2]}
     assert example_commands and set(example_commands) <= known
+
+
+MLFLOW_CHATTER = ("INFO", "Creating initial", "Updating database tables", "Context impl",
+                  "Will assume")
+
+
+def test_a_fresh_mlflow_store_says_nothing_of_its_tables(tmp_path):
+    """The first command against a new SQLite store makes its tables: MLflow's and
+    alembic's INFO lines about it are not the command's output, nor the tracking
+    stage's (which connects through the same module)."""
+    env = {**os.environ, "MLFLOW_TRACKING_URI": f"sqlite:///{tmp_path / 'cli.db'}"}
+    env.pop("MLFLOW_LOGGING_LEVEL", None)
+    done = subprocess.run([sys.executable, "-m", "eskin", "compare"], cwd=tmp_path, env=env,
+                          capture_output=True, text=True, timeout=120)
+    assert (tmp_path / "cli.db").exists()  # the store was made, by this command
+    assert done.returncode == 1 and done.stdout == "", done
+    assert done.stderr.startswith("eskin: error: no MLflow experiment 'eskin'"), done.stderr
+    assert done.stderr.count("\n") == 1, done.stderr
+    env["MLFLOW_TRACKING_URI"] = f"sqlite:///{tmp_path / 'track.db'}"
+    done = subprocess.run([sys.executable, "-c", "from eskin.tracking import runs; "
+                           "print(runs.ensure_experiment())"], cwd=tmp_path, env=env,
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and done.stdout.strip().isdigit(), done
+    assert not [line for line in done.stderr.splitlines()
+                if any(word in line for word in MLFLOW_CHATTER)], done.stderr
