@@ -500,9 +500,12 @@ def _promote(args: argparse.Namespace) -> int:
     from eskin.tracking import registry
 
     get_scene(load_params(), args.scene)  # before the store: a typo is told at once
-    print(registry.render_promotion(registry.promote(
-        args.scene, args.alias, variant=args.experiment, run_id=args.run_id, root=Path.cwd())),
-        end="")
+    promotion = registry.promote(args.scene, args.alias, variant=args.experiment,
+                                 run_id=args.run_id, root=Path.cwd())
+    print(registry.render_promotion(promotion), end="")
+    warning = registry.render_downgrades(promotion)
+    if warning:
+        print(warning, file=sys.stderr)
     return 0
 
 

@@ -208,6 +208,18 @@ class PromotedModel:
 
 
 @dataclass(frozen=True)
+class Downgrade:
+    """A model that took an alias from a version of it that scores better."""
+
+    name: str
+    version: str
+    replaced: str      # the version that held the alias
+    score: str         # e.g. "force r2", under the headline scheme
+    new: float
+    old: float
+
+
+@dataclass(frozen=True)
 class Promotion:
     scene: str
     alias: str
@@ -215,6 +227,7 @@ class Promotion:
     variant: str
     models: tuple[PromotedModel, ...]
     unset: tuple[str, ...]  # models of the scene the alias was taken from: not in this stack
+    worse: tuple[Downgrade, ...] = ()  # models that score worse than the version they replaced
 
 
 def promote(scene: str, alias: str = "champion", *, variant: str | None = None,
@@ -250,6 +263,7 @@ def promote(scene: str, alias: str = "champion", *, variant: str | None = None,
                              "promote a pipeline run that trained them on one "
                              "(`dvc repro` retrains what its features changed)")
         chosen = {v.name for v, _ in stack}
+        worse = _downgrades(client, scene, alias, [v for v, _ in stack])
         for version, _ in stack:
             client.set_registered_model_alias(version.name, alias, version.version)
         unset = tuple(sorted(model.name for model in scene_models(client, scene)
@@ -261,7 +275,8 @@ def promote(scene: str, alias: str = "champion", *, variant: str | None = None,
                                      _headline(client.get_run(version.run_id).data.metrics,
                                                version.tags.get("eskin.target", "")))
                        for version, task_run in stack)
-    return Promotion(scene, alias, pipeline.info.run_id, pipeline.info.run_name, models, unset)
+    return Promotion(scene, alias, pipeline.info.run_id, pipeline.info.run_name, models, unset,
+                     worse)
 
 
 def render_promotion(promotion: Promotion) -> str:
@@ -278,14 +293,54 @@ def render_promotion(promotion: Promotion) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _headline(metrics: dict[str, float], target: str) -> str:
-    """``conditions CV: force r2 0.941 ± 0.010``: a target's headline score in its run."""
+def render_downgrades(promotion: Promotion) -> str | None:
+    """One line, if the alias went to models that score worse than the versions that held
+    it: each with both headline scores."""
+    if not promotion.worse:
+        return None
+    told = "; ".join(f"{d.name} v{d.version} {d.score} {d.new:.3f} against v{d.replaced}'s "
+                     f"{d.old:.3f}" for d in promotion.worse)
+    return (f"eskin: warning: {promotion.scene}'s {promotion.alias!r} went to models that "
+            f"score worse than the ones that held it ({HEADLINE_SCHEME} CV): {told}")
+
+
+def _downgrades(client, scene: str, alias: str, stack: list) -> tuple[Downgrade, ...]:
+    """The versions of ``stack`` that score worse, under the headline scheme, than the
+    version of the same model that holds ``alias`` now (r2 and accuracy: higher is better)."""
+    holders = {model.name: model.aliases[alias] for model in scene_models(client, scene)
+               if alias in (model.aliases or {})}
+    worse = []
+    for version in stack:
+        held = holders.get(version.name)
+        if held is None or str(held) == str(version.version):
+            continue
+        target = version.tags.get("eskin.target", "")
+        new = _headline_score(client.get_run(version.run_id).data.metrics, target)
+        old = _headline_score(client.get_run(client.get_model_version(
+            version.name, str(held)).run_id).data.metrics, target)
+        if new is not None and old is not None and new[1] < old[1]:
+            worse.append(Downgrade(version.name, str(version.version), str(held),
+                                   f"{target} {new[0]}", new[1], old[1]))
+    return tuple(worse)
+
+
+def _headline_score(metrics: dict[str, float], target: str) -> tuple[str, float] | None:
+    """(score name, value): a target's headline score in its run, if it logged one."""
     for name in dict.fromkeys(HEADLINE_METRIC.values()):
         key = f"{HEADLINE_SCHEME}.{target}.{name}"
         if key in metrics:
-            return (f"{HEADLINE_SCHEME} CV: {target} {name} {metrics[key]:.3f} ± "
-                    f"{metrics.get(key + '_std', 0.0):.3f}")
-    return f"{HEADLINE_SCHEME} CV: no score of {target} in its run"
+            return name, metrics[key]
+    return None
+
+
+def _headline(metrics: dict[str, float], target: str) -> str:
+    """``conditions CV: force r2 0.941 ± 0.010``: a target's headline score in its run."""
+    found = _headline_score(metrics, target)
+    if found is None:
+        return f"{HEADLINE_SCHEME} CV: no score of {target} in its run"
+    name, value = found
+    spread = metrics.get(f"{HEADLINE_SCHEME}.{target}.{name}_std", 0.0)
+    return f"{HEADLINE_SCHEME} CV: {target} {name} {value:.3f} ± {spread:.3f}"
 
 
 PIPELINE_RUNS = "tags.`eskin.kind` = 'pipeline'"
