@@ -215,3 +215,23 @@ def test_audit_prints_every_run_id_whole_at_80_columns(fmt, monkeypatch, capsys)
         table = pd.read_csv(io.StringIO(out), dtype=str).set_index("dataset md5")
         assert table.loc[DIGESTS[0], "run ids"].split() == RUN_IDS[:4]
         assert table.loc[DIGESTS[1], "run ids"].split() == RUN_IDS[4:]
+
+
+# ------------------------------------------------------------------ registered model names
+
+def test_a_mistyped_registered_model_is_one_line_with_the_closest(tmp_path):
+    """`eskin reproduce singel_force.force`: the registry's closest name, and all of them,
+    in one line, exit 1 (a store of registered names is enough: no pipeline)."""
+    from mlflow import MlflowClient
+
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    names = ["single_force.force", "single_force.stretch", "two_force.force.force1"]
+    client = MlflowClient(uri)
+    for name in names:
+        client.create_registered_model(name)
+    done = subprocess.run([sys.executable, "-m", "eskin", "reproduce", f"{TYPO}.force"],
+                          cwd=tmp_path, env={**os.environ, "MLFLOW_TRACKING_URI": uri},
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 1 and done.stdout == "", done
+    assert done.stderr == (f"eskin: error: no registered model '{TYPO}.force'; did you mean "
+                           f"single_force.force? (registered: {', '.join(names)})\n"), done.stderr

@@ -8,6 +8,7 @@ through MLFLOW_TRACKING_URI, and the tests read the runs back through its client
 """
 
 import json
+import re
 import subprocess
 import sys
 import time
@@ -569,6 +570,14 @@ def test_a_registered_model_reproduces_its_runs_out_of_fold_predictions(scratch)
     root, env = scratch
     done = eskin_cli(["reproduce", "single_force.localise.x"], root, env)
     assert "reproduced" in done.stdout and "NOT" not in done.stdout, done.stdout
+    # progress on stderr: each scheme as it starts and ends, its folds as a bar in between
+    for number, scheme in enumerate(("stratified", "conditions"), 1):
+        assert re.search(rf"^single_force.localise.x v\d+: {scheme} cross-validation "
+                         rf"\({number} of 2\), 3 folds", done.stderr, re.M), done.stderr
+        # tqdm's bar, cleared at its end (its last state drawn depends on the clock)
+        assert f"single_force.localise.x {scheme} CV:   0%" in done.stderr, done.stderr
+        assert re.search(rf"{scheme} cross-validation done in \d+ s, (\d+)/\1 predictions "
+                         "identical$", done.stderr, re.M), done.stderr
     import mlflow
     mlflow.set_tracking_uri(env["MLFLOW_TRACKING_URI"])
     version = mlflow.MlflowClient().get_model_version("single_force.localise.x", "1")

@@ -16,6 +16,8 @@ registered); ``stack_from_registry`` loads the stack an alias names, for ``eskin
 
 from __future__ import annotations
 
+import difflib
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -47,18 +49,26 @@ from eskin.tracking.compare import NoRunsError, dvc_cache_path, parse_param
 
 
 def model_version(client, name: str, version: str | None = None):
-    """The registry's entry ``name`` at ``version`` (default: the newest)."""
+    """The registry's entry ``name`` at ``version`` (default: the newest); a name it lacks
+    is one line with the closest it has, for a typo, and all of them."""
     import mlflow
 
+    known = sorted(m.name for m in client.search_registered_models(max_results=1000))
+    if name not in known:
+        close = difflib.get_close_matches(name, known, n=1)
+        hint = f"; did you mean {close[0]}?" if close else ""
+        raise NoRunsError(f"no registered model {name!r}{hint} "
+                          f"(registered: {', '.join(known) or 'none'})")
     try:
         if version is not None:
             return client.get_model_version(name, str(version))
         versions = client.search_model_versions(f"name = '{name}'")
     except mlflow.exceptions.MlflowException as err:
-        raise NoRunsError(f"no registered model {name!r} (version {version}): {err}") from err
+        first = (str(err).strip().splitlines() or [type(err).__name__])[0]
+        raise NoRunsError(f"no version {version} of registered model {name!r}: {first}") \
+            from err
     if not versions:
-        known = sorted(m.name for m in client.search_registered_models())
-        raise NoRunsError(f"no registered model {name!r}; registered: {', '.join(known) or 'none'}")
+        raise NoRunsError(f"registered model {name!r} has no version")
     return max(versions, key=lambda v: int(v.version))
 
 
@@ -80,6 +90,8 @@ def reproduce(name: str, version: str | None = None, *, root: Path = Path("."),
     """Rerun a registered model's cross-validation on its dataset version; compare.
 
     Folds run as the run ran them (its ``cv.n_jobs``) on this machine's joblib backend.
+    ``log`` is told each scheme as it starts and ends (with its time); the folds show as a
+    progress bar on stderr in between.
     """
     import mlflow
 
@@ -106,13 +118,14 @@ def reproduce(name: str, version: str | None = None, *, root: Path = Path("."),
                            "features": str(path), "features md5": tags["eskin.features_md5"],
                            "estimator": type(model).__name__, "schemes": {}}
     n_jobs = int(parse_param(params.get("cv.n_jobs", "1")))
-    for scheme in schemes:
-        log(f"{name} v{entry.version}: {scheme} cross-validation, {params['cv.folds']} folds, "
-            f"{len(frame)} rows …")
+    for number, scheme in enumerate(schemes, 1):
+        log(f"{name} v{entry.version}: {scheme} cross-validation ({number} of {len(schemes)}), "
+            f"{params['cv.folds']} folds, {len(frame)} rows …")
+        started = time.perf_counter()
         folds = assign_folds(frame, kind, scheme, int(params["cv.folds"]), int(params["cv.seed"]),
                              skin=skin)
-        redone = cross_validate(task, frame, folds, model, scheme, skin,
-                                n_jobs=n_jobs).predictions
+        redone = cross_validate(task, frame, folds, model, scheme, skin, n_jobs=n_jobs,
+                                progress=f"{name} {scheme} CV").predictions
         logged = pd.read_parquet(mlflow.artifacts.download_artifacts(
             run_id=entry.run_id, artifact_path=f"predictions/oof_{scheme}.parquet"))
         column = f"{target}_pred"
@@ -121,6 +134,9 @@ def reproduce(name: str, version: str | None = None, *, root: Path = Path("."),
         out["schemes"][scheme] = {"rows": len(a), "identical": int(np.sum(a == b)),
                                   "max_abs_difference": float(np.max(np.abs(a - b)))
                                   if len(a) == len(b) and len(a) else float("nan")}
+        log(f"{name} v{entry.version}: {scheme} cross-validation done in "
+            f"{time.perf_counter() - started:.0f} s, {out['schemes'][scheme]['identical']}/"
+            f"{len(a)} predictions identical")
     out["reproduced"] = all(s["identical"] == s["rows"] for s in out["schemes"].values())
     return out
 
