@@ -21,7 +21,13 @@ from eskin.catalog import (
     folds_path,
     task_outputs,
 )
-from eskin.errors import run_friendly
+from eskin.errors import (
+    NOTHING_CHANGED,
+    RECEIVED_KEPT,
+    STEP_NOT_KEPT,
+    STOPPED,
+    run_friendly,
+)
 
 
 def _ports(args: argparse.Namespace) -> int:
@@ -228,13 +234,15 @@ def _export(args: argparse.Namespace) -> int:
 DESCRIPTION = """\
 Acquire, train on and use a soft capacitive e-skin. The pipeline's steps are DVC
 stages (dvc repro runs them all); these commands run one step, or work beside it.
-A mistake you can fix is one line and exit code 1; --debug shows the traceback."""
+Runs are logged to MLflow by one stage, track, last in dvc repro and dvc exp run;
+no command here logs a run. A mistake you can fix is one line and exit code 1;
+--debug shows the traceback."""
 
 EXAMPLES = """\
 examples:
   eskin device simulate                 serve the simulated skin; prints its port
   eskin acquire single_force            acquire a scene of params.yaml (resumes)
-  eskin train single_force force        cross-validate one task, log it to MLflow
+  eskin train single_force force        cross-validate, refit one task (no MLflow)
   eskin live single_force --simulated --frames 10
                                         the trained stack on a board's stream
   eskin compare --last 2                two variants' headline scores side by side
@@ -242,9 +250,41 @@ examples:
   eskin promote single_force --experiment force-rf
                                         alias champion on that experiment's stack
 
-eskin COMMAND --help describes a command."""
+eskin COMMAND --help describes a command, with examples."""
 
 PARAMS_HELP = "the parameters file (default params.yaml)"
+
+
+class _HelpFormatter(argparse.HelpFormatter):
+    """A command's description wrapped to the terminal; its examples (the epilog, which
+    starts ``examples:``) kept line for line, one command a line."""
+
+    def _fill_text(self, text: str, width: int, indent: str) -> str:
+        if text.startswith("examples:"):
+            return "".join(indent + line for line in text.splitlines(keepends=True))
+        return super()._fill_text(text, width, indent)
+
+
+def _examples(*examples: tuple[str, str], note: str = "") -> str:
+    """``examples:``, each command beside what it does (under it, if the command is long),
+    then ``note``, a paragraph written as it is to be shown."""
+    lines = ["examples:"]
+    for command, what in examples:
+        if len(command) > 36:
+            lines += [f"  {command}", f"  {'':36}  {what}"]
+        else:
+            lines.append(f"  {command:<36}  {what}")
+    return "\n".join(lines) + (f"\n\n{note}" if note else "")
+
+
+def _command(commands, name: str, summary: str, examples: str, *,
+             interrupted: str) -> argparse.ArgumentParser:
+    """A subcommand: ``summary`` in ``eskin --help``'s list and atop its own --help, its
+    examples under it; ``interrupted``: what a Ctrl-C leaves (eskin.errors)."""
+    parser = commands.add_parser(name, help=summary, description=summary, epilog=examples,
+                                 formatter_class=_HelpFormatter)
+    parser.set_defaults(interrupted=interrupted)
+    return parser
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -254,14 +294,27 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--debug", action="store_true", help="show tracebacks")
     commands = parser.add_subparsers(dest="command", required=True)
 
-    ports = commands.add_parser("ports", help="list serial ports (pyserial list_ports)")
+    ports = _command(commands, "ports", "list the serial ports a board may be on (pyserial's "
+                     "list_ports)",
+                     _examples(("eskin ports", "device, description, hardware id")),
+                     interrupted=NOTHING_CHANGED)
     ports.set_defaults(run=_ports)
 
-    device = commands.add_parser("device", help="device tools")
+    device = _command(commands, "device", "the board: serve a simulated one, or give a real "
+                      "one its id",
+                      _examples(("eskin device simulate", "the simulated skin on a pty"),
+                                ("eskin device set-id /dev/ttyACM0 lab2-skin1",
+                                 "a new board's id, once")),
+                      interrupted=NOTHING_CHANGED)
     device_commands = device.add_subparsers(dest="device_command", required=True)
-    simulate = device_commands.add_parser(
-        "simulate", help="serve the simulated skin on a pseudo-terminal (or a loopback socket) "
-        "and print the port to open")
+    simulate = _command(
+        device_commands, "simulate", "serve the simulated skin on a pseudo-terminal (or a "
+        "loopback socket) and print the port to open, until Ctrl-C",
+        _examples(("eskin device simulate", "the paper's 10 × 10 skin; prints its pty"),
+                  ("eskin device simulate --socket 0", "on socket://127.0.0.1:<a free port>"),
+                  ("eskin device simulate --corrupt 0.01", "1 % of frames damaged on the wire"),
+                  ("eskin device simulate --scene two_force", "the skin of scenes.two_force")),
+        interrupted=NOTHING_CHANGED)
     simulate.add_argument("--params", type=Path, default=Path("params.yaml"),
                           help=PARAMS_HELP + "; its sim and sim_board sections")
     simulate.add_argument("--scene", help="simulate the skin of scenes.SCENE "
@@ -274,29 +327,54 @@ def build_parser() -> argparse.ArgumentParser:
                           help="also a symlink at PATH that follows the pty (needed for "
                           "vanish faults: the pty is replaced when the link comes back)")
     simulate.set_defaults(run=_simulate)
-    set_id = device_commands.add_parser(
-        "set-id", help="give a board its device id, once (kept in its EEPROM; a board "
-        "without one is refused by acquisition)")
+    set_id = _command(
+        device_commands, "set-id", "give a board its device id, once (kept in its EEPROM; a "
+        "board without one is refused by acquisition)",
+        _examples(("eskin device set-id /dev/ttyACM0 lab2-skin1", "the board now greets as "
+                   "lab2-skin1")),
+        interrupted="the board may or may not have taken the id (a second set-id says "
+        "which it has)")
     set_id.add_argument("port", help="e.g. /dev/ttyACM0 (eskin ports lists them)")
     set_id.add_argument("id", help="up to 24 letters, digits, '-' or '_', e.g. lab2-skin1")
     set_id.set_defaults(run=_set_id)
 
-    for name, helptext in (("acquire", "acquire a scene into data/raw/<scene>/ (resumes)"),
-                           ("ingest", "build data/processed/<scene>.parquet from the raw data")):
-        sub = commands.add_parser(name, help=helptext)
+    acquire = _command(
+        commands, "acquire", "acquire a scene of params.yaml into data/raw/<scene>/ (resumes "
+        "where it stopped; the acquire stage of dvc repro)",
+        _examples(("eskin acquire single_force", "from the source params.yaml names"),
+                  ("eskin acquire single_force --source serial --port /dev/ttyACM0",
+                   "from a board"),
+                  ("eskin acquire single_force --source emulated",
+                   "from the firmware under simavr")),
+        interrupted=RECEIVED_KEPT)
+    ingest = _command(
+        commands, "ingest", "build data/processed/<scene>.parquet from the scene's raw data "
+        "(the ingest stage of dvc repro)",
+        _examples(("eskin ingest single_force", "→ data/processed/single_force.parquet")),
+        interrupted=STEP_NOT_KEPT)
+    for sub in (acquire, ingest):
         sub.add_argument("scene", help="a scene of params.yaml, e.g. single_force")
         sub.add_argument("--params", type=Path, default=Path("params.yaml"), help=PARAMS_HELP)
-        if name == "acquire":
-            sub.add_argument("--source", choices=SOURCES,
-                             help="override scenes.<scene>.source")
-            sub.add_argument("--port", help="override scenes.<scene>.port (serial source)")
-            sub.add_argument("--no-progress", action="store_true",
-                             help="no progress bar (for logs and CI)")
         sub.set_defaults(run=_pipeline_step)
+    acquire.add_argument("--source", choices=SOURCES, help="override scenes.<scene>.source")
+    acquire.add_argument("--port", help="override scenes.<scene>.port (serial source)")
+    acquire.add_argument("--no-progress", action="store_true",
+                         help="no progress bar (for logs and CI)")
 
-    live = commands.add_parser(
-        "live", help="run a scene's trained stack on a board's stream: one JSON line per "
-        "frame on stdout (seq, t_ms, stretch, contact, x, y, force)")
+    live = _command(
+        commands, "live", "run a scene's trained stack on a board's stream: one JSON line per "
+        "frame on stdout (seq, t_ms, stretch, contact, x, y, force), until Ctrl-C",
+        _examples(("eskin live single_force --port /dev/ttyACM0", "on a board"),
+                  ("eskin live single_force --simulated --frames 10",
+                   "10 estimates from the simulated board"),
+                  ("eskin live single_force --simulated --view 8050",
+                   "shown at http://127.0.0.1:8050/"),
+                  ("eskin live single_force --simulated --onnx",
+                   "the exported stack: under 1 ms a frame"),
+                  ("eskin live single_force --port /dev/ttyACM0 --alias champion",
+                   "the stack `eskin promote` gave the alias")),
+        interrupted="a recording (--record) keeps every frame received so far in the raw "
+        "log; nothing else was changed")
     live.add_argument("scene", help="the scene whose trained models to use")
     live.add_argument("--params", type=Path, default=Path("params.yaml"), help=PARAMS_HELP)
     where = live.add_mutually_exclusive_group(required=True)
@@ -331,13 +409,12 @@ def build_parser() -> argparse.ArgumentParser:
                       help="use the stack on a board other than the one it was trained on")
     live.set_defaults(run=_live)
 
-    press = commands.add_parser(
-        "press", help="press the simulated skin of a running `eskin live --simulated --view "
-        "PORT`, as a click on its page does",
-        description="Press (or release) the simulated skin of a running `eskin live "
-        "--simulated --view PORT`.",
-        epilog="example: eskin press 6 4 5.2\n         eskin press --release",
-        formatter_class=argparse.RawDescriptionHelpFormatter)
+    press = _command(
+        commands, "press", "press (or release) the simulated skin of a running `eskin live "
+        "--simulated --view PORT`, as a click on its page does",
+        _examples(("eskin press 6 4 5.2", "5.2 N on the node at x 6, y 4"),
+                  ("eskin press --release", "lift every weight")),
+        interrupted=NOTHING_CHANGED)
     press.add_argument("x", type=int, nargs="?", metavar="X", help="the node's x (row), 1..R")
     press.add_argument("y", type=int, nargs="?", metavar="Y", help="the node's y (column), 1..C")
     press.add_argument("force_n", type=float, nargs="?", metavar="NEWTONS",
@@ -349,14 +426,21 @@ def build_parser() -> argparse.ArgumentParser:
                        "(default 8050)")
     press.set_defaults(run=_press)
 
-    featurize = commands.add_parser("featurize", help="build data/features/<scene>.parquet "
-                                    "and the fitted transform (featurize.method)")
+    featurize = _command(
+        commands, "featurize", "build data/features/<scene>.parquet and the fitted transform "
+        "(featurize.method; the featurize stage of dvc repro)",
+        _examples(("eskin featurize single_force", "→ data/features/single_force.parquet")),
+        interrupted=STEP_NOT_KEPT)
     featurize.add_argument("scene", help="a scene of params.yaml, e.g. single_force")
     featurize.add_argument("--params", type=Path, default=Path("params.yaml"), help=PARAMS_HELP)
     featurize.set_defaults(run=_learning_step)
-    train = commands.add_parser("train", help="draw the scene's folds, then cross-validate "
-                                "and refit one task of it (train.<task> in params.yaml); "
-                                "`dvc repro track` logs it to MLflow")
+    train = _command(
+        commands, "train", "draw a scene's folds, then cross-validate and refit one task "
+        "(train.<task> of params.yaml) into the workspace; logs nothing to MLflow",
+        _examples(("eskin train single_force force", "its scores, predictions and model"),
+                  note="dvc repro trains every task in its train stages, then its last stage,\n"
+                  "track, logs them to MLflow (eskin compare shows them)."),
+        interrupted=STEP_NOT_KEPT)
     train.add_argument("scene", help="a scene of params.yaml, e.g. single_force")
     train.add_argument("task", choices=TASK_NAMES,
                        help="a task (train.<task> in params.yaml); one a scene's data cannot "
@@ -364,16 +448,24 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--params", type=Path, default=Path("params.yaml"), help=PARAMS_HELP)
     train.set_defaults(run=_learning_step)
 
-    export = commands.add_parser(
-        "export", help="write a scene's trained stack as one ONNX file "
-        "(models/<scene>/stack.onnx) and check it against the scikit-learn stack")
+    export = _command(
+        commands, "export", "write a scene's trained stack as one ONNX file "
+        "(models/<scene>/stack.onnx) and check it against the scikit-learn stack",
+        _examples(("eskin export single_force", "→ models/single_force/stack.onnx")),
+        interrupted=STEP_NOT_KEPT)
     export.add_argument("scene", help="a scene whose models dvc repro has trained")
     export.add_argument("--params", type=Path, default=Path("params.yaml"), help=PARAMS_HELP)
     export.set_defaults(run=_export)
 
-    compare = commands.add_parser(
-        "compare", help="the latest run of every variant side by side, from MLflow: "
-        "the params that differ, headline scores, run time")
+    compare = _command(
+        commands, "compare", "the latest run of every variant side by side, from MLflow: "
+        "the params that differ, headline scores, run time",
+        _examples(("eskin compare", "every variant"),
+                  ("eskin compare --last 2", "the two newest"),
+                  ("eskin compare --variant force-rf --scheme stratified",
+                   "one variant, stratified CV's scores"),
+                  ("eskin compare --format markdown --output compare.md", "for a document")),
+        interrupted=NOTHING_CHANGED)
     compare.add_argument("--scheme", default="conditions", help="CV scheme of the scores "
                          "(conditions, stratified, trials; default conditions)")
     compare.add_argument("--last", type=int, metavar="N", help="only the N newest variants")
@@ -382,36 +474,54 @@ def build_parser() -> argparse.ArgumentParser:
     _table_options(compare)
     compare.set_defaults(run=_compare)
 
-    audit = commands.add_parser(
-        "audit", help="dataset versions (DVC md5) and the MLflow runs each trained; "
-        "with --run, one run's lineage checked against the workspace")
+    audit = _command(
+        commands, "audit", "dataset versions (DVC md5) and the MLflow runs each trained; "
+        "with --run, one run's lineage checked against the workspace",
+        _examples(("eskin audit", "every dataset version and its runs"),
+                  ("eskin audit --run RUN_ID", "one run, its id from the table"),
+                  ("eskin audit --format csv --output audit.csv", "a row per version")),
+        interrupted=NOTHING_CHANGED)
     audit.add_argument("--run", dest="run_id", metavar="RUN_ID", help="audit this run")
     _table_options(audit)
     audit.set_defaults(run=_audit)
 
-    plan = commands.add_parser(
-        "plan", help="how many trials per condition a target score needs, and the bench "
+    plan = _command(
+        commands, "plan", "how many trials per condition a target score needs, and the bench "
         "time they take, from make bench's learning curves",
-        epilog="Targets are <task>_<metric>: force_r2, localise_accuracy, detect_accuracy, "
-        "stretch_r2. An answer says impossible where the Bayes bound forbids the target, and "
-        "beyond the floor where the model levels off below it.")
+        _examples(("eskin plan single_force --target force_r2=0.95", "trials for R² 0.95"),
+                  ("eskin plan two_force --target localise_accuracy=0.9", "and for two forces"),
+                  note="Targets are <task>_<metric>: force_r2, localise_accuracy, "
+                  "detect_accuracy,\nstretch_r2. An answer says impossible where the Bayes "
+                  "bound forbids the target,\nand beyond the floor where the model levels off "
+                  "below it."),
+        interrupted=NOTHING_CHANGED)
     plan.add_argument("scene", help="a scene, e.g. single_force")
     plan.add_argument("--target", required=True, metavar="TASK_METRIC=VALUE",
                       help="the score to reach, e.g. force_r2=0.95")
     plan.set_defaults(run=_plan)
 
-    reproduce = commands.add_parser(
-        "reproduce", help="rerun a registered model's cross-validation on its dataset "
-        "version and compare with its run's out-of-fold predictions")
+    reproduce = _command(
+        commands, "reproduce", "rerun a registered model's cross-validation on its dataset "
+        "version and compare with its run's out-of-fold predictions",
+        _examples(("eskin reproduce single_force.force", "its newest version"),
+                  ("eskin reproduce single_force.localise.x --version 1", "a given version")),
+        interrupted=NOTHING_CHANGED)
     reproduce.add_argument("model", help="a registered model, e.g. single_force.force")
     reproduce.add_argument("--version", help="default: the newest")
     reproduce.set_defaults(run=_reproduce)
 
-    promote = commands.add_parser(
-        "promote", help="give an MLflow alias to every registered model of a scene's stack "
-        "in one pipeline run (what `eskin live --alias` loads)",
-        epilog="With neither --experiment nor --run: the pipeline run that logged the models "
-        "dvc.lock records (the workspace's stack).")
+    promote = _command(
+        commands, "promote", "give an MLflow alias to every registered model of a scene's "
+        "stack in one pipeline run (what `eskin live --alias` loads)",
+        _examples(("eskin promote single_force --experiment force-rf",
+                   "champion on that experiment's stack"),
+                  ("eskin promote single_force --alias staging --run RUN_ID",
+                   "staging on that pipeline run's stack"),
+                  ("eskin promote single_force", "on the workspace's stack"),
+                  note="With neither --experiment nor --run: the pipeline run that logged the "
+                  "models\ndvc.lock records (the workspace's stack). A model that scores worse "
+                  "than the\nversion it takes the alias from is said on stderr."),
+        interrupted="the alias may be on part of the stack: run it again")
     promote.add_argument("scene", help="a scene, e.g. single_force")
     promote.add_argument("--alias", default="champion",
                          help="the alias to set (default champion); taken from the scene's "
@@ -558,4 +668,5 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.debug else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
-    return run_friendly(lambda: args.run(args), debug=args.debug)
+    return run_friendly(lambda: args.run(args), debug=args.debug,
+                        interrupted=getattr(args, "interrupted", STOPPED))

@@ -5,7 +5,7 @@ import sys
 from eskin.acquisition import acquire
 from eskin.catalog import RAW_DIR
 from eskin.config import get_scene, load_params, validating
-from eskin.errors import run_friendly
+from eskin.errors import RECEIVED_KEPT, run_friendly
 
 
 def main(scene: str) -> str:
@@ -19,4 +19,5 @@ def main(scene: str) -> str:
 
 
 if __name__ == "__main__":
-    sys.exit(run_friendly(lambda: print(main(sys.argv[1]))))
+    sys.exit(run_friendly(lambda: print(main(sys.argv[1])),
+                          interrupted=RECEIVED_KEPT))

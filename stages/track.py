@@ -8,7 +8,7 @@ import sys
 
 from eskin.catalog import METRICS, PAGE, TRACKED
 from eskin.config import load_params, pipeline_params
-from eskin.errors import run_friendly
+from eskin.errors import TRACK_KEPT, run_friendly
 
 
 def main() -> str:
@@ -29,4 +29,4 @@ def main() -> str:
 
 
 if __name__ == "__main__":
-    sys.exit(run_friendly(lambda: print(main())))
+    sys.exit(run_friendly(lambda: print(main()), interrupted=TRACK_KEPT))

@@ -2,6 +2,7 @@
 
 import argparse
 import os
+import shlex
 import subprocess
 import sys
 
@@ -22,6 +23,37 @@ def test_every_argument_of_every_command_says_what_it_is():
                    for action in parser._actions
                    if not action.help and not isinstance(action, argparse._SubParsersAction)]
     assert unexplained == []
+
+
+def example_commands(text: str) -> list[list[str]]:
+    """The commands of a help text's examples: each line under ``examples:`` that starts
+    ``  eskin``, up to two spaces (what the command does follows them), as argv."""
+    examples = text.split("examples:", 1)[1] if "examples:" in text else ""
+    return [shlex.split(line.strip().split("  ")[0])
+            for line in examples.splitlines() if line.startswith("  eskin ")]
+
+
+def test_every_command_says_what_it_does_with_an_example_that_parses():
+    """`eskin ports --help` said nothing of what it does. Every command, nested ones too,
+    has a one-sentence description and examples of itself under its --help, kept line for
+    line; each example's arguments are accepted by the parser (parsed, not run)."""
+    parser = build_parser()
+    commands = list(_commands(parser))
+    assert len(commands) >= 16  # eskin, 13 commands, device's 2
+    for path, command in commands[1:]:
+        text = command.format_help()
+        assert command.description and "\n" not in command.description.strip(), path
+        assert command.description.split()[0] in text, (path, text)
+        examples = example_commands(text)
+        assert any(argv[1:len(path)] == list(path[1:]) for argv in examples), (path, text)
+        for argv in examples:
+            try:
+                parser.parse_args(argv[1:])
+            except SystemExit:
+                raise AssertionError(f"{' '.join(path)} --help: `{' '.join(argv)}` does not "
+                                     "parse") from None
+    for argv in example_commands(parser.format_help()):  # eskin --help's own examples
+        parser.parse_args(argv[1:])
 
 
 def test_the_top_help_is_plain_text_with_examples():

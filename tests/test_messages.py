@@ -18,6 +18,13 @@ from conftest import ROOT, write_params
 
 from eskin import cli
 from eskin.config import BenchParams, Params, ParamsError, StressParams, validate_params
+from eskin.errors import (
+    NOTHING_CHANGED,
+    RECEIVED_KEPT,
+    STAGE_NOT_KEPT,
+    STEP_NOT_KEPT,
+    TRACK_KEPT,
+)
 from eskin.tracking import compare
 
 TYPO = "singel_force"
@@ -235,3 +242,112 @@ def test_a_mistyped_registered_model_is_one_line_with_the_closest(tmp_path):
     assert done.returncode == 1 and done.stdout == "", done
     assert done.stderr == (f"eskin: error: no registered model '{TYPO}.force'; did you mean "
                            f"single_force.force? (registered: {', '.join(names)})\n"), done.stderr
+
+
+# ------------------------------------------------------------------ Ctrl-C
+
+# Every stage of the pipeline (dvc.yaml), and what a Ctrl-C leaves of it.
+PIPELINE_STAGES = {"acquire": RECEIVED_KEPT, "track": TRACK_KEPT,
+                   **{stage: STAGE_NOT_KEPT for stage in (
+                       "ingest", "featurize", "folds", "settings", "train", "pairs", "export",
+                       "report")}}
+
+
+def test_every_pipeline_stage_is_in_the_ctrl_c_table():
+    stages = yaml.safe_load((ROOT / "dvc.yaml").read_text())["stages"]
+    assert set(stages) == set(PIPELINE_STAGES)
+
+
+@pytest.mark.parametrize("stage", sorted(PIPELINE_STAGES))
+def test_each_stage_says_what_a_ctrl_c_kept_of_it(stage, monkeypatch):
+    """The wording a stage gives run_friendly for a Ctrl-C: acquisition's "everything
+    received" only where it is true. The stage is run as `python -m stages.<stage>` runs
+    it, up to run_friendly, which is told nothing but records the wording."""
+    import runpy
+
+    import eskin.errors
+
+    told = {}
+
+    def recorded(call, **kwargs):
+        told.update(kwargs)
+        return 0
+
+    monkeypatch.setattr(eskin.errors, "run_friendly", recorded)
+    monkeypatch.setattr(sys, "argv", [stage, "single_force", "force"])
+    with pytest.raises(SystemExit):
+        runpy.run_module(f"stages.{stage}", run_name="__main__")
+    assert told.get("interrupted", STAGE_NOT_KEPT) == PIPELINE_STAGES[stage]
+
+
+def test_an_interrupted_training_stage_says_it_kept_nothing(small_params, tmp_path):
+    """The train stage, on a small scene, stopped by SIGINT while it cross-validates:
+    exit 130, one line saying that nothing of it is kept (and nothing was written), not
+    the acquisition's "everything received so far is on disk"."""
+    import select
+    import signal
+    import time
+
+    from conftest import featurize_step, prepared_scene, quick_params
+
+    from eskin.catalog import folds_path, model_path, scores_path
+    from eskin.evaluation.folds import write_scene_folds
+
+    params = quick_params(small_params, folds=10)
+    root = tmp_path / "project"
+    write_params(root, params)
+    prepared_scene(params, "single_force", tmp_path / "acquired")
+    featurize_step(params, "single_force", tmp_path / "acquired" / "processed",
+                   root / "data" / "features", root / "models")
+    write_scene_folds(root / "data" / "features" / "single_force.parquet",
+                      root / folds_path("single_force"), schemes=params["cv"]["schemes"],
+                      n_splits=10, seed=params["cv"]["seed"], scene="single_force")
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}  # the stages package
+    subprocess.run([sys.executable, "-m", "stages.settings"], cwd=root, env=env, check=True,
+                   capture_output=True, timeout=120)
+    stage = subprocess.Popen(
+        [sys.executable, "-m", "stages.train", "single_force", "force"], cwd=root, env=env,
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+        # SIGINT as in a terminal (a background job of a shell starts with it ignored)
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    said, deadline = b"", time.monotonic() + 120
+    while b"CV:" not in said and time.monotonic() < deadline:  # its folds' progress bar
+        if select.select([stage.stderr], [], [], 1)[0]:
+            said += os.read(stage.stderr.fileno(), 4096)
+    assert b"CV:" in said, said
+    time.sleep(0.3)  # into the folds (the bar is drawn before tqdm's constructor returns)
+    stage.send_signal(signal.SIGINT)
+    _, rest = stage.communicate(timeout=120)
+    stderr = (said + rest).decode()
+    assert stage.returncode == 130, stderr
+    assert stderr.endswith(f"eskin: interrupted; {STAGE_NOT_KEPT}\n"), stderr
+    assert stderr.count("eskin:") == 1, stderr
+    assert "everything received" not in stderr and "Traceback" not in stderr, stderr
+    assert not (root / model_path("single_force", "force")).exists()
+    assert not (root / scores_path("single_force", "force")).exists()
+
+
+def test_each_command_says_what_a_ctrl_c_kept():
+    """`eskin acquire`'s log keeps every frame; the steps that write at their end, and
+    the commands that write nothing, say so and not that."""
+    parser = cli.build_parser()
+    said = {" ".join(argv): parser.parse_args(argv).interrupted for argv in (
+        ["acquire", "single_force"], ["train", "single_force", "force"],
+        ["featurize", "single_force"], ["ingest", "single_force"], ["export", "single_force"],
+        ["compare"], ["audit"], ["reproduce", "single_force.force"], ["ports"])}
+    assert said.pop("acquire single_force") == RECEIVED_KEPT
+    assert {said.pop(c) for c in ("train single_force force", "featurize single_force",
+                                  "ingest single_force", "export single_force")} == {
+        STEP_NOT_KEPT}
+    assert set(said.values()) == {NOTHING_CHANGED}
+
+
+def test_run_friendly_says_the_wording_it_is_given(capsys):
+    from eskin.errors import run_friendly
+
+    def stopped():
+        raise KeyboardInterrupt
+
+    assert run_friendly(stopped, interrupted="the alias may be on part of the stack") == 130
+    assert capsys.readouterr().err == ("eskin: interrupted; the alias may be on part of the "
+                                       "stack\n")

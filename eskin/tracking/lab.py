@@ -371,7 +371,7 @@ def main(argv: list[str] | None = None) -> int:
                 return 0
             raise LabServerError(f"mlflow server exited; its log: {tracking.log}")
 
-    return run_friendly(serve_until_stopped)
+    return run_friendly(serve_until_stopped, interrupted="the servers it started are stopped")
 
 
 if __name__ == "__main__":
