@@ -166,6 +166,7 @@ def test_dvc_plots_draw_offline_in_headless_chromium(scratch):
     root, env = scratch
     run(["dvc", "plots", "show", "-o", str(root / "dvc_plots")], root, env)
     page_path = root / "dvc_plots" / "index.html"
+    assert "dvc_plots" not in run(["git", "status", "--porcelain"], root, env)  # ignored
     requested, errors = [], []
     with headless_chromium() as browser:
         context = browser.new_context(offline=True)
