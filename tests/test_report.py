@@ -293,7 +293,8 @@ def test_provenance_is_what_dvc_exp_run_gives_and_nothing_under_a_plain_repro(tm
 def test_the_page_has_contents_schemes_side_by_side_and_its_commit_in_the_title(built):
     root, _ = built
     with headless_chromium() as browser:
-        page = browser.new_page(viewport={"width": 1600, "height": 1000})
+        # wide enough for every figure side by side, 10-class confusion matrices too
+        page = browser.new_page(viewport={"width": 2400, "height": 1000})
         page.goto((root / "index.html").as_uri())
         page.wait_for_load_state("load")
         title, heading = page.title(), page.inner_text("h1")
@@ -320,6 +321,70 @@ def test_the_page_has_contents_schemes_side_by_side_and_its_commit_in_the_title(
         (_, top1, left1), (_, top2, left2) = shown
         assert top1 == top2 and left2 > left1, (row_id, shown)  # one row, side by side
     assert abs(jumped) < 5, jumped  # the contents' link lands on its figure
+
+
+def smallest_text_pt(figure) -> float:
+    """The smallest font size (points) of the text drawn in ``figure``: every visible,
+    non-empty text of a visible axes (or of the figure) that takes room when drawn."""
+    from matplotlib.text import Text
+
+    figure.canvas.draw()
+    renderer = figure.canvas.get_renderer()
+    return min(text.get_fontsize() for text in figure.findobj(Text)
+               if text.get_visible() and text.get_text().strip()
+               and (text.axes is None or text.axes.get_visible())
+               and text.get_window_extent(renderer).width > 0)
+
+
+@needs_chromium
+def test_every_text_of_every_figure_is_at_least_10_px_on_the_page_at_1400_px(built):
+    """The smallest text of each figure, as shown on the page in a 1,400 px window: its
+    size in points (from the figure drawn again from the same predictions) times the
+    CSS px per inch the page shows the figure at (the image's width in Chromium over
+    its width in inches: natural px / page dpi). Bar labels were 7 px, a 10-class
+    confusion matrix's counts 6.4 px."""
+    import matplotlib.pyplot as plt
+
+    from eskin.config import scene_skin
+    from eskin.reporting import figures
+
+    root, _ = built
+    with headless_chromium() as browser:
+        page = browser.new_page(viewport={"width": 1400, "height": 1000})
+        page.goto((root / "index.html").as_uri())
+        page.wait_for_load_state("load")
+        assert page.evaluate("window.devicePixelRatio") == 1
+        shown = {row[0]: row[1:] for row in page.eval_on_selector_all(
+            "figure img", """imgs => imgs.map(i => [i.closest('figure').id, i.clientWidth,
+                i.naturalWidth, Math.round(i.getBoundingClientRect().top)])""")}
+    assert len(shown) == 12, shown
+    sizes, tops = {}, {}
+    for scene, conf in SCENES.items():
+        for spec in get_kind(conf.kind).figures:
+            path = root / "predictions" / scene / f"{spec.task}.parquet"
+            if not path.exists():
+                continue
+            document = json.loads((root / "scores" / scene / f"{spec.task}.json").read_text())
+            for scheme in SETTINGS.schemes:
+                frame = pd.read_parquet(path)
+                oof = frame[frame["scheme"] == scheme]
+                drawn = report.draw(spec, oof, scene_skin(conf))
+                figures.identify(drawn, report.identity(scene, spec, scheme, oof,
+                                                        document).heading)
+                width_px, natural_px, top = shown[f"{scene}-{spec.id}_{scheme}"]
+                inches = natural_px / SETTINGS.page_dpi
+                assert inches == pytest.approx(drawn.get_figwidth(), abs=1 / SETTINGS.page_dpi)
+                sizes[(scene, spec.id, scheme)] = smallest_text_pt(drawn) / 72 * width_px / inches
+                tops.setdefault((scene, spec.id), []).append(top)
+                plt.close(drawn)
+    assert len(sizes) == 12
+    small = {k: round(v, 1) for k, v in sizes.items() if v < 10}
+    assert not small, small
+    # the layout that gives it: page-wide figures side by side, but a 10-class confusion
+    # matrix (5 pt counts) one under the other
+    stacked = {key for key, (first, second) in tops.items() if first != second}
+    assert stacked == {("single_force", LOCALISATION_CONFUSION),
+                       ("two_force", LOCALISATION_CONFUSION)}, tops
 
 
 def test_a_continuous_force_is_summarised_in_a_few_bins():

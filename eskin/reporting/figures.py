@@ -26,13 +26,20 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
+from matplotlib.text import Text  # noqa: E402
 from sklearn.metrics import ConfusionMatrixDisplay, confusion_matrix, det_curve  # noqa: E402
 
-STYLE = {"font.size": 9, "axes.titlesize": 9, "axes.labelsize": 9, "legend.fontsize": 8,
-         "xtick.labelsize": 8, "ytick.labelsize": 8, "figure.constrained_layout.use": True}
+# Text sizes, points. The page shows two page-wide figures side by side, 656 px each in a
+# 1,400 px window: 1 pt is 1.27 px there, so TEXT_PT (9 pt) is 11.4 px (5.5 pt bar labels
+# were 7 px). A confusion cell of many classes holds only CELL_TEXT_PT; the page shows
+# such a figure wider (eskin/reporting/page.py Rendering.legible_width).
+TEXT_PT = 9
+STYLE = {"font.size": 10, "axes.titlesize": 10, "axes.labelsize": 10,
+         "legend.fontsize": TEXT_PT, "xtick.labelsize": TEXT_PT, "ytick.labelsize": TEXT_PT,
+         "figure.constrained_layout.use": True}
 COLUMN_IN = 3.5   # one column of the paper, inches
 PAGE_IN = 7.2     # both columns
-HEADING_SIZE = 8  # the heading identify() writes: scene, task, scheme, n, score
+HEADING_SIZE = TEXT_PT  # the heading identify() writes: scene, task, scheme, n, score
 
 
 def identify(fig: Figure, heading: str) -> None:
@@ -44,6 +51,14 @@ def identify(fig: Figure, heading: str) -> None:
              for wrapped in textwrap.wrap(line, per_line, break_on_hyphens=False)]
     with plt.rc_context(STYLE):
         fig.suptitle("\n".join(lines), fontsize=HEADING_SIZE, linespacing=1.4)
+
+
+def smallest_text(fig: Figure) -> float:
+    """The smallest font size (points) of the text the figure shows: what decides how
+    wide the page must show it to be read."""
+    return min(text.get_fontsize() for text in fig.findobj(Text)
+               if text.get_visible() and text.get_text().strip()
+               and (text.axes is None or text.axes.get_visible()))
 
 
 def _ideal(ax, low: float, high: float, floor: float | None = None) -> None:
@@ -169,12 +184,13 @@ def _spread_panel(ax, series: list, in_bins: bool = False) -> None:
                      for v in stats.index]
         bars = ax.bar(positions, stats["std"], width=width * 0.95, label=label,
                       color=f"C{k}", alpha=0.8)
-        ax.bar_label(bars, fmt="%.2f", fontsize=5.5, padding=1)
+        # upright: at TEXT_PT, "0.27" is wider than a bar of three per level
+        ax.bar_label(bars, fmt="%.2f", fontsize=TEXT_PT, padding=2, rotation=90)
     ax.set_xticks(range(len(levels)), [f"{v:.3g}" for v in levels])
     ax.set_xlabel(f"true force (N){', centre of its bin' if in_bins else ''}")
     ax.set_ylabel("std of the predicted force (N)")
     ax.set_title(f"spread per {'bin' if in_bins else 'level'}")
-    ax.margins(y=0.15)
+    ax.margins(y=0.2)  # room above the tallest bar for its upright label
     ax.legend(loc="upper left")
 
 
@@ -198,7 +214,7 @@ def _annotate_spread(ax, stats: pd.DataFrame) -> None:
         near_edge = level > 0.75 * right
         ax.annotate(f"std {row['std']:.2f} N", (level, row["mean"]),
                     xytext=(-8 if near_edge else 8, 0), textcoords="offset points",
-                    ha="right" if near_edge else "left", va="center", fontsize=7,
+                    ha="right" if near_edge else "left", va="center", fontsize=TEXT_PT,
                     color="0.2", bbox={"fc": "white", "ec": "none", "pad": 0.5},
                     in_layout=False)
 
@@ -245,6 +261,10 @@ def _share(share: float) -> str:
 # The most classes whose confusion cells still fit their count and share (16 × 12 skins'
 # 16 x terminals do, 32 do not).
 WRITTEN_LABELS = 16
+# Beyond SMALL_CELLS classes, a cell's count and share fit at CELL_TEXT_PT only (10
+# classes in half the page's width: a cell is 18.7 pt wide, "0.056%" at 5 pt 18.0 pt).
+SMALL_CELLS = 6
+CELL_TEXT_PT = 5
 
 
 def _confusion_panel(ax, true: np.ndarray, predicted: np.ndarray, name: str,
@@ -265,12 +285,14 @@ def _confusion_panel(ax, true: np.ndarray, predicted: np.ndarray, name: str,
     display = ConfusionMatrixDisplay(share, display_labels=names)
     display.plot(ax=ax, cmap="Blues", colorbar=False, include_values=False,
                  im_kw={"vmin": 0, "vmax": 1})
-    small = len(labels) > 6
+    small = len(labels) > SMALL_CELLS
+    if small:  # 16 classes' two-digit tick labels run together at TEXT_PT
+        ax.tick_params(labelsize=TEXT_PT - 1)
     written = counts if len(labels) <= WRITTEN_LABELS else np.zeros_like(counts)
     for (i, j), count in np.ndenumerate(written):
         if count:
             ax.text(j, i, f"{count:,}\n{_share(share[i, j])}", ha="center", va="center",
-                    fontsize=5 if small else 8, linespacing=1.1,
+                    fontsize=CELL_TEXT_PT if small else TEXT_PT, linespacing=1.1,
                     color="white" if share[i, j] > 0.6 else "black")
     ax.set_xlabel(f"predicted {name}")
     ax.set_ylabel(f"true {name}")
@@ -328,7 +350,7 @@ def _det_panel(ax, true: np.ndarray, pred: np.ndarray, score: np.ndarray | None)
     ax.set_ylim(floor, 1.0)
     ticks = 10.0 ** np.arange(np.log10(floor), 0.5)
     for axis in (ax.xaxis, ax.yaxis):
-        axis.set_ticks(ticks, [_percent(t) for t in ticks], fontsize=7)
+        axis.set_ticks(ticks, [_percent(t) for t in ticks], fontsize=TEXT_PT)
         axis.set_ticks([], minor=True)
     ax.set_aspect("equal")
     ax.grid(True, color="0.9", lw=0.5)
@@ -337,13 +359,22 @@ def _det_panel(ax, true: np.ndarray, pred: np.ndarray, score: np.ndarray | None)
     ax.plot(*point, "o", color="black", ms=6, mfc="none", zorder=4,
             label=f"its decisions: {false_contacts:,} false of {negatives:,},\n"
                   f"{missed:,} missed of {positives:,}")
-    ax.set_xlabel("false contacts (of no-contact samples)")
-    ax.set_ylabel("missed contacts (of contact samples)")
+    # two lines each: at TEXT_PT, one was wider than the panel, and off the figure
+    ax.set_xlabel("false contacts\n(of no-contact samples)")
+    ax.set_ylabel("missed contacts\n(of contact samples)")
     ax.set_title("DET curve, log axes")
-    ax.legend(loc="upper right", fontsize=7)
+    # under the figure: at TEXT_PT the legend is wider than the panel, and on it, it hid
+    # the curve and a tick label
+    ax.figure.legend(*ax.get_legend_handles_labels(), loc="outside lower right",
+                     fontsize=TEXT_PT)
     if score is None:
         ax.text(0.5, 0.6, "no scores from this model:\nits decisions only",
-                transform=ax.transAxes, ha="center", va="center", fontsize=8)
+                transform=ax.transAxes, ha="center", va="center", fontsize=TEXT_PT)
+
+
+# Tall enough for the DET legend under the figure and a DET panel whose six decades'
+# tick labels fit side by side at TEXT_PT.
+DETECTION_HEIGHT_IN = PAGE_IN / 2 + 0.9
 
 
 def detection(oof: pd.DataFrame) -> Figure:
@@ -351,9 +382,9 @@ def detection(oof: pd.DataFrame) -> Figure:
     log axes with the model's operating point. At this accuracy the ROC curve is a
     corner (AUC 1.00); the DET curve spreads the rare errors over decades."""
     with plt.rc_context(STYLE):
-        fig, (left, right) = plt.subplots(1, 2, figsize=(PAGE_IN, PAGE_IN / 2 + 0.1),
-                                          width_ratios=(1, 1.1))
-        fig.get_layout_engine().set(wspace=0.12)  # room between the colour bar and the DET
+        fig, (left, right) = plt.subplots(1, 2, figsize=(PAGE_IN, DETECTION_HEIGHT_IN),
+                                          width_ratios=(1, 1.5))
+        fig.get_layout_engine().set(wspace=0.06)  # room between the colour bar and the DET
         true = oof["contact_true"].astype(bool).to_numpy()
         pred = oof["contact_pred"].astype(bool).to_numpy()
         image = _confusion_panel(left, true.astype(int), pred.astype(int), "class",

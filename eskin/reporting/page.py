@@ -150,25 +150,52 @@ nav#contents ol { margin: 0.2em 0; padding-left: 1.4em; }
 section.figure { margin: 1.5em 0 2.5em; }
 section.figure h3 { margin-bottom: 0.2em; }
 section.figure > p { margin-top: 0; color: #444; }
-/* a figure's CV schemes side by side; one under the other where the window is narrow */
+/* a figure's CV schemes side by side where each is shown at least --legible wide (its
+   smallest text TEXT_PX high: page.py Rendering.legible_width); else one under the other */
 .schemes { display: grid; gap: 1.2em; align-items: start;
-           grid-template-columns: repeat(auto-fit, minmax(min(100%, 560px), 1fr)); }
+           grid-template-columns: repeat(auto-fit, minmax(min(100%, var(--legible)), 1fr)); }
 figure { margin: 0; }
-figure img { width: 100%; height: auto; border: 1px solid #eee; }
+figure img { box-sizing: border-box; width: 100%; height: auto; border: 1px solid #eee; }
 figcaption { font-size: 0.9em; color: #555; }
 """
+
+
+# The size (CSS px, the font's) that a figure's smallest text has on the page at least,
+# where the window allows. At 1,400 px: two page-wide figures of 9 pt text side by side
+# (11.4 px), a confusion matrix of 10 classes (5 pt) alone on its row (12.9 px); from a
+# 2,300 px window on, it too side by side (10.7 px).
+TEXT_PX = 10.5
+IMG_BORDER_PX = 1
+
+
+@dataclass(frozen=True)
+class Rendering:
+    """A figure's PNG for the page, its width (inches) and its smallest text (points)."""
+
+    png: bytes
+    width_in: float
+    smallest_pt: float
+
+    def legible_width(self) -> int:
+        """The width (CSS px, border included) at which the figure's smallest text is
+        :data:`TEXT_PX` high."""
+        inch = TEXT_PX * 72 / self.smallest_pt  # CSS px to the figure's inch
+        return math.ceil(self.width_in * inch) + 2 * IMG_BORDER_PX
 
 
 @dataclass
 class FigureRow:
     """One figure of a scene on the page: its CV schemes' renderings side by side, each
-    (scheme, heading: what it shows, PNG bytes)."""
+    (scheme, heading: what it shows, its rendering)."""
 
     id: str
     file: str      # the figure's file name without scheme and suffix (its id in kinds.py)
     title: str
     caption: str
-    schemes: list[tuple[str, str, bytes]] = field(default_factory=list)
+    schemes: list[tuple[str, str, Rendering]] = field(default_factory=list)
+
+    def legible_width(self) -> int:
+        return max((shown.legible_width() for *_, shown in self.schemes), default=0)
 
 
 @dataclass(frozen=True)
@@ -226,11 +253,12 @@ def render_page(scenes: Scenes, figures: Mapping[str, list[FigureRow]],
         "headline": headline_rows(kind, scores), "columns": headline_columns(scores),
         "skipped": skipped(scores),
         "figures": [{"id": row.id, "title": row.title, "caption": row.caption,
+                     "legible": row.legible_width(),
                      "schemes": [{"scheme": scheme, "id": f"{row.id}_{scheme}",
                                   "file": f"{figures_href}/{scene}/{row.file}_{scheme}",
                                   "heading": heading, "note": SCHEME_NOTES[scheme],
-                                  "png": base64.b64encode(png).decode()}
-                                 for scheme, heading, png in row.schemes]}
+                                  "png": base64.b64encode(shown.png).decode()}
+                                 for scheme, heading, shown in row.schemes]}
                     for row in figures.get(scene, [])],
     } for scene, kind, skin, scores in scenes]
     return environment.get_template("page.html.j2").render(

@@ -30,6 +30,7 @@ from eskin.reporting import figures as fig
 from eskin.reporting.page import (
     FigureRow,
     Provenance,
+    Rendering,
     render_page,
     results_markdown,
     score_text,
@@ -131,19 +132,21 @@ class FigureJob:
     page_dpi: int
 
 
-def draw_figure(job: FigureJob) -> bytes:
-    """Draw and save one figure (PNG and SVG); its PNG for the page."""
+def draw_figure(job: FigureJob) -> Rendering:
+    """Draw and save one figure (PNG and SVG); its PNG for the page, with its width and
+    smallest text (how wide the page shows it)."""
     figure = draw(job.spec, job.oof, job.skin)
     fig.identify(figure, job.about.heading)
     save(figure, job.path, job.about, job.dpi)
     buffer = io.BytesIO()
     figure.savefig(buffer, format="png", dpi=job.page_dpi,
                    metadata={"Title": job.about.title, "Software": None})
+    shown = Rendering(buffer.getvalue(), figure.get_figwidth(), fig.smallest_text(figure))
     plt.close(figure)
-    return buffer.getvalue()
+    return shown
 
 
-def _draw_all(jobs: list[FigureJob]) -> list[bytes]:
+def _draw_all(jobs: list[FigureJob]) -> list[Rendering]:
     """Every figure, on as many cores as this process may use (at most two figures at a
     time): each figure is drawn on its own, so the files are the same in any order.
     Drawing was most of the report stage (12 figures × 3 files: about 9 of its 12 s)."""
@@ -294,9 +297,9 @@ def report(*, report: Report, scenes: Mapping[str, Scene], scores_dir: Path,
         for template, stem, frame in plot_data(scene, kind, skins[scene], chosen):
             (plots_dir / template).mkdir(parents=True, exist_ok=True)
             frame.to_csv(plots_dir / template / f"{scene}_{stem}.csv", index=False)
-    for (row, scheme, job), page_png in zip(jobs, _draw_all([job for *_, job in jobs]),
-                                            strict=True):
-        row.schemes.append((scheme, job.about.heading.replace("\n", "; "), page_png))
+    for (row, scheme, job), shown in zip(jobs, _draw_all([job for *_, job in jobs]),
+                                         strict=True):
+        row.schemes.append((scheme, job.about.heading.replace("\n", "; "), shown))
 
     scenes = [(scene, kinds[scene], skins[scene], scores[scene]) for scene in kinds]
     href = Path(os.path.relpath(figures_dir, Path(page_path).parent)).as_posix()
