@@ -2,6 +2,7 @@
 reports/results.md, the headline scores (reports/metrics.json) and DVC's metrics, a file
 a scene (reports/metrics/)."""
 
+import functools
 import sys
 
 from eskin.catalog import (
@@ -16,15 +17,20 @@ from eskin.catalog import (
 from eskin.config import load_params
 from eskin.errors import run_friendly
 from eskin.reporting import report
+from eskin.tracking import runs
 
 
 def main() -> str:
     params = load_params()
+    # The page links each model to its runs in MLflow's UI, which are logged later (the
+    # tracking stage): by the experiment the tracking stage logs to, found or made here.
+    experiment = runs.ensure_experiment()
     return report.report(
         report=params.report, scenes=params.scenes, scores_dir=SCORES_DIR,
         predictions_dir=PREDICTIONS_DIR, figures_dir=FIGURES_DIR, plots_dir=PLOTS_DIR,
         page_path=PAGE, results_path="reports/results.md", metrics_path=METRICS,
-        scene_metrics_dir=SCENE_METRICS_DIR, run=report.provenance()).summary
+        scene_metrics_dir=SCENE_METRICS_DIR, run=report.provenance(),
+        model_runs=functools.partial(runs.model_runs_url, experiment)).summary
 
 
 if __name__ == "__main__":

@@ -1,8 +1,11 @@
 """The report: figures, plot data, the page (opened in headless Chromium), the results page."""
 
+import functools
+import html
 import json
 import re
 from types import SimpleNamespace
+from urllib.parse import parse_qs, urlsplit
 
 import numpy as np
 import pandas as pd
@@ -15,6 +18,8 @@ from eskin.config import Report
 from eskin.kinds import DETECTION, FORCE_PARITY, LOCALISATION_CONFUSION, STRETCH_PARITY, get_kind
 from eskin.reporting import report
 from eskin.reporting.page import Provenance, headline_markdown, headline_rows, render_page
+from eskin.skin import PAPER_SKIN
+from eskin.tracking import runs
 
 # The commit the fixture's report says it ran on top of (a plain `dvc repro`).
 COMMIT = "0123456789abcdef0123456789abcdef01234567"
@@ -85,6 +90,8 @@ SETTINGS = Report(schemes=["stratified", "conditions"], plots_scheme="stratified
 # the report reads each scene's kind and skin only (none: the paper's)
 SCENES = {"single_force": SimpleNamespace(kind="single_force", skin=None),
           "two_force": SimpleNamespace(kind="two_force", skin=None)}
+# The MLflow experiment the fixture's page links its models' runs in.
+EXPERIMENT_ID = "7"
 
 
 def build(root, out, run):
@@ -92,7 +99,8 @@ def build(root, out, run):
                          predictions_dir=root / "predictions", figures_dir=out / "figures",
                          plots_dir=out / "plots", page_path=out / "index.html",
                          results_path=out / "results.md", metrics_path=out / "metrics.json",
-                         scene_metrics_dir=out / "metrics", run=run)
+                         scene_metrics_dir=out / "metrics", run=run,
+                         model_runs=functools.partial(runs.model_runs_url, EXPERIMENT_ID))
 
 
 @pytest.fixture(scope="module")
@@ -321,6 +329,81 @@ def test_the_page_has_contents_schemes_side_by_side_and_its_commit_in_the_title(
         (_, top1, left1), (_, top2, left2) = shown
         assert top1 == top2 and left2 > left1, (row_id, shown)  # one row, side by side
     assert abs(jumped) < 5, jumped  # the contents' link lands on its figure
+
+
+def model_links(page: str) -> dict[str, tuple[str, str]]:
+    """scene/task → (md5, link) of each row of the page's models table."""
+    return {task: (md5, html.unescape(href)) for task, href, md5 in re.findall(
+        r'<tr><td>([^<]+)</td><td>[^<]*</td><td><a href="([^"]+)"><code>([^<]+)</code>',
+        page)}
+
+
+def test_each_models_md5_links_to_the_mlflow_runs_that_carry_it(built):
+    """The report is written before the tracking stage: no run id, so a model's link is
+    the experiment's runs table filtered by the model's md5 tag, on the UI's runs route
+    (from the experiment's, the UI redirects there and drops the filter), sorted by name
+    (sorted by date, the UI nests a task run, closed, under its pipeline run)."""
+    root, _ = built
+    links = model_links((root / "index.html").read_text())
+    expected = {f"{scene}/{task}": json.loads(path.read_text())["model_md5"]
+                for scene in SCENES for path in sorted((root / "scores" / scene).glob("*.json"))
+                if (task := path.stem) and "model_md5" in json.loads(path.read_text())}
+    assert {task: md5 for task, (md5, _) in links.items()} == expected
+    for task, (md5, link) in links.items():
+        url = urlsplit(link)
+        route, _, query = url.fragment.partition("?")
+        assert f"{url.scheme}://{url.netloc}" == runs.ui_base(), link
+        assert route == f"/experiments/{EXPERIMENT_ID}/runs", link
+        assert parse_qs(query) == {"searchFilter": [f"tags.`eskin.model_md5` = '{md5}'"],
+                                   "orderByKey": ["tags.`mlflow.runName`"],
+                                   "orderByAsc": ["true"],
+                                   "workflowType": ["machine_learning"]}, (task, link)
+
+
+@needs_chromium
+def test_a_models_link_opens_the_mlflow_ui_on_its_runs_alone(built, mlflow_server,
+                                                              monkeypatch, tmp_path):
+    """On a real `mlflow server`, the experiment found as the report stage finds it, runs
+    logged as the tracking stage logs them (a pipeline run, a task run under it per model):
+    the page's link of a model, clicked in headless Chromium, lists the runs of that
+    model's md5 and no other (the fixture's force models of both scenes share theirs)."""
+    import mlflow
+
+    root, _ = built
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", mlflow_server)
+    experiment = runs.ensure_experiment()
+    client = mlflow.MlflowClient(mlflow_server)
+    scores = {scene: {path.stem: json.loads(path.read_text())
+                      for path in (root / "scores" / scene).glob("*.json")} for scene in SCENES}
+    pipeline = client.create_run(experiment, run_name="repro-0123abcd").info.run_id
+    named = {}  # run name: model md5
+    for scene, by_task in scores.items():
+        for task, document in by_task.items():
+            if "model_md5" in document:
+                name = f"{scene}/{task} @repro-0123abcd"
+                named[name] = document["model_md5"]
+                run = client.create_run(experiment, run_name=name,
+                                        tags={"mlflow.parentRunId": pipeline,
+                                              "eskin.model_md5": document["model_md5"]})
+                client.set_terminated(run.info.run_id)
+    client.set_terminated(pipeline)
+    page_path = tmp_path / "index.html"
+    page_path.write_text(render_page(
+        [(scene, scene, PAPER_SKIN, by_task) for scene, by_task in scores.items()], {},
+        Provenance(), model_runs=functools.partial(runs.model_runs_url, experiment)))
+    md5, link = model_links(page_path.read_text())["single_force/force"]
+    assert link.startswith(f"{mlflow_server}/#/experiments/{experiment}/runs?"), link
+    with headless_chromium() as browser:
+        page = browser.new_page(viewport={"width": 1400, "height": 1000})
+        page.goto(page_path.as_uri())
+        page.click(f"#models-table a[href*='{md5}']")
+        page.wait_for_selector("text=single_force/force @repro-0123abcd", timeout=60_000)
+        listed = page.eval_on_selector_all("a[href*='/runs/']", "as => as.map(a => a.innerText)")
+        footer = page.inner_text("text=matching run")  # "1 matching run", "6 matching runs"
+    expected = sorted(name for name, its in named.items() if its == md5)
+    assert expected == ["single_force/force @repro-0123abcd", "two_force/force @repro-0123abcd"]
+    assert [name for name in listed if "repro-" in name] == expected, listed
+    assert footer.split()[0] == "2", footer
 
 
 def smallest_text_pt(figure) -> float:

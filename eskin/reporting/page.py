@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import base64
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 from eskin.catalog import SCHEME_NOTES, SCHEMES
@@ -236,11 +236,14 @@ def model_variants(scenes: Scenes) -> list[tuple[str, str]]:
 
 
 def render_page(scenes: Scenes, figures: Mapping[str, list[FigureRow]],
-                run: Provenance | None = None, figures_href: str = "figures") -> str:
+                run: Provenance | None = None, figures_href: str = "figures",
+                model_runs: Callable[[str], str] | None = None) -> str:
     """The report (templates/page.html.j2): which run it is, a table of contents, then
     per scene its headline table, dataset and figures (each figure's CV schemes side by
     side, embedded as PNG), then the models. The page needs no other file; it links each
-    figure's full-size files (``figures_href``: their directory, from the page's)."""
+    figure's full-size files (``figures_href``: their directory, from the page's) and,
+    given ``model_runs`` (a model md5 → the MLflow UI's page of its runs), each model's
+    runs."""
     import jinja2
 
     environment = jinja2.Environment(
@@ -262,5 +265,6 @@ def render_page(scenes: Scenes, figures: Mapping[str, list[FigureRow]],
                     for row in figures.get(scene, [])],
     } for scene, kind, skin, scores in scenes]
     return environment.get_template("page.html.j2").render(
-        css=CSS, scenes=context, models=models(scenes), run=run or Provenance(),
+        css=CSS, scenes=context, run=run or Provenance(),
+        models=[(*row, model_runs(row[2]) if model_runs else None) for row in models(scenes)],
         variants=model_variants(scenes))

@@ -13,7 +13,7 @@ import io
 import json
 import multiprocessing
 import os
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -250,12 +250,14 @@ class Reported:
 def report(*, report: Report, scenes: Mapping[str, Scene], scores_dir: Path,
            predictions_dir: Path, figures_dir: Path, plots_dir: Path, page_path: Path,
            results_path: Path, metrics_path: Path, scene_metrics_dir: Path | None = None,
-           run: Provenance | None = None) -> Reported:
+           run: Provenance | None = None,
+           model_runs: Callable[[str], str] | None = None) -> Reported:
     """Figures, plot data, the page, the results and DVC's metrics of every scene in
     ``scenes`` (the ``scenes`` section: which, and their kinds), with the ``report``
     section; ``run``: which commit and experiment the page says it shows
     (:func:`provenance`); ``scene_metrics_dir``: where DVC's metrics go, a file a scene
-    (:func:`scene_metrics`)."""
+    (:func:`scene_metrics`); ``model_runs``: a model md5 → the MLflow UI's page of its
+    runs, the page's link."""
     settings = report
     kinds = {name: scene_kind(scene).name for name, scene in scenes.items()}
     skins = {name: scene_skin(scene) for name, scene in scenes.items()}
@@ -303,7 +305,8 @@ def report(*, report: Report, scenes: Mapping[str, Scene], scores_dir: Path,
 
     scenes = [(scene, kinds[scene], skins[scene], scores[scene]) for scene in kinds]
     href = Path(os.path.relpath(figures_dir, Path(page_path).parent)).as_posix()
-    Path(page_path).write_text(render_page(scenes, page_figures, run or Provenance(), href))
+    Path(page_path).write_text(render_page(scenes, page_figures, run or Provenance(), href,
+                                           model_runs))
     Path(results_path).write_text(results_markdown(scenes))
     Path(metrics_path).write_text(json.dumps(headline_metrics(scores), indent=2) + "\n")
     if scene_metrics_dir is not None:

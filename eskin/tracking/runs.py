@@ -276,8 +276,7 @@ def ui_url(experiment_id: str, run_id: str | None = None, artifacts: bool = Fals
     """The MLflow UI's page of an experiment (in a shared ``view`` of its runs table, or
     one of its runs, or the run's artifacts), on the tracking server, or on `mlflow ui`'s
     default address for a local store."""
-    uri = tracking_uri()
-    base = uri.rstrip("/") if uri.startswith(("http://", "https://")) else "http://127.0.0.1:5000"
+    base = ui_base()
     page = f"#/experiments/{experiment_id}" + (f"/runs/{run_id}" if run_id else "") + (
         "/artifacts" if run_id and artifacts else "")
     if view and not run_id:
@@ -285,6 +284,27 @@ def ui_url(experiment_id: str, run_id: str | None = None, artifacts: bool = Fals
         # drops the share key
         return f"{base}/{page}/runs?viewStateShareKey={view}&{TRAINING_VIEW}"
     return f"{base}/{page}?{TRAINING_VIEW}"
+
+
+def ui_base() -> str:
+    """The MLflow UI's address: the tracking server's, or `mlflow ui`'s default for a
+    local store."""
+    uri = tracking_uri()
+    return uri.rstrip("/") if uri.startswith(("http://", "https://")) else "http://127.0.0.1:5000"
+
+
+def model_runs_url(experiment_id: str, md5: str) -> str:
+    """The MLflow UI's runs table of the experiment, filtered to the runs of the model
+    file of this md5 (tag ``eskin.model_md5``: the run that trained it, and any that
+    reused it): a link that needs no run id, for the report page, written before the
+    tracking stage. Sorted by name, not by date: sorted by date, the UI nests a task run
+    under its pipeline run, closed, and the filtered run did not show."""
+    from urllib.parse import quote, urlencode
+
+    query = urlencode({"searchFilter": f"tags.`eskin.model_md5` = '{md5}'",
+                       "orderByKey": "tags.`mlflow.runName`", "orderByAsc": "true"},
+                      quote_via=quote)
+    return f"{ui_base()}/#/experiments/{experiment_id}/runs?{query}&{TRAINING_VIEW}"
 
 
 
