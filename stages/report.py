@@ -24,13 +24,18 @@ def main() -> str:
     params = load_params()
     # The page links each model to its runs in MLflow's UI, which are logged later (the
     # tracking stage): by the experiment the tracking stage logs to, found or made here.
-    experiment = runs.ensure_experiment()
+    # A store out of reach costs the links, not the report.
+    try:
+        model_runs = functools.partial(runs.model_runs_url, runs.ensure_experiment())
+    except runs.TrackingError as err:
+        print(f"report: the page's model md5s link nowhere: {err}", file=sys.stderr)
+        model_runs = None
     return report.report(
         report=params.report, scenes=params.scenes, scores_dir=SCORES_DIR,
         predictions_dir=PREDICTIONS_DIR, figures_dir=FIGURES_DIR, plots_dir=PLOTS_DIR,
         page_path=PAGE, results_path="reports/results.md", metrics_path=METRICS,
         scene_metrics_dir=SCENE_METRICS_DIR, run=report.provenance(),
-        model_runs=functools.partial(runs.model_runs_url, experiment)).summary
+        model_runs=model_runs).summary
 
 
 if __name__ == "__main__":

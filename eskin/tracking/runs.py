@@ -33,6 +33,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+# MLflow sets its loggers' level when imported: its INFO lines (the tables it creates in a
+# new SQLite store, alembic's migrations) are not the tracking stage's output. Warnings
+# and errors still show; MLFLOW_LOGGING_LEVEL=INFO brings the rest back.
+os.environ.setdefault("MLFLOW_LOGGING_LEVEL", "WARNING")
 os.environ.setdefault("MLFLOW_ENABLE_TELEMETRY", "false")
 os.environ.setdefault("MLFLOW_DISABLE_TELEMETRY", "true")
 os.environ.setdefault("MLFLOW_SUPPRESS_PRINTING_URL_TO_STDOUT", "true")  # stage output: ours
