@@ -98,6 +98,9 @@ def test_a_fresh_clone_runs_the_readme_after_make_repro(tmp_path):
                 else:
                     page.goto(f"http://127.0.0.1:{serving}/")
                     page.wait_for_selector("text=frames/s", timeout=60_000)
+                    # pressing waits for the tare, as the README says
+                    page.wait_for_selector("#tared:has-text('frames at start')",
+                                           timeout=60_000)
                     # the commands that talk to a running view ("from another terminal")
                     while commands and commands[0].startswith("eskin press"):
                         _run(commands.pop(0), clone, env)
