@@ -29,6 +29,7 @@ from eskin.errors import (
     STOPPED,
     run_friendly,
 )
+from eskin.lockfile import checked
 
 
 def _ports(args: argparse.Namespace) -> int:
@@ -672,5 +673,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     os.environ.setdefault("MLFLOW_LOGGING_LEVEL", "WARNING")
     logging.basicConfig(level=logging.DEBUG if args.debug else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
+    args.run = checked(args.command, args.run)  # a damaged dvc.lock is told first
     return run_friendly(lambda: args.run(args), debug=args.debug,
                         interrupted=getattr(args, "interrupted", STOPPED))
