@@ -124,24 +124,29 @@ endif
 	  -c constraints.txt -e '.[dev]'
 	touch $@
 
+# DVC rewrites dvc.lock in place after every stage, and a Ctrl-C in that write cuts it
+# short: eskin/lockfile.py runs DVC so that a Ctrl-C stops the running stage instead and
+# DVC stops with the lock whole (issue 53; docs/getting-started.md#if-you-pressed-ctrl-c).
+DVC_REPRO := python -m eskin.lockfile repro
+
 repro: setup
-	dvc repro
+	$(DVC_REPRO)
 	@dvc status dvc.yaml --quiet && echo "pipeline up to date"
 
 # Outside `make repro`: bench/ and stress/ are DVC projects of their own (dvc init
 # --subdir), which the project's dvc status, checkout and repro leave out; they read the
 # pipeline's outputs, so it runs first.
 bench: setup
-	dvc repro
-	cd bench && dvc repro
+	$(DVC_REPRO)
+	cd bench && $(DVC_REPRO)
 	@cat reports/benchmark/*/summary.md reports/soak/*.md
 	@cat reports/fuzz/parser.json reports/fuzz/import.json reports/import_memory.md
 	@cat reports/live_latency/*.md reports/dask_scaling/*.md
 
 # Every model under the data real users produce (stress/dvc.yaml): reports/stress.{json,md}.
 stress: setup
-	dvc repro
-	cd stress && dvc repro
+	$(DVC_REPRO)
+	cd stress && $(DVC_REPRO)
 	@cat reports/stress/*.md
 
 # Two workers, a test file each (its module fixtures, servers and scratch projects stay
