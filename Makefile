@@ -141,7 +141,7 @@ bench: setup
 	cd bench && $(DVC_REPRO)
 	@cat reports/benchmark/*/summary.md reports/soak/*.md
 	@cat reports/fuzz/parser.json reports/fuzz/import.json reports/import_memory.md
-	@cat reports/live_latency/*.md reports/dask_scaling/*.md
+	@cat reports/live_latency/*.md reports/dask_scaling/*.md reports/lock_interrupts/default.md
 
 # Every model under the data real users produce (stress/dvc.yaml): reports/stress.{json,md}.
 stress: setup
