@@ -16,8 +16,11 @@ Two layers here:
   of the next one it starts). The stage fails, and DVC stops through its own error
   path, having written the lock for every stage that finished. A second Ctrl-C goes to
   DVC too, as a plain ``dvc repro`` would have it.
-- :func:`check_lock`: a lock that DVC's own loader or lockfile schema rejects, told in
-  one line with the way back.
+- :func:`check_lock` (every ``eskin`` command but those that need no project, and
+  :func:`run_dvc` before and after DVC): a lock that DVC's own loader or lockfile schema
+  rejects, or that bears a mark of a cut DVC reads without a word, told in one line
+  with the way back; read again under DVC's repository lock first, so that a lock DVC
+  is writing at that moment is not called damaged.
 """
 
 from __future__ import annotations

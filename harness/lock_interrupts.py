@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import io
 import json
 import os
 import random
@@ -48,6 +49,8 @@ from harness.repro_speed import ROOT, scratch_env, tracked_copy
 
 TRIALS = 20
 SEED = 53
+# cuts of DVC's own write of the stub's lock, each read as DVC and as eskin read it
+CUTS = 400
 # The two ways of running DVC. A list that starts "dvc", "repro" would read, to
 # tests/test_stage_deps.py, as running the project's pipeline; the stub runs none of it.
 REPRO = ["repro", "--force"]
@@ -107,6 +110,46 @@ def stub_project(dest: Path, *, root: Path = ROOT) -> dict:
         subprocess.run(args, cwd=dest, env=env, check=True, capture_output=True, timeout=1800)
     return {"stages": len(outputs), "lock_bytes": (dest / LOCK).stat().st_size,
             "real_lock_bytes": real_bytes}
+
+
+def dvc_write_boundaries(text: str) -> list[int]:
+    """Where a Ctrl-C can cut DVC's write of a lock holding ``text``: after each write
+    call of DVC's own dumper (a signal is handled between Python bytecodes, so a cut
+    never falls inside one write)."""
+    from dvc.utils.serialize._yaml import _dump, parse_yaml_for_update
+
+    class Recording(io.StringIO):
+        def __init__(self) -> None:
+            super().__init__()
+            self.ends: list[int] = []
+
+        def write(self, data: str) -> int:
+            written = super().write(data)
+            self.ends.append(self.tell())
+            return written
+
+    stream = Recording()
+    _dump(parse_yaml_for_update(text, LOCK), stream)
+    if stream.getvalue() != text:
+        raise ValueError("DVC's dumper does not write this lock back as it is")
+    return [0, *stream.ends[:-1]]
+
+
+def cut_census(lock: Path, *, cuts: int = CUTS, seed: int = SEED) -> dict:
+    """``cuts`` seeded cuts of DVC's own write of the lock at ``lock`` (committed in git
+    there, as the project's is), each told apart: DVC's own loader or schema rejects
+    it; only eskin's check names it; or neither does."""
+    text = lock.read_text()
+    boundaries = dvc_write_boundaries(text)
+    counts = dict.fromkeys(("dvc_rejects", "eskin_only", "untold"), 0)
+    try:
+        for cut in random.Random(seed).sample(boundaries, min(cuts, len(boundaries))):
+            lock.write_text(text[:cut])
+            counts["dvc_rejects" if dvc_problem(lock) else
+                   "eskin_only" if lock_problem(lock) else "untold"] += 1
+    finally:
+        lock.write_text(text)
+    return {"write_calls": len(boundaries), "cuts": sum(counts.values()), **counts}
 
 
 def outcome(lock: Path, reference: dict) -> dict:
@@ -171,7 +214,7 @@ def interrupted_run(project: Path, command: list[str], at: float, *, timeout: fl
             "seconds_to_exit": ended - at if ended >= at else None, "tail": tail}
 
 
-def measure(*, trials: int = TRIALS, seed: int = SEED, root: Path = ROOT,
+def measure(*, trials: int = TRIALS, seed: int = SEED, cuts: int = CUTS, root: Path = ROOT,
             log=print) -> dict:
     """Both arms on the same ``trials`` seeded times (see the module's text)."""
     result: dict = {"trials": trials, "seed": seed, "cores": os.cpu_count(),
@@ -181,12 +224,12 @@ def measure(*, trials: int = TRIALS, seed: int = SEED, root: Path = ROOT,
     # every Ctrl-C. Handled here, it is back to its default in the processes started.
     previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
-        return _measure(result, trials=trials, seed=seed, root=root, log=log)
+        return _measure(result, trials=trials, seed=seed, cuts=cuts, root=root, log=log)
     finally:
         signal.signal(signal.SIGINT, previous)
 
 
-def _measure(result: dict, *, trials: int, seed: int, root: Path, log) -> dict:
+def _measure(result: dict, *, trials: int, seed: int, cuts: int, root: Path, log) -> dict:
     with tempfile.TemporaryDirectory(prefix="eskin-lock-") as scratch:
         project = Path(scratch) / "project"
         log("the stub project: the real stages, a stub command each …")
@@ -195,6 +238,8 @@ def _measure(result: dict, *, trials: int, seed: int, root: Path, log) -> dict:
         reference = yaml.safe_load(reference_text)
         log(f"  {result['project']['stages']} stages, lock {len(reference_text):,} bytes "
             f"(the real one {result['project']['real_lock_bytes']:,})")
+        log(f"  {cuts} cuts of DVC's own write of the lock …")
+        result["cuts"] = cut_census(project / LOCK, cuts=cuts, seed=seed)
         draw = random.Random(seed)
         shares = sorted(draw.random() for _ in range(trials))
         for arm, command in ARMS.items():
@@ -265,6 +310,11 @@ def render(result: dict) -> str:
                   f"{false_alarms} of the whole ones."]
         lines += [f"- {r['bytes']} bytes, {OUTCOMES[r['outcome']]}, ending "
                   f"`{r['ends'][-24:]!r}`: " + (r["problem"] or "not named") for r in damaged]
+    cuts = result["cuts"]
+    lines += ["", f"{cuts['cuts']} seeded cuts of DVC's own write of the lock (after "
+              f"{cuts['cuts']} of its {cuts['write_calls']:,} write calls): DVC's loader or "
+              f"schema rejects {cuts['dvc_rejects']}; of the rest, DVC reads without a word "
+              f"and eskin's check names {cuts['eskin_only']}; named by neither: {cuts['untold']}."]
     return "\n".join(lines)
 
 
