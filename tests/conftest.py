@@ -45,6 +45,25 @@ needs_chromium = pytest.mark.skipif(
     CHROMIUM is None, reason="Debian's chromium is missing: `make test` installs it")
 
 
+@pytest.fixture(autouse=True)
+def _mlflow_tracking_uri_per_test():
+    """Each test starts with no MLflow tracking URI of another test's. MLflow keeps the one
+    `mlflow.set_tracking_uri` sets (a test's, or eskin's own `runs.connect()` run in the
+    test's process) in a global that wins over MLFLOW_TRACKING_URI, and writes it to the
+    environment too, outside monkeypatch: a later test in the same worker then talked to
+    a server since stopped."""
+    before = os.environ.get("MLFLOW_TRACKING_URI")
+    yield
+    if "mlflow" in sys.modules:
+        import mlflow
+
+        mlflow.set_tracking_uri(None)
+    if before is None:
+        os.environ.pop("MLFLOW_TRACKING_URI", None)
+    else:
+        os.environ["MLFLOW_TRACKING_URI"] = before
+
+
 @contextlib.contextmanager
 def headless_chromium():
     """Debian's chromium under playwright: the browser, closed on leaving."""
