@@ -6,14 +6,10 @@ the host is tested against a counterpart that does not share its mistakes. Its s
 has ``rows`` × ``columns`` terminals (the paper's 10 × 10 unless told): it announces
 ``terminals=rows+columns`` and sends that many readings, x1..xR then y1..yC.
 It speaks the simulated-board extension too (``SIM CLEAR``, ``SIM TRIAL n``,
-``SIM PRESS x y N``, ``SIM REPLAY i``, ``SIM PICK n i j ...``), so readings are a function
-of the trial, the stretch, the presses and the sample index (from 0 at ``SIM TRIAL``, from
-i at ``SIM REPLAY i``, i, j, ... after ``SIM PICK``): a condition asked again reads the
-same, and a run with misbehaviours can be compared row by row with an honest one.
-``picks=False`` makes it a board older than ``SIM PICK`` (it answers ``#ERR``).
-``damage_rate``: each frame line it sends goes out damaged (its CRC wrong) with that
-probability, from its own seeded stream. ``frames_asked`` counts the frames its
-``SAMPLE`` requests asked for.
+``SIM PRESS x y N``, ``SIM REPLAY i``), so readings are a function of the trial,
+the stretch, the presses and the sample index (from 0 at ``SIM TRIAL``, from i at
+``SIM REPLAY i``): a condition asked again reads the same, and a run with
+misbehaviours can be compared row by row with an honest one.
 
 Misbehaviours, each at the ``at``-th ``SAMPLE`` request (1-based):
 
@@ -42,24 +38,7 @@ Misbehaviours, each at the ``at``-th ``SAMPLE`` request (1-based):
 * ``time_back``: the answer's first frame says ``t_ms`` 0, its CRC right (digits
   lost in a frame whose CRC-8 matched by chance); its seq goes in ``time_back``;
 * ``long_line``: a 1 MiB junk line, ended by a newline, before the answer;
-* ``cr_only``: from then on, every line it sends ends in CR only (``\r``);
-* ``dup_ok``: the answer whole, and its ``#OK SAMPLE n`` sent again at the start of the
-  next ``SAMPLE``'s answer, a pause (:data:`PAUSE`) between them, as a line paced at
-  115,200 baud would leave it: the duplicate arrives alone, before that answer's frames;
-* ``spoof_ok``: an ``#OK SAMPLE n`` after the first n // 2 frames, then a pause, the rest
-  and the real ``#OK``;
-* ``lost_ok``: the answer whole, its ``#OK`` lost on the line (never sent);
-* ``lose_place``: in that request's trial, the frame of sample index 1 goes out damaged
-  the first 5 times it is sent (a place the line keeps losing);
-* ``glued_long_line``: 64 KiB of NULs with no newline, then 300 more, each burst followed
-  by a pause (so that a read ends where the burst does), then the answer, its first frame
-  glued to the end of that line; its seq goes in ``glued``;
-* ``time_jump``: the answer's last frame says a ``t_ms`` 100,000 ms later, its CRC right;
-  its seq goes in ``time_jumped`` (the next frame, the next answer's, judges it);
-* ``time_back_twice``: the answer's last frame says ``t_ms`` 0, and the next answer's
-  first a tenth of its own (a digit lost), both CRCs right: the second is below the
-  true time but above the first fallen one; both seqs go in ``time_back``;
-* ``refuse``: ``#ERR SAMPLE busy`` instead of an answer.
+* ``cr_only``: from then on, every line it sends ends in CR only (``\r``).
 
 ``damage_first``: the first frame of the first answer after each greeting (``HELLO``
 asked, or its own restart) goes out damaged (its CRC wrong), when the host has no
@@ -82,7 +61,6 @@ from __future__ import annotations
 
 import hashlib
 import os
-import random
 import select
 import socket
 import threading
@@ -110,25 +88,20 @@ def damaged(line: bytes) -> bytes:
     return body + b"*" + (f"{crc8(body) ^ 0xFF:02X}").encode() + b"\n"
 
 
-def time_fallen(line: bytes, to=lambda t_ms: 0) -> bytes:
-    """A frame line with ``t_ms`` 0 (or ``to(t_ms)``) and its CRC made right again."""
-    _, seq, t_ms, rest = line.rstrip(b"\n").rpartition(b"*")[0].split(b",", 3)
-    body = b"D," + seq + b",%d," % to(int(t_ms)) + rest
+def time_fallen(line: bytes) -> bytes:
+    """A frame line with ``t_ms`` 0 and its CRC made right again."""
+    _, seq, _, rest = line.rstrip(b"\n").rpartition(b"*")[0].split(b",", 3)
+    body = b"D," + seq + b",0," + rest
     return body + b"*" + (f"{crc8(body):02X}").encode() + b"\n"
 
 
 LONG_LINE = b"~" * (1 << 20) + b"\n"  # 1 MiB of junk in one line
-# In what the board answers: the bytes before it go out, then 50 ms of silence, then the
-# rest (what a slow line does between two writes: they arrive in separate reads).
-PAUSE = b"\x00<pause>\x00"
-PAUSE_S = 0.05
 
 
 class HostileBoard:
     def __init__(self, *, device_id: str = "hostile-0001", misbehaviour: str | None = None,
                  at: int = 50, times: int = 1, damage_first: bool = False,
-                 rows: int = 10, columns: int = 10, picks: bool = True,
-                 damage_rate: float = 0.0, seed: int = 0) -> None:
+                 rows: int = 10, columns: int = 10) -> None:
         self.device_id = device_id
         self.rows = rows
         self.terminals = rows + columns
@@ -139,16 +112,6 @@ class HostileBoard:
         self.greeted = False         # greeted since its last answer: damage_first is due
         self.cr_only = False         # its lines end in CR only
         self.time_back: list[int] = []  # seqs sent with t_ms 0 and a right CRC
-        self.time_jumped: list[int] = []  # seqs sent with t_ms jumped forward, CRC right
-        self.fall_next = False       # time_back_twice: the next answer's first frame falls
-        self.glued: list[int] = []   # glued_long_line: seqs glued to an overlong line
-        self.lose_trial: int | None = None  # lose_place: the trial whose index 1 is lost
-        self.lost_sends = 0                 # and how many times it was so far
-        self.picks = picks
-        self.pick: list[int] = []    # SIM PICK: the sample indexes of the next answer
-        self.damage_rate = damage_rate
-        self._random = random.Random(seed)
-        self.frames_asked = 0
         self.junk_due = False        # stream_junk: a junk line where each frame was due
         self.samples_asked = 0
         self.seq = 0
@@ -166,7 +129,6 @@ class HostileBoard:
         self.streaming = False
         self.streamed = 0
         self.sent: list[tuple[int, list[int]]] = []  # streamed frames: (seq, counts)
-        self.ok_due = b""            # dup_ok: the #OK to send again before the next answer
         self._inbox = b""
 
     # ---------------------------------------------------------------- readings
@@ -182,18 +144,11 @@ class HostileBoard:
                 for t in range(self.terminals)]
 
     def frame(self) -> bytes:
-        if self.pick:
-            self.index = self.pick.pop(0)
         line = frame_line(self.seq, self.t_ms, self.counts(self.hijacked))
         self.seq += 1
         self.t_ms += 12
         self.index += 1
         return line
-
-    def indexed_frame(self) -> tuple[int, bytes]:
-        """The next frame and its sample index."""
-        line = self.frame()
-        return self.index - 1, line
 
     def hello(self) -> bytes:
         who = "OTHER-9999" if self.hijacked else self.device_id
@@ -222,31 +177,17 @@ class HostileBoard:
             if sub == "CLEAR":
                 self.presses = []
             elif sub == "TRIAL":
-                self.trial, self.index, self.pick = int(words[2]), 0, []
+                self.trial, self.index = int(words[2]), 0
             elif sub == "PRESS":
                 self.presses.append((words[2], words[3], words[4]))
             elif sub == "REPLAY":
-                self.index, self.pick = int(words[2]), []
-            elif sub == "PICK":
-                if not self.picks:
-                    return b"#ERR SIM unknown command\n"
-                self.pick = [int(w) for w in words[3:]]
+                self.index = int(words[2])
             return f"#OK SIM {sub}\n".encode()
         if name == "SAMPLE":
             return self.sample(int(words[1]))
         return f"#ERR {name} unknown command\n".encode()
 
     def sample(self, n: int) -> bytes:
-        due, self.ok_due = self.ok_due, b""
-        self.frames_asked += n
-        out = self._sample(n)
-        if self.damage_rate:
-            out = b"".join(damaged(line) if line.startswith(b"D,")
-                           and self._random.random() < self.damage_rate else line
-                           for line in out.splitlines(keepends=True))
-        return due + out
-
-    def _sample(self, n: int) -> bytes:
         self.samples_asked += 1
         cue = self.misbehaviour if self.samples_asked == self.at else None
         ok = b"#OK SAMPLE %d\n" % n
@@ -255,8 +196,6 @@ class HostileBoard:
             return b""
         if cue == "silent":
             return b""
-        if cue == "refuse":
-            return b"#ERR SAMPLE busy\n"
         if cue == "cr_only":
             self.cr_only = True
         if (self.misbehaviour == "restart_mid"
@@ -272,46 +211,18 @@ class HostileBoard:
         if cue == "last_lost":
             frames = [self.frame() for _ in range(n)]
             return b"".join(frames[:-1]) + damaged(frames[-1]) + ok
-        if cue == "lose_place":
-            self.lose_trial = self.trial
-        if self.lose_trial is not None and self.trial == self.lose_trial:
-            out = []
-            for _ in range(n):
-                index, line = self.indexed_frame()
-                if index == 1 and self.lost_sends < 5:
-                    self.lost_sends += 1
-                    line = damaged(line)
-                out.append(line)
-            return b"".join(out) + ok
         if cue == "damage_each":
             self.damage_trial = self.trial
         if self.damage_trial is not None and self.trial == self.damage_trial:
             parity = self.damaged_answers % 2
             self.damaged_answers += 1
-            frames = [self.indexed_frame() for _ in range(n)]
+            frames = [(self.index, self.frame()) for _ in range(n)]
             return b"".join(damaged(line) if index % 2 == parity else line
                             for index, line in frames) + ok
         if cue == "time_back":
             self.time_back.append(self.seq)
             first = time_fallen(self.frame())
             return first + b"".join(self.frame() for _ in range(n - 1)) + ok
-        if cue == "time_jump":
-            frames = [self.frame() for _ in range(n)]
-            self.time_jumped.append(self.seq - 1)
-            return (b"".join(frames[:-1]) + time_fallen(frames[-1], lambda t: t + 100_000)
-                    + ok)
-        if cue == "time_back_twice" or self.fall_next:
-            frames = [self.frame() for _ in range(n)]
-            at = 0 if self.fall_next else n - 1
-            self.time_back.append(self.seq - n + at)
-            frames[at] = time_fallen(frames[at], (lambda t: t // 10) if self.fall_next
-                                     else (lambda t: 0))
-            self.fall_next = not self.fall_next
-            return b"".join(frames) + ok
-        if cue == "glued_long_line":
-            self.glued.append(self.seq)
-            return (b"\0" * (1 << 16) + PAUSE + b"\0" * 300 + PAUSE
-                    + b"".join(self.frame() for _ in range(n)) + ok)
         if cue == "long_line":
             return LONG_LINE + b"".join(self.frame() for _ in range(n)) + ok
         if cue == "other_board":
@@ -330,13 +241,6 @@ class HostileBoard:
             out = self.last_answer + answer
         elif cue == "early_ok":
             out = b"".join(frames[:-1]) + ok + frames[-1]
-        elif cue == "lost_ok":
-            out = b"".join(frames)
-        elif cue == "dup_ok":
-            self.ok_due = ok + PAUSE
-            out = answer
-        elif cue == "spoof_ok":
-            out = b"".join(frames[:n // 2]) + ok + PAUSE + b"".join(frames[n // 2:]) + ok
         elif cue == "extra_frame":
             out = b"".join(frames) + self.frame() + ok
         elif cue == "restart_after_ok":  # in the same write as the answer: one read
@@ -405,7 +309,6 @@ class Served:
 
     def _pump(self, read, write, readable) -> None:
         pending = b""
-        held_until = 0.0  # a PAUSE in what the board sends: nothing goes out before this
         next_frame = time.monotonic()
         while not self._stop.is_set():
             if self.board.gone_wild and not pending:
@@ -417,24 +320,16 @@ class Served:
                 pending += self.board.stream_next()
                 next_frame = max(next_frame + 0.012, now)
             wait = max(0.0, min(0.05, next_frame - now)) if self.board.streaming else 0.05
-            paused = time.monotonic() < held_until
-            if paused:
-                wait = min(wait, held_until - time.monotonic())
-            ready_r, ready_w, _ = select.select(
-                [readable], [readable] if pending and not paused else [], [], max(0.0, wait))
+            ready_r, ready_w, _ = select.select([readable], [readable] if pending else [], [],
+                                                wait)
             if ready_r:
                 data = read()
                 if data is None:
                     return
                 pending += self.board.received(data)
             if ready_w and pending:
-                if pending.startswith(PAUSE):
-                    pending = pending[len(PAUSE):]
-                    held_until = time.monotonic() + PAUSE_S
-                    continue
-                cut = pending.find(PAUSE)
                 try:
-                    sent = write(pending if cut < 0 else pending[:cut])
+                    sent = write(pending)
                 except (BlockingIOError, InterruptedError):
                     sent = 0
                 except OSError:

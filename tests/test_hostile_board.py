@@ -22,13 +22,12 @@ from hostile_board import HostileBoard, Served, damaged, frame_line
 
 from eskin.acquisition.plan import plan_from_params
 from eskin.acquisition.rawlog import MAGIC, read_log
-from eskin.acquisition.runner import AcquisitionError, OperatorPlacer, SimulatedPlacer
+from eskin.acquisition.runner import AcquisitionError, SimulatedPlacer
 from eskin.acquisition.session import run_session
 from eskin.config import validate_params
 from eskin.data.ingest import ingest_log
 from eskin.data.schema import LABELS
 from eskin.device.host import (
-    Answered,
     Greeted,
     HostProtocol,
     Junk,
@@ -39,7 +38,6 @@ from eskin.device.host import (
     SampleFrame,
     SampleIncomplete,
     Stray,
-    TimeJumped,
     Violation,
 )
 from eskin.skin import PAPER_SKIN
@@ -55,13 +53,11 @@ def hostile_params(repo_params):
     return params
 
 
-def acquire_from(board, tmp_path, params, transport="pty", placer=None,
-                 timeout_s=TIMEOUT_S):
+def acquire_from(board, tmp_path, params, transport="pty"):
     plan = plan_from_params("single_force", validate_params(params).scenes["single_force"])
     with Served(board, transport) as served:
-        report = run_session(plan, tmp_path, port=served.port,
-                             placer=placer or SimulatedPlacer(),
-                             rest_length_mm=101.0, simulator=None, timeout_s=timeout_s,
+        report = run_session(plan, tmp_path, port=served.port, placer=SimulatedPlacer(),
+                             rest_length_mm=101.0, simulator=None, timeout_s=TIMEOUT_S,
                              reconnect_s=RECONNECT_S, progress=False)
     return report, plan
 
@@ -114,9 +110,7 @@ def test_protocol_an_early_ok_leaves_places_empty_and_an_extra_frame_is_a_violat
     events = host.receive(frames(0, 2) + b"#OK SAMPLE 3\n" + frames(2, 1))
     assert [type(e) for e in events] == [SampleFrame, SampleFrame, SampleIncomplete, Stray]
     assert events[2] == SampleIncomplete(2, 2, 3), "the late frame belongs to no request"
-    assert host.needs_fence, "a short answer is fenced: its #OK may not have been the answer's"
-    host.send_fence()
-    host.receive(b"#OK STREAM OFF\n")
+    assert not host.needs_fence, "the board ended its answer in turn"
     host.send_sample(3)
     events = host.receive(frames(3, 4) + b"#OK SAMPLE 3\n")
     assert isinstance(events[3], Violation) and "more than the 3" in events[3].reason
@@ -148,9 +142,7 @@ def test_protocol_places_each_frame_by_its_seq_so_an_answer_keeps_what_came():
     credited = [e for e in events if isinstance(e, SampleFrame)]
     assert [(e.index, e.frame.seq, e.placed) for e in credited] == [
         (0, 2, True), (2, 4, True), (3, 5, True), (5, 7, True)]
-    assert events[-1] == SampleIncomplete(3, 4, 6) and host.needs_fence
-    host.send_fence()  # absorbs nothing: the seq the next answer begins at stays known
-    host.receive(b"#OK STREAM OFF\n")
+    assert events[-1] == SampleIncomplete(3, 4, 6) and not host.needs_fence
     host.send_sample(2)  # the next answer's places start after the whole of that one
     events = host.receive(frames(8, 2) + b"#OK SAMPLE 2\n")
     assert [e.index for e in events if isinstance(e, SampleFrame)] == [0, 1]
@@ -169,7 +161,7 @@ def test_protocol_places_each_frame_by_its_seq_so_an_answer_keeps_what_came():
                           + damaged(frame_line(4, 48, [500] * 20)) + b"#OK SAMPLE 5\n")
     assert [(e.index, e.placed) for e in events if isinstance(e, SampleFrame)] == [
         (0, False), (2, False)]
-    assert events[-1] == SampleIncomplete(8, 2, 5)
+    assert events[-1] == SampleIncomplete(7, 2, 5)
     # Its last frame was lost too, so where the board's count stands is unknown: the next
     # answer begins at its first frame (seq 4 did not arrive: 5 is the answer's first).
     host.send_sample(3)
@@ -341,10 +333,7 @@ def test_a_board_that_never_answers_ends_within_the_budget_in_bounded_memory(
     # The process's own peak: start-up (pandas, pyarrow, pydantic) is about 130 MB.
     assert peak_mb < 250, f"{peak_mb:.0f} MB"
     contents = read_log(tmp_path / "data" / "raw" / "single_force" / "acquisition.log")
-    # The 29th condition's last frame awaits the board's next frame to judge its time
-    # (issue 56): the flood's frames do, the trickle sends none, so it is asked again.
-    assert len(contents.completed) == (29 if misbehaviour == "flood" else 28), \
-        "what arrived before is kept"
+    assert len(contents.completed) == 29, "what arrived before is kept"
 
 
 @pytest.mark.parametrize("transport", ["pty", "socket"])
@@ -366,9 +355,7 @@ def test_a_board_that_lags_by_a_frame_is_given_up_on_never_stored_shifted(
 
 @pytest.mark.parametrize(("misbehaviour", "retries", "resets", "reconnects"), [
     (None, 1, 0, 0),                 # the first answer after the connect
-    # ... and after the board's restart, whose #HELLO came before anything judged the
-    # answer's last frame's time: that place is asked again too (issue 56)
-    ("restart_after_ok", 4, 1, 0),
+    ("restart_after_ok", 3, 1, 0),   # ... and after the board's restart
     ("silent", 3, 0, 1),             # ... and after the reconnect its silence caused
 ])
 def test_a_damaged_first_frame_after_a_greeting_costs_one_retry(
@@ -402,14 +389,12 @@ def test_a_condition_no_answer_of_which_is_whole_is_assembled_from_their_valid_f
     """Issue 40's soak at max_attempts 5: every answer to one condition loses frames,
     different ones each time (even sample indices, then odd, ...). Old code stored only a
     whole answer and gave up after 5 (`failed 5 times`); now each answer's valid frames
-    keep their places, the condition is asked again for its missing places, and the
-    stored rows are the clean run's."""
+    keep their places, the condition is asked again from its first missing frame, and
+    the stored rows are the clean run's."""
     params, clean = honest
     report, plan = acquire_from(HostileBoard(misbehaviour="damage_each", at=50), tmp_path,
                                 params, transport)
-    # The first answer loses places 0, 2, 4; the top-up asks for those alone (SIM PICK,
-    # issue 56) and loses none of them (before, it asked for 0..4 and lost 1 and 3: 5).
-    assert report.retries == 1 and report.frames_rejected == 3, report.summary()
+    assert report.retries == 1 and report.frames_rejected == 5, report.summary()
     text = (tmp_path / "acquisition.log").read_text()
     assembled = [line for line in text.splitlines()
                  if line.startswith("B\t") and "assembled_from" in line]
@@ -677,259 +662,3 @@ def test_invalid_yaml_and_a_directory_import_path_are_one_line(tmp_path, repo_pa
     assert result.returncode == 1 and "Traceback" not in result.stderr
     assert "the folder has no CSV or Parquet file" in result.stderr and \
         "import.path" in result.stderr, result.stderr
-
-
-# ---------------------------------------------------------------- issue 56
-
-def test_protocol_an_ok_that_is_not_the_answers_is_fenced_so_the_host_is_never_behind():
-    """Item 1: a duplicated #OK SAMPLE n closed the next request with 0 frames, and with no
-    fence its real #OK closed the request after, one reply behind for good."""
-    host = greeted()
-    host.send_sample(3)
-    host.receive(frames(0, 3) + b"#OK SAMPLE 3\n")
-    host.send_sample(3)
-    events = host.receive(b"#OK SAMPLE 3\n")  # the duplicate, alone in its read
-    assert events == [SampleIncomplete(3, 0, 3)] and host.needs_fence
-    host.send_fence()  # its real answer, then the fence's #OK
-    events = host.receive(frames(3, 3) + b"#OK SAMPLE 3\n#OK STREAM OFF\n")
-    assert [type(e) for e in events] == [Stray] * 3 + [Answered]
-    host.send_sample(3)  # placed by seq: the first answer's seqs are owed
-    events = host.receive(frames(6, 3) + b"#OK SAMPLE 3\n")
-    assert [(type(e), getattr(e, "index", None)) for e in events] == [
-        (SampleFrame, 0), (SampleFrame, 1), (SampleFrame, 2), (SampleComplete, None)]
-    host.receive(b"#OK SAMPLE 3\n")  # an #OK with no request open: fenced too
-    assert host.needs_fence
-
-
-@pytest.mark.parametrize("transport", ["pty", "socket"])
-@pytest.mark.parametrize("misbehaviour", ["dup_ok", "spoof_ok"])
-def test_a_duplicated_or_spoofed_ok_costs_one_retry(honest, tmp_path, misbehaviour,
-                                                     transport):
-    """Item 1, with SIM commands between requests: old code spent two answers on it (the
-    duplicate closed one request, its real #OK broke the next command)."""
-    params, clean = honest
-    report, plan = acquire_from(HostileBoard(misbehaviour=misbehaviour, at=50), tmp_path,
-                                params, transport)
-    assert (report.retries, report.reconnects) == (1, 0), report.summary()
-    frame = ingest_log(tmp_path / "acquisition.log", plan).frame
-    pd.testing.assert_frame_equal(frame[CONTENT], clean[CONTENT])
-
-
-@pytest.mark.parametrize("transport", ["pty", "socket"])
-@pytest.mark.parametrize("misbehaviour", ["dup_ok", "spoof_ok"])
-def test_a_stray_ok_on_a_bench_that_sends_only_samples_costs_one_retry(
-        honest, tmp_path, misbehaviour, transport):
-    """Item 1 on a real rig, where a retry is SAMPLE again and nothing else: the answer's
-    own #OK closed the retry too (old code: 2 retries)."""
-    params, _ = honest
-    report, _ = acquire_from(HostileBoard(misbehaviour=misbehaviour, at=50), tmp_path,
-                             params, transport, placer=OperatorPlacer(ask=lambda _: None))
-    assert (report.acquired, report.retries, report.reconnects) == (404, 1, 0), \
-        report.summary()
-
-
-@pytest.mark.parametrize("transport", ["pty", "socket"])
-def test_a_lost_ok_costs_a_short_gap_not_the_timeout_and_a_reconnect(honest, tmp_path,
-                                                                      transport):
-    """Item 4: at the default timeout_s (5 s) a lost #OK SAMPLE cost the whole timeout and a
-    reconnect. Now a silence of 0.25 s after a frame sends the probe (STREAM OFF, the
-    request left open); its #OK says the answer is over: all its frames came, so it is
-    whole, with no retry."""
-    params, clean = honest
-    started = time.monotonic()
-    report, plan = acquire_from(HostileBoard(misbehaviour="lost_ok", at=50), tmp_path,
-                                params, transport, timeout_s=5.0)
-    assert (report.retries, report.reconnects) == (0, 0), report.summary()
-    assert time.monotonic() - started < 4.0, report.summary()
-    frame = ingest_log(tmp_path / "acquisition.log", plan).frame
-    pd.testing.assert_frame_equal(frame[CONTENT], clean[CONTENT])
-
-
-def test_protocol_a_probe_ends_an_answer_whose_ok_was_lost_and_is_absorbed_after_one():
-    host = greeted()
-    host.send_sample(3)
-    host.receive(frames(0, 3))
-    assert host.answer_begun
-    host.send_probe()
-    events = host.receive(b"#OK STREAM OFF\n")
-    assert events == [SampleComplete(2, 3)] and not host.needs_fence
-    host.send_sample(3)  # the probe came too soon: the answer's own #OK, then the probe's
-    host.receive(frames(3, 2))
-    host.send_probe()
-    events = host.receive(frames(5, 1) + b"#OK SAMPLE 3\n#OK STREAM OFF\n")
-    assert isinstance(events[-1], SampleComplete) and not host.needs_fence
-    host.send_command("SIM CLEAR")
-    assert [type(e) for e in host.receive(b"#OK SIM CLEAR\n")] == [Answered]
-
-
-def test_an_err_stops_the_run_saying_what_the_board_said_and_that_rerunning_resumes(
-        honest, tmp_path):
-    params, _ = honest
-    code, stderr, _, _ = run_cli_against(HostileBoard(misbehaviour="refuse", at=50),
-                                         tmp_path, params)
-    lines = [line for line in stderr.splitlines() if line.startswith("eskin: error")]
-    assert code == 1 and len(lines) == 1 and "Traceback" not in stderr, stderr
-    assert "it said '#ERR SAMPLE busy'" in lines[0], lines[0]
-    # The 49th condition's last frame had no frame after it to judge its board time.
-    assert "48 condition(s) complete so far are kept" in lines[0], lines[0]
-    assert "rerunning resumes after the last of them" in lines[0], lines[0]
-    log = tmp_path / "data" / "raw" / "single_force" / "acquisition.log"
-    assert len(read_log(log).completed) == 48
-
-
-def test_protocol_judges_each_frame_by_both_neighbours():
-    """Item 2: a frame whose time fell was followed, so a second fallen frame passed; a
-    frame whose time jumped forward was kept and the frame after it refused."""
-    host = greeted()
-    host.send_sample(5)
-    jumped = frame_line(2, 100_000, [500] * 20)
-    events = host.receive(frames(0, 2) + jumped + frames(3, 2) + b"#OK SAMPLE 5\n")
-    assert [type(e) for e in events] == [SampleFrame] * 3 + [TimeJumped, SampleFrame,
-                                                             SampleFrame, SampleIncomplete]
-    assert events[3].frame.seq == 2 and events[3].index == 2 and events[-1].frames == 4
-    host.send_sample(4)  # seq 5 and 6 fell, to 0 and then above it: both are refused
-    events = host.receive(frame_line(5, 0, [500] * 20) + frame_line(6, 7, [500] * 20)
-                          + frames(7, 2) + b"#OK SAMPLE 4\n")
-    assert [type(e) for e in events] == [Junk, Junk, SampleFrame, SampleFrame,
-                                         SampleIncomplete]
-    host.send_sample(1)  # a last frame jumps: watched, judged by the next answer's first
-    host.receive(frame_line(9, 100_000, [500] * 20) + b"#OK SAMPLE 1\n")
-    host.watch(host.last_accepted)
-    assert host.watch_open and host.watched_verdict is None
-    host.send_sample(1)
-    events = host.receive(frames(10, 1) + b"#OK SAMPLE 1\n")
-    assert isinstance(events[0], TimeJumped) and events[0].frame.seq == 9
-    assert host.watched_verdict is False
-    host.watch(host.last_accepted)  # seq 10; seq 11 vouches for it
-    host.send_sample(1)
-    host.receive(frames(11, 1) + b"#OK SAMPLE 1\n")
-    assert host.watched_verdict is True
-
-
-@pytest.mark.parametrize("transport", ["pty", "socket"])
-def test_a_frame_whose_time_jumped_forward_is_never_stored_and_costs_one_retry(
-        honest, tmp_path, transport):
-    """Item 2: eskin cf46b9c stored the jumped frame (an answer's last) and refused the next
-    good answer (its first frame's time fell from the jumped one)."""
-    params, clean = honest
-    board = HostileBoard(misbehaviour="time_jump", at=50)
-    report, plan = acquire_from(board, tmp_path, params, transport)
-    assert len(board.time_jumped) == 1 and report.retries == 1, report.summary()
-    contents = read_log(tmp_path / "acquisition.log")
-    stored = [f for a in contents.completed.values() for f in a.frames]
-    assert board.time_jumped[0] not in {f.seq for f in stored}
-    frame = ingest_log(tmp_path / "acquisition.log", plan).frame
-    pd.testing.assert_frame_equal(frame[CONTENT], clean[CONTENT])
-    _assert_time_rises_as_sent(contents)
-
-
-@pytest.mark.parametrize("transport", ["pty", "socket"])
-def test_a_second_fallen_frame_is_caught_as_surely_as_the_first(honest, tmp_path,
-                                                                  transport):
-    """Item 2: the host followed a fallen time, so the next answer's first frame, fallen
-    too but above the first, was stored (eskin cf46b9c: 3 rows with backward time)."""
-    params, clean = honest
-    board = HostileBoard(misbehaviour="time_back_twice", at=50)
-    report, plan = acquire_from(board, tmp_path, params, transport)
-    assert len(board.time_back) == 2 and report.retries == 2, report.summary()
-    contents = read_log(tmp_path / "acquisition.log")
-    stored = {f.seq for a in contents.completed.values() for f in a.frames}
-    assert not stored & set(board.time_back)
-    frame = ingest_log(tmp_path / "acquisition.log", plan).frame
-    pd.testing.assert_frame_equal(frame[CONTENT], clean[CONTENT])
-    _assert_time_rises_as_sent(contents)
-
-
-def _assert_time_rises_as_sent(contents):
-    """Over each stored condition's frames in the order the board sent them (by seq: these
-    runs have no restart), board time never falls."""
-    for attempt in contents.completed.values():
-        times = [f.t_ms for f in sorted(attempt.frames, key=lambda f: f.seq)]
-        assert times == sorted(times), (attempt.condition["key"], times)
-
-
-@pytest.mark.parametrize("transport", ["pty", "socket"])
-def test_a_frame_glued_to_an_overlong_line_is_dropped_with_it(honest, tmp_path, transport):
-    """Item 5: the parser emptied its buffer at 246 bytes, so when a read ended where a
-    64 KiB burst did, the frame glued to its end parsed and was stored (eskin cf46b9c:
-    35 rows on a socket). By the line rule that frame was lost: its place is asked again."""
-    params, clean = honest
-    board = HostileBoard(misbehaviour="glued_long_line", at=50)
-    report, plan = acquire_from(board, tmp_path, params, transport)
-    assert (report.retries, report.reconnects) == (1, 0), report.summary()
-    contents = read_log(tmp_path / "acquisition.log")
-    stored = {f.seq for a in contents.completed.values() for f in a.frames}
-    assert board.glued[0] not in stored
-    frame = ingest_log(tmp_path / "acquisition.log", plan).frame
-    pd.testing.assert_frame_equal(frame[CONTENT], clean[CONTENT])
-
-
-@pytest.mark.parametrize("transport", ["pty", "socket"])
-def test_a_top_up_asks_only_for_the_missing_places(honest, tmp_path, transport):
-    """Item 3: the top-up asked for every place from the first missing one on and kept only
-    the empty ones (eskin cf46b9c: 3,504-3,552 frames asked for 2,020 stored at 10 %
-    damage). With SIM PICK it asks for the missing places alone: at most 1.2 frames asked
-    per frame stored, the data the honest run's."""
-    params, clean = honest
-    board = HostileBoard(damage_rate=0.1, seed=7)
-    report, plan = acquire_from(board, tmp_path, params, transport)
-    assert report.frames_stored == 2020 and report.frames_rejected > 150, report.summary()
-    assert board.frames_asked / report.frames_stored <= 1.2, (board.frames_asked,
-                                                              report.summary())
-    frame = ingest_log(tmp_path / "acquisition.log", plan).frame
-    pd.testing.assert_frame_equal(frame[CONTENT], clean[CONTENT])
-
-
-def test_a_board_older_than_sim_pick_is_topped_up_as_before(honest, tmp_path):
-    """Old boards keep working: SIM PICK refused (#ERR), the placer asks from the first
-    missing place on (SIM REPLAY), as eskin did before, for the rest of the run."""
-    params, clean = honest
-    board = HostileBoard(damage_rate=0.1, seed=7, picks=False)
-    report, plan = acquire_from(board, tmp_path, params)
-    assert report.frames_stored == 2020, report.summary()
-    assert board.frames_asked / report.frames_stored > 1.2, board.frames_asked
-    frame = ingest_log(tmp_path / "acquisition.log", plan).frame
-    pd.testing.assert_frame_equal(frame[CONTENT], clean[CONTENT])
-
-
-def test_protocol_after_a_stray_ok_or_an_unplaced_answer_the_next_is_still_placed():
-    """The acceptance soak on a pty: a duplicated #OK landed on a SAMPLE (a violation), and
-    the fence forgot the next seq; each later answer, its first line damaged, was unplaced
-    and kept nothing (only a whole one places), so the condition failed 5 times."""
-    host = greeted()
-    host.send_sample(2)
-    host.receive(frames(0, 2) + b"#OK SAMPLE 2\n")
-    host.send_sample(2)
-    events = host.receive(b"#OK SIM PICK 20 2\n")  # a duplicate of another command's #OK
-    assert isinstance(events[0], Violation) and host.needs_fence
-    host.send_fence()
-    host.receive(frames(2, 2) + b"#OK SAMPLE 2\n#OK STREAM OFF\n")  # owed, then the fence
-    host.send_sample(2)  # placed by seq: its damaged first line leaves place 0 empty
-    events = host.receive(damaged(frame_line(4, 48, [500] * 20)) + frames(5, 1)
-                          + b"#OK SAMPLE 2\n")
-    assert [(e.index, e.placed) for e in events if isinstance(e, SampleFrame)] == [(1, True)]
-    host.reset_link()  # a connect: no seq known
-    host.send_fence()
-    host.receive(b"#OK STREAM OFF\n")
-    host.send_sample(2)  # unplaced (a damaged line first), but its last line was a frame
-    host.receive(damaged(frame_line(6, 72, [500] * 20)) + frames(7, 1) + b"#OK SAMPLE 2\n")
-    host.send_fence()
-    host.receive(b"#OK STREAM OFF\n")
-    host.send_sample(2)  # ... so the next begins after it, and is placed
-    events = host.receive(damaged(frame_line(8, 96, [500] * 20)) + frames(9, 1)
-                          + b"#OK SAMPLE 2\n")
-    assert [(e.index, e.placed) for e in events if isinstance(e, SampleFrame)] == [(1, True)]
-
-
-@pytest.mark.parametrize("transport", ["pty", "socket"])
-def test_a_place_the_line_keeps_losing_is_asked_twice_per_request(honest, tmp_path,
-                                                                 transport):
-    """The acceptance soak at 10 % damage: a place lost 4 times running ended the condition
-    at max_attempts 5 (about once in 10,000 missing places; the soak's 24,240 samples lose
-    about 2,400). A place asked for twice in vain is asked twice in one request."""
-    params, clean = honest
-    board = HostileBoard(misbehaviour="lose_place", at=50)
-    report, plan = acquire_from(board, tmp_path, params, transport)
-    assert board.lost_sends == 5 and report.retries == 3, report.summary()
-    frame = ingest_log(tmp_path / "acquisition.log", plan).frame
-    pd.testing.assert_frame_equal(frame[CONTENT], clean[CONTENT])

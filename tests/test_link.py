@@ -5,7 +5,6 @@ import os
 import stat
 import subprocess
 import sys
-import time
 
 import pytest
 import serial
@@ -16,7 +15,6 @@ from eskin.device.link import (
     BoardReset,
     DeviceChanged,
     LinkError,
-    ProtocolViolation,
     SampleBatch,
     SerialLink,
     list_serial_ports,
@@ -51,21 +49,6 @@ def test_socket_transport_binds_loopback_and_speaks_the_same_protocol():
             link.command("STRETCH 8.000")
             batch = link.sample(SampleBatch(50))
     assert batch.problem is None and len(batch.frames) == 50
-
-
-def test_a_socket_board_answers_a_request_as_fast_as_a_pty_one():
-    """Issue 56, item 6: the simulated board wrote each line to its socket with Nagle's
-    algorithm on, so a line waited for the ACK of the one before, which the host delays:
-    44 ms per SIM CLEAR + SAMPLE 20 (1.7 ms on a pty). With TCP_NODELAY, 1.5 ms."""
-    with simulated_board(SkinParams(), rest_length_mm=101.0, socket_port=0) as board:
-        with SerialLink(board.port, timeout_s=5.0) as link:
-            link.connect()
-            started = time.monotonic()
-            for _ in range(100):
-                link.command("SIM CLEAR")
-                assert link.sample(SampleBatch(20)).problem is None
-            seconds = time.monotonic() - started
-    assert seconds < 2.0, f"{seconds:.2f} s for 100 requests (with Nagle: about 4.4 s)"
 
 
 def test_silent_port_is_an_error_naming_the_port_not_a_hang():
@@ -137,30 +120,6 @@ def test_a_vanishing_link_is_reopened_and_a_reset_board_is_noticed(socket_port):
     assert all(message.count(board.port) == 1 for message in said), said
 
 
-def test_duplicated_and_spoofed_oks_from_the_simulated_board_cost_a_retry_each(tmp_path):
-    """Issue 56: the faulty line learns ok_dup (an #OK sent again before the next answer)
-    and ok_spoof (a SAMPLE's #OK sent early too); each costs at most that request."""
-    log = tmp_path / "faults.log"
-    faults = LinkFaults(ok_dup=0.1, ok_spoof=0.1, seed=5, log=str(log))
-    whole = fenced = 0
-    with simulated_board(SkinParams(), rest_length_mm=101.0, faults=faults) as board:
-        with SerialLink(board.port, timeout_s=2.0) as link:
-            link.connect()
-            for _ in range(100):
-                try:
-                    link.command("SIM CLEAR")
-                except ProtocolViolation:  # a duplicate #OK SAMPLE landed on it: fenced
-                    fenced += 1
-                    continue
-                whole += link.sample(SampleBatch(10)).problem is None
-    kinds = [line.split("\t")[0] for line in log.read_text().splitlines()]
-    dup, spoof = kinds.count("ok_dup"), kinds.count("ok_spoof")
-    assert dup >= 5 and spoof >= 5 and kinds.count("request") == 100 - fenced, (dup, spoof)
-    # A duplicate that lands on a command or a SAMPLE costs that one; a spoof its SAMPLE:
-    # the host is never left a reply behind.
-    assert whole >= 100 - dup - spoof, (whole, dup, spoof)
-
-
 @pytest.mark.parametrize("transport", ["pty", "socket"])
 def test_a_port_that_is_gone_is_named_once_in_each_notice_and_in_the_error(transport):
     """Issue 40: reconnect notices named the port three times (ours, pyserial's, the OS's)."""
@@ -208,9 +167,8 @@ def test_a_damaged_frame_that_passes_its_crc_is_still_caught():
 def test_a_frame_whose_board_time_fell_is_never_credited_within_or_across_answers():
     """Issue 40: t_ms was checked within one answer only, while the seq check runs across
     answers; a frame whose time fell from the last answer's (seq 95 at t_ms 0, between
-    1628 and 1652) was stored. The host checks every frame against the last one accepted
-    (issue 56: a fallen frame is a damaged line, its place empty, the rest kept)."""
-    from eskin.device.host import HostProtocol, Junk, SampleComplete, SampleFrame
+    1628 and 1652) was stored. The host checks every frame against the last one."""
+    from eskin.device.host import HostProtocol, SampleComplete, SampleFrame, Violation
     from eskin.device.protocol import encode_frame
 
     def answer(seqs, times):
@@ -223,15 +181,15 @@ def test_a_frame_whose_board_time_fell_is_never_credited_within_or_across_answer
     assert isinstance(events[-1], SampleComplete)
     host.send_sample(3)  # within an answer: "36" lost its "3"
     events = host.receive(answer([3, 4, 5], [36, 6, 60]) + b"#OK SAMPLE 3\n")
-    assert [type(e) for e in events[:3]] == [SampleFrame, Junk, SampleFrame]
-    assert "board time went backwards at seq 4 (36 then 6)" in events[1].error.reason
+    assert [type(e) for e in events[:2]] == [SampleFrame, Violation]
+    assert "board time went backwards at seq 4 (36 then 6)" in events[1].reason
     host.send_fence()
     host.receive(b"#OK STREAM OFF\n")
     host.send_sample(3)  # across answers: its first frame's "72" lost its "7"
     events = host.receive(answer([6, 7, 8], [2, 84, 96]) + b"#OK SAMPLE 3\n")
-    assert isinstance(events[0], Junk), events
-    assert "board time went backwards at seq 6 (60 then 2)" in events[0].error.reason
-    assert [e.frame.seq for e in events if isinstance(e, SampleFrame)] == [7, 8]
+    assert isinstance(events[0], Violation), events
+    assert "board time went backwards at seq 6 (60 then 2)" in events[0].reason
+    assert not any(isinstance(e, SampleFrame) for e in events), "nothing credited"
     host.send_fence()
     host.receive(b"#OK STREAM OFF\n")
     host.send_sample(3)  # and the next answer, whole, is whole

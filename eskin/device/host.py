@@ -49,29 +49,13 @@ The accounting of frames to requests lives here and only here:
   counts from the first that arrived) unless all n arrive, and nothing after its
   last frame is owed (owing it would cost every later answer its first frame, and the
   condition its attempts);
-* board time (``t_ms``) never falls from one frame the board sends to the next,
-  within an answer or across answers, as the sequence never does. Each frame is
-  judged against both its neighbours among the frames accepted: against the last
-  one, when it arrives, and by the next one. A frame whose time fell below the last
-  accepted is :class:`Junk` (a damaged frame whose CRC-8 matched by chance; its place
-  stays empty), and the time is not followed down, so a second fallen frame is
-  caught as surely as the first. A next frame that falls below the last accepted
-  but not below the one before it says the last one jumped forward: that one is
-  :class:`TimeJumped` (taken back from its answer, open or closed) and the next is
-  accepted. With no frame before the last to tell which of the two is wrong, both
-  go. :meth:`HostProtocol.watch` asks for the verdict on a frame that has no next
-  neighbour yet (the last frame of a condition);
-* after a violation, an answer that ended with fewer frames than asked, or an
-  ``#OK`` that is not the open request's (a duplicated or spoofed one, or one
-  with no request open), the next request is preceded by a fence (``STREAM
-  OFF``, answered in order): what the board sent before its ``#OK`` belongs to
-  no request (:attr:`HostProtocol.needs_fence`), so the host is never a reply
-  behind the board: a stray ``#OK`` costs at most one retry;
-* a ``SAMPLE`` whose answer has stalled may be probed (:meth:`HostProtocol.send_probe`:
-  ``STREAM OFF``, the request left open): the board answers commands in order, so
-  when the probe's ``#OK`` comes with the ``SAMPLE`` still open, the answer is over
-  and its ``#OK`` was lost on the line; the frames that came keep their places, and
-  a probe ``#OK`` that comes after the ``SAMPLE``'s own is absorbed;
+* board time (``t_ms``) never falls from one frame to the next, within an answer
+  or across answers, as the sequence never does: a frame whose time fell is a
+  damaged frame whose CRC-8 matched by chance, a :class:`Violation` in a
+  ``SAMPLE`` and :class:`Junk` in the stream;
+* after a violation the next request should be preceded by a fence
+  (``STREAM OFF``, answered in order): what the board sent before its
+  ``#OK`` belongs to no request (:attr:`HostProtocol.needs_fence`);
 * after ``#OK STREAM ON`` (:meth:`HostProtocol.send_stream`) frames outside a
   ``SAMPLE`` are :class:`StreamFrame`, and a lost sequence number is a
   :class:`StreamGap`, until the ``#OK`` of a ``STREAM OFF``, a greeting, or a
@@ -199,26 +183,6 @@ class StreamGap:
 
 
 @dataclass(frozen=True)
-class TimeJumped:
-    """``frame``, accepted before, was judged by the frame after it: its board time jumped
-    forward (a damaged frame whose CRC-8 matched by chance). Credited to ``request`` at
-    ``index`` (None: credited to no request), it is taken back: its place is empty."""
-
-    frame: Frame
-    request: int | None
-    index: int | None
-
-
-@dataclass
-class _Timed:
-    """A frame accepted by the board-time check, and where it was credited."""
-
-    frame: Frame
-    request: int | None = None
-    index: int | None = None
-
-
-@dataclass(frozen=True)
 class Junk:
     """A line that could not be trusted (bad CRC, torn, garbage)."""
 
@@ -227,7 +191,7 @@ class Junk:
 
 HostEvent = (Greeted | Answered | Refused | SampleFrame | SampleComplete | SampleIncomplete
              | Violation | Restarted | OtherBoard | OtherSkin | Stray | StreamFrame
-             | StreamGap | Junk | TimeJumped)
+             | StreamGap | Junk)
 
 
 @dataclass
@@ -241,9 +205,6 @@ class _Request:
     start: int | None = None  # SAMPLE: the seq its answer begins at (index 0), once known
     placed: bool = True       # SAMPLE: start is known to be the answer's first seq
     junk_first: bool = False  # SAMPLE: a line that could not be trusted came before it
-    probed: bool = False      # SAMPLE: a probe (STREAM OFF) was sent while it was open
-    junk_last: bool = False   # SAMPLE: a line that could not be trusted since its last frame
-    begun: bool = False       # SAMPLE: a line of its answer (a frame, or junk) arrived
 
 
 class ProtocolStateError(RuntimeError):
@@ -277,19 +238,11 @@ class HostProtocol:
         self._requests = 0
         self._greet_hello: Hello | None = None
         self._last_seq: int | None = None   # of the last frame seen, any request
-        # The last two frames the board-time check accepted (each judged by the next).
-        self._time_last: _Timed | None = None
-        self._time_before: _Timed | None = None
-        self._watched: Frame | None = None
-        self.watched_verdict: bool | None = None  # see watch()
-        # After a reconnect, the watched frame's time: a next frame not below it vouches for
-        # it; one below may be a restarted board's, and judges nothing.
-        self._watch_floor: int | None = None
+        self._last_t_ms: int | None = None  # its board time
         self._owed_up_to: int | None = None  # seqs that belong to an earlier SAMPLE's answer
         # Every frame the board sent since the sequence was known is seen or owed, so its
         # next frame's seq is known: a SAMPLE answer can be placed before it arrives.
         self._next_seq_known = False
-        self._probe_oks = 0  # probes sent whose #OK STREAM OFF has not come yet
 
     # ------------------------------------------------------------ requests
 
@@ -315,11 +268,7 @@ class HostProtocol:
     def send_fence(self) -> bytes:
         """``STREAM OFF``: when its ``#OK`` arrives the board has sent all it owed."""
         self._start("fence", "STREAM", "STREAM OFF")
-        if self.streaming:  # a streamed frame it absorbs may have been lost
-            self._next_seq_known = False
-        # Else the next answer's first seq stays known unless what the fence absorbs says
-        # otherwise (a damaged line, a frame nobody was owed): a short answer's top-up is
-        # placed by seq as it would have been without the fence.
+        self._next_seq_known = False  # what it absorbs may have lost frames
         return b"STREAM OFF\n"
 
     def send_stream(self) -> bytes:
@@ -337,21 +286,6 @@ class HostProtocol:
             request.start = max(last, owed) + 1
         return b"SAMPLE %d\n" % n
 
-    def send_probe(self) -> bytes:
-        """``STREAM OFF`` with the open ``SAMPLE`` left open: its ``#OK`` ends the answer
-        if the answer's own ``#OK`` was lost (:meth:`_reply`)."""
-        request = self._open
-        if request is None or request.kind != "sample":
-            raise ProtocolStateError("a probe is sent only while a SAMPLE is open")
-        request.probed = True
-        self._probe_oks += 1
-        return b"STREAM OFF\n"
-
-    @property
-    def answer_begun(self) -> bool:
-        """The open ``SAMPLE``'s answer has begun: a frame or a damaged line came."""
-        return self._open is not None and self._open.begun
-
     def abandon(self) -> None:
         """Give up on the open request (its deadline passed, the port failed): what the
         board sends for it later is stray, and the next request is fenced."""
@@ -365,9 +299,8 @@ class HostProtocol:
         """A new connection: partial lines and the sequence are forgotten."""
         self._parser = FrameParser(self.terminals)
         self._open = None
-        self._forget_sequence(keep_watch=True)
+        self._forget_sequence()
         self.streaming = False
-        self._probe_oks = 0
 
     @property
     def line_ending_hint(self) -> str | None:
@@ -393,12 +326,10 @@ class HostProtocol:
 
     def _handle(self, event, events: list[HostEvent]) -> None:
         request = self._open
-        if request is not None and isinstance(event, Frame | ParseError):
-            request.begun = True
         if isinstance(event, Hello):
             self._hello(event, events)
         elif isinstance(event, Frame):
-            time_fell = self._judge_time(event, events)
+            time_fell = self._time_fell(event)
             self._last_seq = event.seq
             owed = self._owed_up_to is not None and event.seq <= self._owed_up_to
             if self.streaming and (request is None or request.kind != "sample"):
@@ -415,11 +346,7 @@ class HostProtocol:
                 self.stray_frames += 1
                 events.append(Stray(event))
             elif time_fell:
-                if request.got == 0:
-                    request.junk_first = True
-                request.junk_last = True
-                self.junk_lines += 1
-                events.append(Junk(ParseError(time_fell, event.line)))
+                self._violate(events, time_fell, event.line)
             else:
                 self._credit(request, event, events)
         elif isinstance(event, SequenceGap):
@@ -436,11 +363,8 @@ class HostProtocol:
                     self._violate(events, f"{event.reason} (a replayed or stale frame)",
                                   event.line, owe=False)
                     return
-            if request is not None and request.kind == "sample":
-                request.junk_first = request.junk_first or request.got == 0
-                request.junk_last = True
-            if request is not None and request.kind == "fence":
-                self._next_seq_known = False  # it may have been a frame sent unasked
+            if request is not None and request.kind == "sample" and request.got == 0:
+                request.junk_first = True
             self.junk_lines += 1
             events.append(Junk(event))
         elif isinstance(event, Reply):
@@ -448,10 +372,8 @@ class HostProtocol:
 
     def _hello(self, hello: Hello, events: list[HostEvent]) -> None:
         request = self._open
-        # The board's sequence and time start again (a greeting's #HELLO: perhaps).
-        self._forget_sequence(keep_watch=request is not None and request.kind == "greet")
+        self._forget_sequence()  # the board's sequence and time start again
         self.streaming = False  # and it has forgotten STREAM ON
-        self._probe_oks = 0  # and any probe it had not answered
         known = self.device_id
         if known is not None and hello.device_id != known:
             self._open = None
@@ -475,18 +397,8 @@ class HostProtocol:
     def _reply(self, reply: Reply, events: list[HostEvent]) -> None:
         request = self._open
         command = reply.command.upper()
-        if (self._probe_oks and command == "STREAM" and reply.ok
-                and reply.details.strip().upper() == "OFF"):
-            self._probe_oks -= 1  # answers are in order: this is the oldest probe's
-            if request is not None and request.kind == "sample" and request.probed:
-                self._answer_over(request, events, by_probe=True)
-            return
         if request is None:
-            # A late answer to a request given up on, or an #OK the board sent twice or
-            # unasked: nothing to credit, and the next request is fenced, as the board's
-            # output is not where the host thought it was.
-            self.needs_fence = True
-            return
+            return  # a late answer to a request already given up on: nothing to credit
         if request.kind in ("greet", "fence"):
             # A fence absorbs everything the board owed before it; only its own #OK ends it.
             if command == "STREAM" and reply.ok and reply.details.strip().upper() in ("", "OFF"):
@@ -506,7 +418,7 @@ class HostProtocol:
             return
         if command != request.name:
             self._violate(events, f"a reply to {command} while waiting for {request.text!r}",
-                          reply.line, by_reply=True)
+                          reply.line)
             return
         self._open = None
         if not reply.ok:
@@ -521,31 +433,14 @@ class HostProtocol:
             return
         if reply.details.strip() != str(request.n):
             self._violate(events, f"#OK SAMPLE {reply.details.strip()!r} answered "
-                          f"SAMPLE {request.n}", reply.line, request, by_reply=True)
+                          f"SAMPLE {request.n}", reply.line, request)
             return
-        self._answer_over(request, events)
-
-    def _answer_over(self, request: _Request, events: list[HostEvent], *,
-                     by_probe: bool = False) -> None:
-        """The board's answer to ``request`` is over: its ``#OK``, or a probe's after it
-        (the ``#OK`` lost on the line: the board has sent all it owed, no fence needed)."""
-        self._open = None
         self._owe(request)
         # The answer's n seqs are known only if it was placed: then the next follows them.
-        # Not placed, its last frame was still its last line (no damaged line after it,
-        # then its #OK), so the next answer follows that frame: without this, one damaged
-        # first line left every later answer unplaced too, each keeping nothing.
-        self._next_seq_known = (request.start is not None and request.placed) or (
-            request.got > 0 and not request.junk_last)
+        self._next_seq_known = request.start is not None and request.placed
         if request.got == request.n:
             events.append(SampleComplete(request.number, request.got))
-        else:
-            # Frames lost on the line, or this #OK was not the board's answer to this
-            # request (a duplicate of the last one, a spoof): then the answer is still on
-            # its way, and without a fence its #OK would close the next request, and so
-            # on, one reply behind for good. The fence absorbs it; after a probe's #OK
-            # the board has sent everything already.
-            self.needs_fence = not by_probe
+        else:  # the board ended its answer in turn: no fence is needed
             events.append(SampleIncomplete(request.number, request.got, request.n))
 
     def _credit(self, request: _Request, frame: Frame, events: list[HostEvent]) -> None:
@@ -561,24 +456,14 @@ class HostProtocol:
                           f"(seq {frame.seq})", frame.line)
             return
         request.got += 1
-        request.junk_last = False
-        if self._time_last is not None and self._time_last.frame is frame:
-            self._time_last.request, self._time_last.index = request.number, index
         events.append(SampleFrame(request.number, index, frame, request.placed))
 
     def _violate(self, events: list[HostEvent], reason: str, line: bytes = b"",
-                 request: _Request | None = None, *, owe: bool = True,
-                 by_reply: bool = False) -> None:
+                 request: _Request | None = None, *, owe: bool = True) -> None:
         request = request or self._open
         self._open = None
         self.needs_fence = True
-        if not (by_reply and request is not None and request.kind == "sample"
-                and request.start is not None and request.placed):
-            # The board may have sent frames beyond its answer. A reply out of turn (a
-            # duplicated #OK, say) says nothing of the frames: a placed answer's seqs are
-            # owed, and what the fence absorbs beyond them (a frame nobody was owed, a
-            # damaged line) forgets the next seq then.
-            self._next_seq_known = False
+        self._next_seq_known = False  # the board may have sent frames beyond its answer
         if request is not None and owe:
             self._owe(request)
         events.append(Violation(request.number if request else 0, reason, line))
@@ -592,72 +477,16 @@ class HostProtocol:
         # that line may have been its first frame, so the seqs after its last frame are
         # not taken as its own (each later answer would lose its first frame as owed).
 
-    def _forget_sequence(self, *, keep_watch: bool = False) -> None:
-        if keep_watch and self.watch_open and self._watch_floor is None:
-            self._watch_floor = self._watched.t_ms
-        elif not keep_watch:
-            self._watched = self._watch_floor = None
-        self._last_seq = self._owed_up_to = None
-        self._time_last = self._time_before = None  # the board's time starts again too
+    def _forget_sequence(self) -> None:
+        self._last_seq = self._last_t_ms = self._owed_up_to = None
         self._next_seq_known = False
 
-    @property
-    def watch_open(self) -> bool:
-        """The watched frame (:meth:`watch`) awaits its verdict and may still get one."""
-        return self._watched is not None and self.watched_verdict is None and (
-            self._watch_floor is not None or self.last_accepted is self._watched)
-
-    @property
-    def last_accepted(self) -> Frame | None:
-        """The last frame the board-time check accepted: the next frame judges it."""
-        return self._time_last.frame if self._time_last else None
-
-    def watch(self, frame: Frame) -> None:
-        """Report the verdict on ``frame``, the last accepted (:attr:`last_accepted`), in
-        :attr:`watched_verdict`: True once a frame after it is accepted, False if that
-        frame says it jumped forward; None until then (:attr:`watch_open`), and for good
-        if the board restarts first. After a reconnect the next frame vouches for it if
-        its time is not below it (below, the board may have restarted)."""
-        self._watched, self.watched_verdict, self._watch_floor = frame, None, None
-
-    def _judge_time(self, frame: Frame, events: list[HostEvent]) -> str | None:
-        """Judge ``frame``'s board time against the last frames accepted; why it cannot be
-        right, or None if it is accepted. May take back the last frame accepted
-        (:class:`TimeJumped`): then this one is accepted in its stead."""
-        last, before = self._time_last, self._time_before
-        if self._watch_floor is not None and last is None:
-            self.watched_verdict = True if not _fell(self._watch_floor, frame.t_ms) else None
-            if self.watched_verdict is None:
-                self._watched = None  # a restarted board's time: nothing judged it
-            self._watch_floor = None
-        if last is None or not _fell(last.frame.t_ms, frame.t_ms):
-            if last is not None and last.frame is self._watched:
-                self.watched_verdict = True
-            self._time_before, self._time_last = last, _Timed(frame)
-            return None
-        reason = (f"board time went backwards at seq {frame.seq} ({last.frame.t_ms} then "
-                  f"{frame.t_ms}): a damaged frame whose CRC-8 matched by chance")
-        if before is not None and _fell(before.frame.t_ms, frame.t_ms):
-            return reason  # below both: this one fell; the time is not followed down
-        # Above the one before the last (or no such one to ask): the last one may have
-        # jumped forward. With the one before to vouch for this frame, the last goes;
-        # with none, either may be wrong, and both go.
-        self._take_back(last, events)
-        if before is None:
-            self._time_last = None
-            return reason + " (or the frame before it jumped forward)"
-        self._time_last = _Timed(frame)
+    def _time_fell(self, frame: Frame) -> str | None:
+        """Why ``frame``'s board time cannot be right: it fell since the last frame (but for
+        the 32-bit wrap after 49 days). Followed either way, as the sequence is, so one
+        damaged frame costs one frame."""
+        last, self._last_t_ms = self._last_t_ms, frame.t_ms
+        if last is not None and frame.t_ms < last and last - frame.t_ms < 2**31:
+            return (f"board time went backwards at seq {frame.seq} ({last} then "
+                    f"{frame.t_ms}): a damaged frame whose CRC-8 matched by chance")
         return None
-
-    def _take_back(self, timed: _Timed, events: list[HostEvent]) -> None:
-        if timed.frame is self._watched:
-            self.watched_verdict = False
-        request = self._open
-        if request is not None and timed.request == request.number:
-            request.got -= 1
-        events.append(TimeJumped(timed.frame, timed.request, timed.index))
-
-
-def _fell(earlier: int, later: int) -> bool:
-    """Board time fell from ``earlier`` to ``later`` (but for its 32-bit wrap, 49 days)."""
-    return later < earlier and earlier - later < 2**31

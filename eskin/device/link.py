@@ -38,7 +38,6 @@ from eskin.device.host import (
     SampleIncomplete,
     StreamFrame,
     StreamGap,
-    TimeJumped,
     Violation,
 )
 from eskin.device.protocol import UNSET_ID, Frame, Hello, ParseError
@@ -49,12 +48,6 @@ READ_CHUNK = 4096          # bytes per read: what a flood can put in memory at o
 POLL_S = 0.05              # longest a read waits for a first byte: how often deadlines are seen
 MAX_EVIDENCE_LINES = 64    # rejected lines kept per attempt (the rest only counted)
 STREAM_BACKLOG = 4096      # stream events kept while a command is answered (~50 s of frames)
-# Longest silence within a SAMPLE's answer, once it has begun, before the host probes with
-# STREAM OFF (the request left open): a board sends its frames back to back (a frame takes
-# ~10 ms at 115,200 baud), so this much silence after a frame means the answer's #OK was
-# lost, or the board stalled; the probe's #OK, answered in order, tells which. Without it a
-# lost #OK cost the whole timeout_s and a reconnect.
-ANSWER_GAP_S = 0.25
 
 
 @dataclass(frozen=True)
@@ -108,16 +101,6 @@ class SampleBatch:
     rejected: list[ParseError] = field(default_factory=list)
     rejected_count: int = 0
     violation: str | None = None
-
-    def take_back(self, frame: Frame, reason: str) -> bool:
-        """Take ``frame`` out of the batch (its board time jumped forward: the frame after
-        it said so), keeping it as a rejected line; False if it is not in the batch."""
-        for i, mine in enumerate(self.frames):
-            if mine is frame:
-                del self.frames[i], self.indexes[i]
-                self.reject(ParseError(reason, frame.line))
-                return True
-        return False
 
     def reject(self, error: ParseError) -> None:
         """Count a rejected line; keep the first few as evidence (bounded memory)."""
@@ -179,20 +162,11 @@ class SerialLink:
         # bounded: the oldest go first, counted, and stream() reports them (StreamOverflow).
         self._backlog: deque[HostEvent] = deque(maxlen=STREAM_BACKLOG)
         self._overflowed = 0
-        # Frames of answers already closed that the frame after them judged jumped forward
-        # (TimeJumped): the caller takes them back from what it kept (take_jumped).
-        self._jumped: list[Frame] = []
         self._serial = self._open()
 
     @property
     def hello(self) -> Hello | None:
         return self.protocol.hello
-
-    def take_jumped(self) -> list[Frame]:
-        """The frames of closed answers found since the last call to have jumped forward in
-        board time (the protocol judged them by the frame after them)."""
-        jumped, self._jumped = self._jumped, []
-        return jumped
 
     def _open(self) -> serial.SerialBase:
         try:
@@ -302,9 +276,7 @@ class SerialLink:
             waiting = max(0, waiting - READ_CHUNK)
         while self._pending:  # events left over from the last request's read count too
             event = self._pending.popleft()
-            if isinstance(event, TimeJumped):
-                self._jumped.append(event.frame)
-            elif not self._kept_for_stream(event):
+            if not self._kept_for_stream(event):
                 self._raise_for_board(event, "before a request")
 
     def _kept_for_stream(self, event: HostEvent) -> bool:
@@ -317,47 +289,35 @@ class SerialLink:
         return False
 
     def _exchange(self, request: bytes, what: str, on_event: Callable[[HostEvent], bool | None],
-                  timeout_s: float | None = None, *, probe: bool = False) -> None:
+                  timeout_s: float | None = None) -> None:
         """Send a request and feed events to ``on_event`` until it returns True.
 
         ``on_event`` returns None for an event that is not progress; anything else
         that is not True is progress (the deadline moves). An ``#ERR`` for the
-        request is BoardRefused. ``probe`` (a SAMPLE): once its answer has begun, a
-        silence of :data:`ANSWER_GAP_S` (at most half the timeout) sends the protocol's
-        probe, once, so that a lost ``#OK`` costs that, not the timeout. The deadline
-        passing, the request is abandoned and LinkError names the port."""
+        request is BoardRefused. The deadline passing, the request is abandoned and
+        LinkError names the port."""
         timeout = self.timeout_s if timeout_s is None else timeout_s
-        gap = min(ANSWER_GAP_S, timeout / 2)
         self._write(request, what)
-        progressed = time.monotonic()
-        deadline = progressed + timeout
+        deadline = time.monotonic() + timeout
         junk = _JunkSeen()
         while True:
-            if (probe and self.protocol.answer_begun
-                    and time.monotonic() - progressed > gap):
-                probe = False
-                self._write(self.protocol.send_probe(), "STREAM OFF")
             if not self._pending:
-                self._read(min(POLL_S, gap) if probe else POLL_S)
+                self._read()
             # One event at a time: what follows the answer in the same read (a restart,
             # say) stays queued for the next request to see.
             while self._pending:
                 event = self._pending.popleft()
                 if isinstance(event, Refused):  # #ERR: asking again will not help
-                    said = event.reply.line.decode("ascii", "backslashreplace").strip()
-                    raise BoardRefused(f"the board on {self.port} refused {what!r}: it "
-                                       f"said {said!r}")
+                    raise BoardRefused(f"board on {self.port} refused {what!r}: "
+                                       f"{event.reply.details}")
                 if self._kept_for_stream(event):
                     continue
                 junk.note(event)
                 result = on_event(event)
-                if isinstance(event, TimeJumped) and result is None:
-                    self._jumped.append(event.frame)  # not the open request's
                 if result is True:
                     return
                 if result is not None:
-                    progressed = time.monotonic()
-                    deadline = progressed + timeout
+                    deadline = time.monotonic() + timeout
             if time.monotonic() > deadline:
                 self.protocol.abandon()
                 raise LinkError(f"board on {self.port} did not answer {what!r} within "
@@ -510,11 +470,6 @@ class SerialLink:
             if isinstance(event, Junk):
                 batch.reject(event.error)
                 return None
-            if isinstance(event, TimeJumped):
-                taken = batch.take_back(event.frame, (
-                    f"board time jumped forward at seq {event.frame.seq} ({event.frame.t_ms}):"
-                    " the next frame fell below it, not below the one before it"))
-                return False if taken else None
             if isinstance(event, SampleComplete | SampleIncomplete):
                 return True
             if isinstance(event, Violation):
@@ -522,7 +477,7 @@ class SerialLink:
                 return True
             return None
 
-        self._exchange(self.protocol.send_sample(n), f"SAMPLE {n}", on_event, probe=True)
+        self._exchange(self.protocol.send_sample(n), f"SAMPLE {n}", on_event)
         return batch
 
 

@@ -44,7 +44,6 @@ class _LineServer:
         while (end := self._pending.find(b"\n")) >= 0:
             line = bytes(self._pending[:end])
             del self._pending[: end + 1]
-            self.line.asked(line)
             out += self.line.answer(self.board.handle(line))
         if len(self._pending) > MAX_LINE_BYTES:
             self._pending.clear()
@@ -168,11 +167,6 @@ def serve_socket(line: FaultyLine, port: int, announce: Callable[[str], None]) -
                     conn.settimeout(None)
                 except TimeoutError:
                     continue
-                # The board writes each line as it is ready (a frame, an #OK), as a UART
-                # does. With Nagle's algorithm a small write waits for the ACK of the one
-                # before, which the host delays up to 40 ms: 44 ms per SIM CLEAR + SAMPLE
-                # 20 on loopback, against 1.7 ms on a pty (docs/acquisition.md).
-                conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
                 with conn:
                     away = _serve_connection(conn, server, parent)
                 if away:
