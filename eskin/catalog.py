@@ -2,7 +2,7 @@
 
 Scenes are declared in params.yaml (``scenes:``); their kinds are :mod:`eskin.kinds`,
 the skin :mod:`eskin.skin`; tasks and CV schemes are named here (what a task means for
-each kind is :mod:`eskin.learning.tasks`); every path a stage writes or
+each kind is :mod:`eskin.evaluation.tasks`); every path a stage writes or
 reads is a function of the scene (and task) below, so dvc.yaml, the stages,
 the report, compare, audit and reproduce agree by construction (a test checks
 dvc.yaml against these).
@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-# Every kind has the same tasks (eskin/learning/tasks.py says what each means for each kind), so
+# Every kind has the same tasks (eskin/evaluation/tasks.py says what each means for each kind), so
 # the stage graph is scenes × tasks; a task a scene's data cannot support is skipped.
 TASK_NAMES: tuple[str, ...] = ("stretch", "force", "detect", "localise")
 # CV schemes, by what a test fold holds out (eskin.evaluation.folds): samples (the paper's),

@@ -44,11 +44,13 @@ def _ports(args: argparse.Namespace) -> int:
 
 
 def _simulate(args: argparse.Namespace) -> int:
-    from eskin.config import get_scene, load_params, scene_skin
+    from eskin.config.base import load_params
+    from eskin.config.params import Params
+    from eskin.config.scenes import get_scene, scene_skin
     from eskin.device.simulate import serve_config
     from eskin.skin import PAPER_SKIN
 
-    params = load_params(args.params)
+    params = load_params(Params, args.params)
     board = params.sim_board
     skin = (PAPER_SKIN if args.scene is None
             else scene_skin(get_scene(params, args.scene, args.params)))
@@ -75,7 +77,9 @@ def _live(args: argparse.Namespace) -> int:
 
     from eskin.acquisition.session import simulated_board
     from eskin.catalog import raw_dir, stack_path
-    from eskin.config import get_scene, load_params, scene_kind, scene_skin
+    from eskin.config.base import load_params
+    from eskin.config.params import Params
+    from eskin.config.scenes import get_scene, scene_kind, scene_skin
     from eskin.deploy.live import (
         LineBroadcast,
         LiveRecorder,
@@ -90,7 +94,7 @@ def _live(args: argparse.Namespace) -> int:
     def note(message: str) -> None:
         print(f"eskin live: {message}", file=sys.stderr, flush=True)
 
-    params = load_params(args.params)
+    params = load_params(Params, args.params)
     scene_params = get_scene(params, args.scene, args.params)
     tare_frames = params.live.tare_frames if args.tare_frames is None else args.tare_frames
     if tare_frames < 0 or args.frames < 0:
@@ -225,10 +229,12 @@ def _press(args: argparse.Namespace) -> int:
 
 
 def _export(args: argparse.Namespace) -> int:
-    from eskin.config import get_scene, load_params
+    from eskin.config.base import load_params
+    from eskin.config.params import Params
+    from eskin.config.scenes import get_scene
     from eskin.deploy.export import export_scene
 
-    get_scene(load_params(args.params), args.scene, args.params)
+    get_scene(load_params(Params, args.params), args.scene, args.params)
     print(export_scene(args.scene))
     return 0
 
@@ -580,10 +586,13 @@ def _audit(args: argparse.Namespace) -> int:
 
 def _plan(args: argparse.Namespace) -> int:
     from eskin.catalog import learning_curve_path
-    from eskin.config import BENCH_PARAMS, BenchParams, get_scene, load_params
+    from eskin.config.base import BENCH_PARAMS, load_params, sections
+    from eskin.config.params import Params
+    from eskin.config.planning import LearningCurve
+    from eskin.config.scenes import get_scene
     from eskin.tracking import planning
 
-    get_scene(load_params(), args.scene)
+    get_scene(load_params(Params), args.scene)
     name, equals, value = args.target.partition("=")
     try:
         wanted = float(value) if equals else None
@@ -592,7 +601,7 @@ def _plan(args: argparse.Namespace) -> int:
     if wanted is None:
         raise ValueError(f"--target {args.target!r}: give it as <task>_<metric>=<value>, "
                          "e.g. force_r2=0.95")
-    settings = load_params(BENCH_PARAMS, BenchParams).learning_curve
+    settings = load_params(sections(BENCH_PARAMS, learning_curve=LearningCurve)).learning_curve
     curves = planning.read_curves(learning_curve_path(args.scene), args.scene)
     print(planning.describe(planning.plan(curves, name.strip(), wanted, settings), settings))
     return 0
@@ -608,10 +617,12 @@ def _reproduce(args: argparse.Namespace) -> int:
 
 
 def _promote(args: argparse.Namespace) -> int:
-    from eskin.config import get_scene, load_params
+    from eskin.config.base import load_params
+    from eskin.config.params import Params
+    from eskin.config.scenes import get_scene
     from eskin.tracking import registry
 
-    get_scene(load_params(), args.scene)  # before the store: a typo is told at once
+    get_scene(load_params(Params), args.scene)  # before the store: a typo is told at once
     promotion = registry.promote(args.scene, args.alias, variant=args.experiment,
                                  run_id=args.run_id, root=Path.cwd())
     print(registry.render_promotion(promotion), end="")
@@ -622,12 +633,14 @@ def _promote(args: argparse.Namespace) -> int:
 
 
 def _learning_step(args: argparse.Namespace) -> int:
-    from eskin.config import get_scene, load_params
+    from eskin.config.base import load_params
+    from eskin.config.params import Params
+    from eskin.config.scenes import get_scene
     from eskin.evaluation.folds import write_scene_folds
     from eskin.learning import train
     from eskin.learning.features import featurize_scene
 
-    params = load_params(args.params)
+    params = load_params(Params, args.params)
     get_scene(params, args.scene, args.params)
     if args.command == "featurize":
         print(featurize_scene(args.scene, PROCESSED_DIR, FEATURES_DIR, MODELS_DIR,
@@ -645,10 +658,12 @@ def _learning_step(args: argparse.Namespace) -> int:
 
 def _pipeline_step(args: argparse.Namespace) -> int:
     from eskin.acquisition import acquire
-    from eskin.config import get_scene, load_params, validating
+    from eskin.config.base import load_params, validating
+    from eskin.config.params import Params
+    from eskin.config.scenes import get_scene
     from eskin.data import build
 
-    params = load_params(args.params)
+    params = load_params(Params, args.params)
     scene = get_scene(params, args.scene, args.params)
     if args.command == "acquire":
         override = {key: value for key, value in (("source", args.source), ("port", args.port))

@@ -30,13 +30,16 @@ from sklearn.base import BaseEstimator, clone
 from eskin.evaluation import metrics
 from eskin.evaluation.crossval import channel_frame, parallel_backend
 from eskin.evaluation.folds import FoldSplit, assign_folds, fold_splitter
+from eskin.evaluation.tasks import Task, get_task
 from eskin.kinds import get_kind
 from eskin.learning.estimators import build_model
-from eskin.learning.tasks import Task, get_task
 from eskin.skin import AnySkin
 
 if TYPE_CHECKING:
-    from eskin.config import CV, Bench, Scene, Sim
+    from eskin.config.acquisition import Sim
+    from eskin.config.cv import CV
+    from eskin.config.scenes import Scene
+    from harness.params import Bench
 
 
 def peak_memory_mb() -> float | None:
@@ -233,7 +236,7 @@ def bayes_bound(scene: str, settings: Scene, dataset_path: Path, out_path: Path,
     "no bound" and the reason instead of stopping. ``settings`` is the scene's params
     section, ``sim`` the simulator's, ``seed`` ``bench.seed`` (the Sobol points of two
     contacts)."""
-    from eskin.config import scene_skin
+    from eskin.config.scenes import scene_skin
     from eskin.data.schema import read_dataset, read_metadata
     from eskin.device.physics import skin_params
     from harness import oracle, pair_oracle

@@ -36,9 +36,9 @@ from eskin.acquisition.plan import ScenePlan, plan_from_params
 from eskin.device.physics import SkinModel, SkinParams, Trial
 from eskin.evaluation.crossval import cross_validate
 from eskin.evaluation.folds import assign_folds
+from eskin.evaluation.tasks import get_task
 from eskin.kinds import ONE_CONTACT, TWO_CONTACTS, get_kind
 from eskin.learning.estimators import build_model
-from eskin.learning.tasks import get_task
 from eskin.skin import AnySkin
 
 # The paper's numbers (section IV), and how close a fit or a prediction must come.
@@ -205,10 +205,11 @@ def exact_beside_subsampled(scene: str, cv: Any, evaluate_folds: int,
     import tempfile
 
     from eskin.catalog import bayes_bound_path, features_path
-    from eskin.config import BENCH_PARAMS, BenchParams, load_params
+    from eskin.config.base import load_params
     from harness.benchmark import bench
+    from harness.params import BenchParams
 
-    settings = load_params(BENCH_PARAMS, BenchParams).bench
+    settings = load_params(BenchParams).bench
     variants = {name: settings.tasks["force"][name] for name in ("paper", "exact_gp")}
     settings = settings.model_copy(update={
         "schemes": ["stratified", "conditions"], "evaluate_folds": evaluate_folds,
@@ -233,7 +234,8 @@ def exact_beside_subsampled(scene: str, cv: Any, evaluate_folds: int,
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from eskin.config import load_params
+    from eskin.config.base import load_params
+    from eskin.config.params import Params
     from eskin.device.physics import skin_params
 
     parser = argparse.ArgumentParser(prog="python -m harness.calibrate", description=__doc__.split(
@@ -245,7 +247,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="instead: the exact GP beside the paper's subsampled one on the "
                              "pipeline's single-force dataset, over this many of its folds")
     args = parser.parse_args(argv)
-    params = load_params(args.params)
+    params = load_params(Params, args.params)
     if args.exact_gp:
         # the first one-contact scene, as scores() takes it
         exact_beside_subsampled(next(name for name, scene in params.scenes.items()

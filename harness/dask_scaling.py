@@ -27,13 +27,14 @@ from distributed import Client, LocalCluster, WorkerPlugin
 from joblib import parallel_config
 
 from eskin.catalog import features_path
-from eskin.config import Params, load_params
+from eskin.config.base import load_params
+from eskin.config.params import Params
 from eskin.data.schema import dataset_skin, read_metadata
 from eskin.evaluation.crossval import cross_validate
 from eskin.evaluation.folds import assign_folds
+from eskin.evaluation.tasks import get_task
 from eskin.learning.choice import model_for_skin, model_settings
 from eskin.learning.estimators import build_model
-from eskin.learning.tasks import get_task
 
 TASK = "force"
 
@@ -89,7 +90,7 @@ def run_cv(scene: str, params: Params, backend: str, n_jobs: int) -> tuple[objec
 
 
 def measure(scene: str) -> dict:
-    params = load_params()
+    params = load_params(Params)
     run_cv(scene, params, "loky", 2)  # warm, as each cluster is: its workers started
     baseline, loky_s = run_cv(scene, params, "loky", 2)
     out = {"scene": scene, "task": TASK, "folds": len(baseline.per_fold[next(iter(

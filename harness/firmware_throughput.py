@@ -17,7 +17,9 @@ import time
 import serial
 
 from eskin.acquisition.plan import plan_from_params
-from eskin.config import get_scene, load_params, scene_skin
+from eskin.config.base import load_params
+from eskin.config.params import Params
+from eskin.config.scenes import get_scene, scene_skin
 from eskin.device.emulated import emulated_board
 from eskin.device.physics import SkinParams, skin_params
 from eskin.device.protocol import Frame, parse_line
@@ -58,7 +60,7 @@ def measure(sim: SkinParams, frames: int, skin: AnySkin) -> dict[str, float]:
 def main(argv: list[str] | None = None) -> int:
     args = sys.argv[1:] if argv is None else argv
     frames = int(args[0]) if args else 500
-    params = load_params()
+    params = load_params(Params)
     skin = scene_skin(get_scene(params, args[1])) if len(args) > 1 else PAPER_SKIN
     sim = skin_params(params.sim)
     m = measure(sim, frames, skin)

@@ -36,7 +36,7 @@ import numpy as np
 import pandas as pd
 
 from eskin.catalog import TASK_NAMES, processed_path, raw_dir
-from eskin.config import Params
+from eskin.config.params import Params
 from eskin.data.schema import (
     contact_mask,
     dataset_kind,
@@ -46,10 +46,10 @@ from eskin.data.schema import (
 )
 from eskin.evaluation.crossval import cross_validate
 from eskin.evaluation.folds import conditions, trial_conditions
+from eskin.evaluation.tasks import Task, get_task
 from eskin.learning.choice import model_for_skin, model_settings
 from eskin.learning.estimators import build_model
 from eskin.learning.features import featurize, fit_featurizer
-from eskin.learning.tasks import Task, get_task
 from eskin.tracking.planning import (
     CURVE,
     FLAT_GAIN,

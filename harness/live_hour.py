@@ -25,7 +25,9 @@ import pandas as pd
 
 from eskin.acquisition.plan import ScenePlan, plan_from_params
 from eskin.catalog import stack_path
-from eskin.config import get_scene, load_params
+from eskin.config.base import load_params
+from eskin.config.params import Params
+from eskin.config.scenes import get_scene
 from eskin.deploy.live import live_estimates
 from eskin.deploy.stack import ExportedStack
 from eskin.device.board import SimulatedBoard
@@ -96,7 +98,7 @@ def script(settings, plan: ScenePlan, rest_length_mm: float) -> list[Step]:
 
 def run(scene: str, settings, params_path: Path = Path("params.yaml")) -> pd.DataFrame:
     """One row per estimate: the live record beside the script's truth at its frame."""
-    params = load_params(params_path)
+    params = load_params(Params, params_path)
     plan = plan_from_params(scene, get_scene(params, scene, params_path))
     stack = ExportedStack.from_file(stack_path(scene))
     board = live_board(params, stack.skin)

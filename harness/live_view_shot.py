@@ -109,11 +109,12 @@ def sustained_press_on_the_view(stack, params, browser, path: Path, *,
 
 def main() -> int:
     from eskin.catalog import stack_path
-    from eskin.config import load_params
+    from eskin.config.base import load_params
+    from eskin.config.params import Params
     from eskin.deploy.stack import ExportedStack
     from tests.conftest import headless_chromium
 
-    params = load_params()
+    params = load_params(Params)
     scene = sys.argv[1] if len(sys.argv) > 1 else next(iter(params.scenes))
     stack = ExportedStack.from_file(stack_path(scene))
     path = Path("docs/screenshots/live_sustained_press.png")

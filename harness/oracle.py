@@ -335,7 +335,7 @@ def mse_over_variance(truth, predicted) -> float:
 def oracle_scores(answers: pd.DataFrame, frame: pd.DataFrame) -> dict[str, float]:
     """The oracle's headline scores on ``frame``'s rows: force and stretch R² (the MSE,
     where a level is constant), contact accuracy, x and y accuracy over contacts."""
-    from eskin.learning.tasks import get_task
+    from eskin.evaluation.tasks import get_task
 
     force = get_task(ONE_CONTACT.name, "force").target_values(frame)["force"]
     stretch = frame["stretch"].to_numpy()

@@ -338,7 +338,7 @@ def posterior_predictions(frame: pd.DataFrame, params: SkinParams, stretches, fo
 def oracle_scores(answers: pd.DataFrame, frame: pd.DataFrame) -> dict[str, float]:
     """The oracle's scores on ``frame``'s rows: force1 and force2 as MSE over the target's
     variance (a move in R²), and the accuracy of each of x1, y1, x2, y2."""
-    from eskin.learning.tasks import get_task
+    from eskin.evaluation.tasks import get_task
 
     out = {f"{name}_mse": mse_over_variance(truth, answers[name].to_numpy())
            for name, truth in get_task(TWO_CONTACTS.name, "force").target_values(frame).items()}

@@ -51,7 +51,8 @@ import threading
 import time
 from pathlib import Path
 
-from eskin.config import load_params
+from eskin.config.base import load_params
+from eskin.config.params import Params
 
 ROOT = Path(__file__).resolve().parents[1]
 RUNNING = re.compile(r"^Running stage '([^']+)'")
@@ -63,7 +64,7 @@ KNOB = "train.force.physics_profile.max_iter=150"
 # the stretch stage of params.yaml's first scene (the paper's one-contact scene, in both
 # revisions)
 FIXED_COST_STAGE = ["python", "-m", "stages.train",
-                    next(iter(load_params(ROOT / "params.yaml").scenes)), "stretch"]
+                    next(iter(load_params(Params, ROOT / "params.yaml").scenes)), "stretch"]
 # The median of 3: on a machine shared with other work, one run in three caught by a
 # burst of load does not move it, and three runs of a stage that should take about a
 # second keep the bench short.

@@ -29,10 +29,12 @@ import pandas as pd
 import yaml
 
 from eskin.acquisition.plan import ScenePlan, plan_from_params
-from eskin.config import Params, Soak, untraced, validate_params
+from eskin.config.base import untraced, validate_params
+from eskin.config.params import Params
 from eskin.data import build
 from eskin.data.schema import LABELS
 from eskin.device.faults import KINDS
+from harness.params import Soak
 
 KEY = ["trial", "sample"]
 
@@ -138,7 +140,7 @@ def run_soak(params: Params, settings: Soak, workdir: Path,
     fault_log = workdir / "faults.log"
     written = soak_params(params, settings, fault_log, scene)
     (workdir / "params.yaml").write_text(yaml.safe_dump(written, sort_keys=False))
-    soaked = validate_params(written, workdir / "params.yaml")
+    soaked = validate_params(written, Params, workdir / "params.yaml")
     plan = plan_from_params(scene, soaked.scenes[scene])
     raw_dir = workdir / "data" / "raw" / scene
     log = raw_dir / "acquisition.log"

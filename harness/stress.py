@@ -29,8 +29,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from eskin.evaluation.tasks import Task
 from eskin.kinds import ONE_CONTACT
-from eskin.learning.tasks import Task
 from eskin.skin import AnySkin
 
 # Invariance tolerances of a `same` case: regression predictions within this share of
@@ -166,8 +166,8 @@ def fit_case(frame: pd.DataFrame, task_name: str, model: str, hyper: Mapping[str
     Runs in a worker process; returns predictions and scores, or the error."""
     from eskin.evaluation.crossval import cross_validate
     from eskin.evaluation.folds import assign_folds
+    from eskin.evaluation.tasks import get_task
     from eskin.learning.estimators import build_model
-    from eskin.learning.tasks import get_task
 
     # The cases are written for one contact (stress() skips scenes of another kind).
     task = get_task(KIND, task_name)
@@ -263,7 +263,7 @@ def run_suite(frames: Mapping[str, pd.DataFrame], params: Any, skin: AnySkin, *,
     # that one for its own Parallel and fail on it (it lacks joblib's temp-folder manager).
     from joblib.externals.loky import ProcessPoolExecutor
 
-    from eskin.learning.tasks import get_task
+    from eskin.evaluation.tasks import get_task
 
     models = models or models_under_test(params.train, skin)
     context = {"sim": params.sim.model_dump(), "skin": skin}
@@ -308,8 +308,8 @@ def large_factorisation(frame: pd.DataFrame, rows: int, seed: int,
     process, scored on the remaining samples: the case that segfaulted OpenBLAS."""
     from sklearn.metrics import r2_score
 
+    from eskin.evaluation.tasks import get_task
     from eskin.learning.gp import FixedKernelGaussianProcess
-    from eskin.learning.tasks import get_task
 
     task = get_task(KIND, "force")
     y = task.target_values(frame)["force"]

@@ -4,12 +4,16 @@ import sys
 
 from eskin.acquisition import acquire
 from eskin.catalog import RAW_DIR
-from eskin.config import get_scene, load_params, validating
+from eskin.config.acquisition import Acquire, Sim, SimBoard
+from eskin.config.base import load_params, sections, validating
+from eskin.config.cv import CV
+from eskin.config.scenes import Scenes, get_scene
 from eskin.errors import RECEIVED_KEPT, run_friendly
 
 
 def main(scene: str) -> str:
-    params = load_params()
+    params = load_params(sections(sim=Sim, sim_board=SimBoard, acquire=Acquire,
+                                  scenes=Scenes, cv=CV))
     get_scene(params, scene)
     with validating():  # every scene is checked, but only this one's settings are used
         acquire.check_scenes(params.scenes, params.cv)

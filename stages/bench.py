@@ -4,15 +4,20 @@ against error, and the summary."""
 import sys
 
 from eskin.catalog import bayes_bound_path, bench_dir, features_path, processed_path
-from eskin.config import BENCH_PARAMS, BenchParams, get_scene, load_params
+from eskin.config.acquisition import Sim
+from eskin.config.base import BENCH_PARAMS, load_params, sections
+from eskin.config.cv import CV
+from eskin.config.scenes import Scenes, get_scene
+from eskin.config.train import Train
 from eskin.errors import run_friendly
 from harness import benchmark
+from harness.params import Bench
 
 
 def main(what: str, scene: str, task: str | None = None) -> str:
-    params = load_params()
+    params = load_params(sections(sim=Sim, scenes=Scenes, train=Train, cv=CV))
     get_scene(params, scene)
-    bench = load_params(BENCH_PARAMS, BenchParams).bench
+    bench = load_params(sections(BENCH_PARAMS, bench=Bench)).bench
     out = bench_dir(scene)
     if what == "bound":
         return benchmark.bayes_bound(scene, params.scenes[scene], processed_path(scene),

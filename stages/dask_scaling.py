@@ -5,7 +5,8 @@ import json
 import sys
 from pathlib import Path
 
-from eskin.config import get_scene, load_params
+from eskin.config.base import load_params, sections
+from eskin.config.scenes import Scenes, get_scene
 from eskin.errors import run_friendly
 from harness.dask_scaling import measure, render
 
@@ -13,7 +14,7 @@ REPORT = Path("reports/dask_scaling")
 
 
 def main(scene: str) -> int:
-    get_scene(load_params(), scene)
+    get_scene(load_params(sections(scenes=Scenes)), scene)
     result = measure(scene)
     REPORT.mkdir(parents=True, exist_ok=True)
     (REPORT / f"{scene}.json").write_text(json.dumps(result, indent=2) + "\n")

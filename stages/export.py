@@ -2,13 +2,14 @@
 
 import sys
 
-from eskin.config import get_scene, load_params
+from eskin.config.base import load_params, sections
+from eskin.config.scenes import Scenes, get_scene
 from eskin.deploy.export import export_scene
 from eskin.errors import run_friendly
 
 
 def main(scene: str) -> str:
-    get_scene(load_params(), scene)
+    get_scene(load_params(sections(scenes=Scenes)), scene)
     return export_scene(scene)
 
 

@@ -4,13 +4,15 @@ folds drawn once, so that no training stage draws them again."""
 import sys
 
 from eskin.catalog import features_path, folds_path
-from eskin.config import get_scene, load_params
+from eskin.config.base import load_params, sections
+from eskin.config.cv import CV
+from eskin.config.scenes import Scenes, get_scene
 from eskin.errors import run_friendly
 from eskin.evaluation.folds import write_scene_folds
 
 
 def main(scene: str) -> str:
-    params = load_params()
+    params = load_params(sections(scenes=Scenes, cv=CV))
     get_scene(params, scene)
     return write_scene_folds(features_path(scene), folds_path(scene),
                              schemes=list(params.cv.schemes), n_splits=int(params.cv.folds),

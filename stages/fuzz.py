@@ -4,15 +4,16 @@ import json
 import sys
 from pathlib import Path
 
-from eskin.config import BENCH_PARAMS, BenchParams, load_params
+from eskin.config.base import BENCH_PARAMS, load_params, sections
 from eskin.errors import run_friendly
 from harness import fuzz
+from harness.params import Fuzz
 
 TARGETS = {"parser": fuzz.fuzz_parser, "import": fuzz.fuzz_import}
 
 
 def main(target: str) -> int:
-    examples = int(load_params(BENCH_PARAMS, BenchParams).fuzz.examples)
+    examples = int(load_params(sections(BENCH_PARAMS, fuzz=Fuzz)).fuzz.examples)
     result = TARGETS[target](examples, progress=True)
     out = Path("reports/fuzz") / f"{target}.json"
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -4,15 +4,18 @@ condition beside the Bayes bound, and what a target costs (harness/learning_curv
 import sys
 
 from eskin.catalog import bayes_bound_path, learning_curve_path
-from eskin.config import BENCH_PARAMS, BenchParams, get_scene, load_params
+from eskin.config.base import BENCH_PARAMS, load_params, sections
+from eskin.config.params import Params
+from eskin.config.planning import LearningCurve
+from eskin.config.scenes import get_scene
 from eskin.errors import run_friendly
 from harness import learning_curve
 
 
 def main(scene: str) -> str:
-    params = load_params()
+    params = load_params(Params)
     get_scene(params, scene)
-    settings = load_params(BENCH_PARAMS, BenchParams).learning_curve
+    settings = load_params(sections(BENCH_PARAMS, learning_curve=LearningCurve)).learning_curve
     document = learning_curve.learning_curve(
         scene, params, list(settings.repeats), bound_path=bayes_bound_path(scene),
         gap_share=settings.gap_share, gap_tasks=tuple(settings.gap_tasks),

@@ -5,17 +5,20 @@ import json
 import sys
 from pathlib import Path
 
-from eskin.config import BENCH_PARAMS, BenchParams, get_scene, load_params, scene_kind
+from eskin.config.base import BENCH_PARAMS, load_params, sections
+from eskin.config.params import Params
+from eskin.config.scenes import get_scene, scene_kind
 from eskin.errors import run_friendly
 from harness.live_hour import batch_cv_scores, render, run, score, score_pairs
+from harness.params import LiveHour
 
 REPORT = Path("reports/live_hour")
 
 
 def main(scene: str) -> int:
-    scene_params = get_scene(load_params(), scene)
+    scene_params = get_scene(load_params(Params), scene)
     kind = scene_kind(scene_params)
-    settings = load_params(BENCH_PARAMS, BenchParams).live_hour
+    settings = load_params(sections(BENCH_PARAMS, live_hour=LiveHour)).live_hour
     REPORT.mkdir(parents=True, exist_ok=True)
     if scene_params.source == "import":
         text = (f"# Live hour: {scene}\n\nSkipped: an imported scene has no plan to script "

@@ -5,7 +5,8 @@ import json
 import sys
 from pathlib import Path
 
-from eskin.config import get_scene, load_params
+from eskin.config.base import load_params, sections
+from eskin.config.scenes import Scenes, get_scene
 from eskin.errors import run_friendly
 from harness.live_latency import FRAMES, measure, render
 
@@ -13,7 +14,7 @@ REPORT = Path("reports/live_latency")
 
 
 def main(scene: str) -> int:
-    get_scene(load_params(), scene)
+    get_scene(load_params(sections(scenes=Scenes)), scene)
     result = measure(scene, FRAMES)
     REPORT.mkdir(parents=True, exist_ok=True)
     (REPORT / f"{scene}.json").write_text(json.dumps(result, indent=2) + "\n")

@@ -14,20 +14,22 @@ from eskin.catalog import (
     SCENE_METRICS_DIR,
     SCORES_DIR,
 )
-from eskin.config import load_params
+from eskin.config.base import load_params, sections
+from eskin.config.report import Report
+from eskin.config.scenes import Scenes
 from eskin.errors import run_friendly
 from eskin.reporting import report
-from eskin.tracking import runs
+from eskin.tracking import connection
 
 
 def main() -> str:
-    params = load_params()
+    params = load_params(sections(report=Report, scenes=Scenes))
     # The page links each model to its runs in MLflow's UI, which are logged later (the
     # tracking stage): by the experiment the tracking stage logs to, found or made here.
     # A store out of reach costs the links, not the report.
     try:
-        model_runs = functools.partial(runs.model_runs_url, runs.ensure_experiment())
-    except runs.TrackingError as err:
+        model_runs = functools.partial(connection.model_runs_url, connection.ensure_experiment())
+    except connection.TrackingError as err:
         print(f"report: the page's model md5s link nowhere: {err}", file=sys.stderr)
         model_runs = None
     return report.report(

@@ -7,15 +7,16 @@ import json
 import sys
 from pathlib import Path
 
-from eskin.config import BENCH_PARAMS, BenchParams, load_params
+from eskin.config.base import BENCH_PARAMS, load_params, sections
 from eskin.errors import run_friendly
+from harness.params import Bench
 from harness.repro_speed import measure, render
 
 REPORT = Path("reports/repro_speed")
 
 
 def main() -> str:
-    result = measure(str(load_params(BENCH_PARAMS, BenchParams).bench.repro_baseline),
+    result = measure(str(load_params(sections(BENCH_PARAMS, bench=Bench)).bench.repro_baseline),
                      log=lambda line: print(line, file=sys.stderr, flush=True))
     REPORT.mkdir(parents=True, exist_ok=True)
     (REPORT / "default.json").write_text(json.dumps(result, indent=2) + "\n")

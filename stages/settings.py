@@ -5,13 +5,15 @@ own settings, not on a section shared by every kind of scene."""
 import sys
 
 from eskin.catalog import TASK_NAMES, settings_path
-from eskin.config import load_params
+from eskin.config.base import load_params, sections
+from eskin.config.scenes import Scenes
+from eskin.config.train import Train
 from eskin.errors import run_friendly
-from eskin.learning.choice import write_settings
+from eskin.learning.settings import write_settings
 
 
 def main() -> str:
-    params = load_params()
+    params = load_params(sections(scenes=Scenes, train=Train))
     configuration = params.train.configuration
     written = [write_settings(settings_path(name, task), scene=name, kind=scene.kind,
                               task=task, configuration=configuration,

@@ -8,15 +8,18 @@ from pathlib import Path
 import pandas as pd
 
 from eskin.catalog import SOAK_DIR, processed_path
-from eskin.config import BENCH_PARAMS, BenchParams, get_scene, load_params
+from eskin.config.base import BENCH_PARAMS, load_params, sections
+from eskin.config.params import Params
+from eskin.config.scenes import get_scene
 from eskin.errors import run_friendly
+from harness.params import Soak
 from harness.soak import run_soak
 
 
 def main(scene: str) -> int:
-    params = load_params()
+    params = load_params(Params)
     get_scene(params, scene)
-    settings = load_params(BENCH_PARAMS, BenchParams).soak
+    settings = load_params(sections(BENCH_PARAMS, soak=Soak)).soak
     SOAK_DIR.mkdir(parents=True, exist_ok=True)
     json_path, md_path = SOAK_DIR / f"{scene}.json", SOAK_DIR / f"{scene}.md"
     source = params.scenes[scene].source

@@ -5,15 +5,18 @@ import sys
 import tempfile
 
 from eskin.catalog import STRESS_DIR, features_path
-from eskin.config import STRESS_PARAMS, StressParams, get_scene, load_params
+from eskin.config.base import load_params
+from eskin.config.params import Params
+from eskin.config.scenes import get_scene
 from eskin.errors import run_friendly
 from harness import stress
+from harness.params import StressParams
 
 
 def main(scene: str) -> str:
-    params = load_params()
+    params = load_params(Params)
     get_scene(params, scene)
-    settings = load_params(STRESS_PARAMS, StressParams).stress
+    settings = load_params(StressParams).stress
     with tempfile.TemporaryDirectory(prefix="eskin-stress-") as scratch:
         return stress.stress(params, settings, scene, features_path(scene), STRESS_DIR,
                              scratch=scratch)

@@ -7,14 +7,15 @@ import json
 import sys
 
 from eskin.catalog import METRICS, PAGE, TRACKED
-from eskin.config import load_params, pipeline_params
+from eskin.config.base import load_params
+from eskin.config.params import Params, pipeline_params
 from eskin.errors import TRACK_KEPT, run_friendly
 
 
 def main() -> str:
     from eskin.tracking import runs  # MLflow takes seconds to import
 
-    params = load_params()
+    params = load_params(Params)
     logged = pipeline_params(params)
     tasks = runs.pipeline_tasks(params.scenes, params.train, logged["cv"],
                                 log=lambda m: print(m, file=sys.stderr, flush=True))

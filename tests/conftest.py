@@ -48,7 +48,7 @@ needs_chromium = pytest.mark.skipif(
 @pytest.fixture(autouse=True)
 def _mlflow_tracking_uri_per_test():
     """Each test starts with no MLflow tracking URI of another test's. MLflow keeps the one
-    `mlflow.set_tracking_uri` sets (a test's, or eskin's own `runs.connect()` run in the
+    `mlflow.set_tracking_uri` sets (a test's, or eskin's own `connection.connect()` run in the
     test's process) in a global that wins over MLFLOW_TRACKING_URI, and writes it to the
     environment too, outside monkeypatch: a later test in the same worker then talked to
     a server since stopped."""
@@ -102,15 +102,16 @@ def small_scenes(repo_params: dict) -> dict:
 def typed(params):
     """A scratch params dict (the tests edit them as the YAML reads) validated into the
     :class:`eskin.config.Params` the steps take; a Params as it is."""
-    from eskin.config import Params, validate_params
+    from eskin.config.base import validate_params
+    from eskin.config.params import Params
 
-    return params if isinstance(params, Params) else validate_params(params)
+    return params if isinstance(params, Params) else validate_params(params, Params)
 
 
 def acquire_step(params, scene: str, raw_dir: Path, **kwargs):
     """The acquisition step as its stage runs it: every scene checked, then ``scene``."""
     from eskin.acquisition import acquire
-    from eskin.config import validating
+    from eskin.config.base import validating
 
     params = typed(params)
     with validating():
@@ -169,9 +170,9 @@ def small_stack(params: dict, root: Path):
     from eskin.data.schema import read_dataset, read_metadata
     from eskin.deploy.stack import SkinStack, rest_readings
     from eskin.evaluation.crossval import fit_final
+    from eskin.evaluation.tasks import get_task
     from eskin.learning.choice import model_settings
     from eskin.learning.estimators import build_model
-    from eskin.learning.tasks import get_task
     from eskin.skin import PAPER_SKIN
 
     processed = prepared_scene(params, "single_force", root)

@@ -21,10 +21,10 @@ from conftest import (
 from eskin.acquisition.plan import plan_from_params
 from eskin.acquisition.rawlog import read_log
 from eskin.acquisition.session import acquire_scene, simulated_board
-from eskin.config import Soak
 from eskin.data.schema import LABELS, DatasetError, read_metadata
 from eskin.device.physics import skin_params
 from eskin.skin import PAPER_SKIN
+from harness.params import Soak
 from harness.soak import run_soak
 
 # What a sample is, independent of how the link delivered it (seq and t_ms count wire

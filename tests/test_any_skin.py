@@ -25,7 +25,9 @@ from eskin.catalog import (
     stack_path,
     task_outputs,
 )
-from eskin.config import ChannelArraySkin, Report, RowColumnSkin, TaskModels
+from eskin.config.report import Report
+from eskin.config.scenes import ChannelArraySkin, RowColumnSkin
+from eskin.config.train import TaskModels
 from eskin.data.schema import dataset_skin, md5_file, write_dataset
 from eskin.deploy.export import export_scene
 from eskin.deploy.stack import ExportedStack, SkinStack

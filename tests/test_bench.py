@@ -11,9 +11,9 @@ from sklearn.utils.estimator_checks import check_estimator
 from eskin.data.schema import contact_mask, read_dataset
 from eskin.device.physics import SkinModel, SkinParams
 from eskin.evaluation.folds import fold_splitter
+from eskin.evaluation.tasks import get_task
 from eskin.learning.estimators import build_model
 from eskin.learning.gp import FixedKernelGaussianProcess, SparseGaussianProcess, stable_cholesky
-from eskin.learning.tasks import get_task
 from eskin.skin import PAPER_SKIN
 from harness import benchmark
 from harness.oracle import (

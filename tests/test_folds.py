@@ -13,7 +13,7 @@ from sklearn.neighbors import KNeighborsRegressor
 
 from eskin.evaluation.crossval import cross_validate
 from eskin.evaluation.folds import FoldSplit, fold_splitter
-from eskin.learning.tasks import Task
+from eskin.evaluation.tasks import Task
 from eskin.skin import PAPER_SKIN
 from harness import benchmark
 

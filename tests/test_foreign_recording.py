@@ -12,7 +12,8 @@ import pytest
 from conftest import acquire_step, eskin, ingest_step, write_params
 from foreign_tactile import CHANNELS, GRID_MM, write_recording, write_two_touch_recording
 
-from eskin.config import ParamsError, validate_params
+from eskin.config.base import ParamsError, validate_params
+from eskin.config.params import Params
 from eskin.data.importer import import_paper_layout, rest_offset
 from eskin.data.schema import DatasetError, dataset_skin, read_metadata, validate
 from eskin.skin import ChannelArray, skin_from_dict
@@ -135,9 +136,9 @@ def test_trials_are_blocks_of_trial_s_seconds(ingested, recording):
 
 def test_wall_an_import_needs_no_plan_and_refuses_one_in_one_line(repo_params, tmp_path):
     scene = magnetic_scene(tmp_path)
-    validate_params(with_scenes(repo_params, magnetic=scene))  # no stretches, no samples
+    validate_params(with_scenes(repo_params, magnetic=scene), Params)  # no stretches, no samples
     with pytest.raises(ParamsError) as refused:
-        validate_params(with_scenes(repo_params, magnetic={**scene, "stretches": [1.0]}))
+        validate_params(with_scenes(repo_params, magnetic={**scene, "stretches": [1.0]}), Params)
     assert str(refused.value) == (
         "params.yaml: scenes.magnetic: an import scene's labels come from its files, not a "
         "plan: remove stretches")
@@ -145,7 +146,7 @@ def test_wall_an_import_needs_no_plan_and_refuses_one_in_one_line(repo_params, t
     del acquired["scenes"]["single_force"]["stretches"]
     with pytest.raises(ParamsError, match=r"scenes\.single_force\.stretches is missing "
                                           r"\(required\)$"):
-        validate_params(acquired)
+        validate_params(acquired, Params)
 
 
 def test_wall_one_file_per_scene_a_folder_and_a_trial_column(recording, repo_params,
@@ -221,7 +222,7 @@ def test_wall_continuous_force_in_label_runs_says_what_to_set(recording, repo_pa
 def test_wall_positions_from_names_need_a_contact_rule(repo_params, tmp_path):
     scene = magnetic_scene(tmp_path, contact_n=None)
     with pytest.raises(ParamsError, match="set import.contact_n"):
-        validate_params(with_scenes(repo_params, magnetic=scene))
+        validate_params(with_scenes(repo_params, magnetic=scene), Params)
 
 
 def test_wall_stale_repeats_are_not_fatal_but_a_copy_elsewhere_is(recording, repo_params,
@@ -268,7 +269,7 @@ def test_wall_geometry_keys_are_taken(repo_params):
     params["scenes"]["two_force"].update(skin={"rows": 16, "columns": 12}, nodes_x=[1, 8, 16],
                                          nodes_y=[1, 6, 12])
     params["scenes"]["single_force"]["skin"] = {"channels": CHANNELS, "grid": [3, 3]}
-    validate_params(params)
+    validate_params(params, Params)
 
 
 # ---------------------------------------------------------------- labels and their checks
@@ -364,7 +365,7 @@ def test_a_column_the_header_lacks_is_one_line_with_the_closest(recording, repo_
 def test_an_import_section_mistake_is_one_line(repo_params, tmp_path, changes, message):
     scene = magnetic_scene(tmp_path, **changes)
     with pytest.raises(ParamsError) as refused:
-        validate_params(with_scenes(repo_params, magnetic=scene))
+        validate_params(with_scenes(repo_params, magnetic=scene), Params)
     assert message in str(refused.value) and "\n" not in str(refused.value), refused.value
 
 

@@ -24,7 +24,8 @@ from eskin.acquisition.plan import plan_from_params
 from eskin.acquisition.rawlog import MAGIC, read_log
 from eskin.acquisition.runner import AcquisitionError, SimulatedPlacer
 from eskin.acquisition.session import run_session
-from eskin.config import validate_params
+from eskin.config.base import validate_params
+from eskin.config.params import Params
 from eskin.data.ingest import ingest_log
 from eskin.data.schema import LABELS
 from eskin.device.host import (
@@ -54,7 +55,7 @@ def hostile_params(repo_params):
 
 
 def acquire_from(board, tmp_path, params, transport="pty"):
-    plan = plan_from_params("single_force", validate_params(params).scenes["single_force"])
+    plan = plan_from_params("single_force", validate_params(params, Params).scenes["single_force"])
     with Served(board, transport) as served:
         report = run_session(plan, tmp_path, port=served.port, placer=SimulatedPlacer(),
                              rest_length_mm=101.0, simulator=None, timeout_s=TIMEOUT_S,
@@ -552,7 +553,7 @@ def test_a_board_of_another_size_is_refused_in_one_line_and_nothing_is_lost(
 
 def test_an_empty_or_headerless_log_from_an_earlier_version_is_continued(honest, tmp_path):
     params, clean = honest
-    plan = plan_from_params("single_force", validate_params(params).scenes["single_force"])
+    plan = plan_from_params("single_force", validate_params(params, Params).scenes["single_force"])
     log = tmp_path / "acquisition.log"
     log.write_bytes(b"")
     acquire_from(HostileBoard(), tmp_path, params)

@@ -20,8 +20,8 @@ import pytest
 
 from eskin.evaluation.crossval import cross_validate, parallel_backend
 from eskin.evaluation.folds import assign_folds
+from eskin.evaluation.tasks import get_task
 from eskin.learning.estimators import build_model
-from eskin.learning.tasks import get_task
 from eskin.skin import PAPER_SKIN
 from tests.conftest import prepared_scene, small_scenes
 

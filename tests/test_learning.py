@@ -9,10 +9,11 @@ from conftest import featurize_step, prepared_scene, small_scenes, train_step
 from sklearn.utils.estimator_checks import check_estimator
 
 from eskin.catalog import TASK_NAMES
-from eskin.config import TaskModels
+from eskin.config.train import TaskModels
 from eskin.data.schema import md5_file
 from eskin.evaluation.crossval import cross_validate, parallel_backend
 from eskin.evaluation.folds import assign_folds, strata
+from eskin.evaluation.tasks import TASKS, get_task
 from eskin.learning.choice import model_settings
 from eskin.learning.estimators import (
     REGISTRY,
@@ -20,7 +21,6 @@ from eskin.learning.estimators import (
     build_model,
 )
 from eskin.learning.features import BaselineDelta, fit_featurizer
-from eskin.learning.tasks import TASKS, get_task
 from eskin.skin import PAPER_SKIN
 
 CHANNELS = PAPER_SKIN.channels
@@ -300,7 +300,7 @@ def test_a_knob_of_one_kinds_model_leaves_the_other_kinds_settings_file_as_it_wa
     force stage only: the two-force scene's settings file keeps its bytes."""
     import copy
 
-    from eskin.learning.choice import write_settings
+    from eskin.learning.settings import write_settings
 
     changed = copy.deepcopy(repo_params["train"]["force"])
     changed["physics_profile"]["max_iter"] += 1
@@ -353,12 +353,13 @@ def test_ray_is_no_backend_and_params_say_which_are(repo_params):
     listing the backends there are."""
     import copy
 
-    from eskin.config import validate_params
+    from eskin.config.base import validate_params
+    from eskin.config.params import Params
 
     params = copy.deepcopy(repo_params)
     params["cv"]["backend"] = "ray"
     with pytest.raises(ValueError, match=r"cv\.backend.*'dask'"):
-        validate_params(params)
+        validate_params(params, Params)
 
 
 def test_force_profile_reads_stretch_and_press_in_any_units(repo_params):

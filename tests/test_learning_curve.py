@@ -12,8 +12,8 @@ from conftest import acquire_step, eskin, ingest_step, small_scenes, typed, writ
 
 from eskin.evaluation.crossval import cross_validate
 from eskin.evaluation.folds import assign_folds
+from eskin.evaluation.tasks import get_task
 from eskin.learning.estimators import build_model
-from eskin.learning.tasks import get_task
 from eskin.skin import PAPER_SKIN
 from eskin.tracking import planning
 from harness import benchmark, learning_curve

@@ -23,7 +23,7 @@ import pandas as pd
 import pytest
 
 from eskin.acquisition.session import simulated_board
-from eskin.config import Live
+from eskin.config.live import Live
 from eskin.deploy.export import write_stack
 from eskin.deploy.live import (
     LineBroadcast,

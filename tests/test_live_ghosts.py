@@ -12,7 +12,9 @@ import socket
 import numpy as np
 import pytest
 
-from eskin.config import Live, load_params
+from eskin.config.base import load_params
+from eskin.config.live import Live
+from eskin.config.params import Params
 from eskin.deploy.export import write_stack
 from eskin.deploy.live import ContactHysteresis, LineBroadcast, live_estimates
 from eskin.deploy.stack import ExportedStack
@@ -27,7 +29,7 @@ TEN_MINUTES = 10 * 60 * 1000 // 12  # frames at the board's 12 ms period: 50,000
 
 @pytest.fixture(scope="module")
 def params():
-    return load_params()
+    return load_params(Params)
 
 
 @pytest.fixture(scope="module")
@@ -199,17 +201,17 @@ def test_hysteresis_turns_a_flickering_probability_into_one_contact():
 def test_a_typo_in_the_live_knobs_is_one_line_naming_the_key():
     import yaml
 
-    from eskin.config import ParamsError, validate_params
+    from eskin.config.base import ParamsError, validate_params
 
     params = yaml.safe_load(open("params.yaml", encoding="utf-8"))
     params["live"]["baseline"]["gate_count"] = params["live"]["baseline"].pop("gate_counts")
     with pytest.raises(ParamsError, match=r"live\.baseline\.gate_count is not a known key; "
                        r"did you mean live\.baseline\.gate_counts\?"):
-        validate_params(params)
+        validate_params(params, Params)
     params["live"]["baseline"]["gate_counts"] = params["live"]["baseline"].pop("gate_count")
     params["live"]["contact"]["leave_probability"] = 0.95
     with pytest.raises(ParamsError, match="leave_probability .* is above enter_probability"):
-        validate_params(params)
+        validate_params(params, Params)
 
 
 @needs_chromium

@@ -17,7 +17,9 @@ import yaml
 from conftest import ROOT, write_params
 
 from eskin import cli
-from eskin.config import BenchParams, Params, ParamsError, StressParams, validate_params
+from eskin.config.base import SECTION_FILES, ParamsError, sections, validate_params
+from eskin.config.cv import CV
+from eskin.config.params import Params
 from eskin.errors import (
     NOTHING_CHANGED,
     RECEIVED_KEPT,
@@ -26,6 +28,7 @@ from eskin.errors import (
     TRACK_KEPT,
 )
 from eskin.tracking import compare
+from harness.params import BenchParams, StressParams
 
 TYPO = "singel_force"
 
@@ -112,7 +115,7 @@ def test_a_mistyped_key_is_named_with_the_key_it_resembles(project, capsys):
     params = repo_params()
     params["cv"]["fols"] = params["cv"].pop("folds")
     with pytest.raises(ParamsError) as raised:
-        validate_params(params)
+        validate_params(params, Params)
     message = str(raised.value)
     assert "cv.fols is not a known key; did you mean cv.folds?" in message, message
     assert "more" not in message  # the missing cv.folds is the same mistake
@@ -137,7 +140,7 @@ def test_a_mistyped_key_anywhere_suggests_the_known_one(name, path, typo, known)
         section = section[part]
     section[typo] = section.pop(known)
     with pytest.raises(ParamsError) as raised:
-        validate_params(params, Path(name), SCHEMAS[name])
+        validate_params(params, SCHEMAS[name], Path(name))
     prefix = ".".join(path) + "." if path else ""
     assert str(raised.value) == (f"{name}: {prefix}{typo} is not a known key; did you mean "
                                  f"{prefix}{known}? ({prefix}{known} is missing)")
@@ -163,9 +166,46 @@ def test_the_pipelines_params_file_takes_no_bench_knobs():
     params = repo_params()
     params["soak"] = repo_params("bench/params.yaml")["soak"]
     with pytest.raises(ParamsError) as raised:
-        validate_params(params)
+        validate_params(params, Params)
     assert str(raised.value) == ("params.yaml: soak is not a section of this file: move it to "
                                  "bench/params.yaml")
+
+
+def test_the_section_names_the_loader_knows_are_the_schemas():
+    """SECTION_FILES names each file's sections without importing their schemas (so that a
+    stage loading one section imports no other): it must name what the schemas hold."""
+    assert SECTION_FILES == {name: Path(file) for file, schema in SCHEMAS.items()
+                             for name in schema.model_fields}
+
+
+@pytest.mark.parametrize("typo, message", [
+    ("trian", "params.yaml: trian is not a known key; did you mean train?"),
+    ("soak", "params.yaml: soak is not a section of this file: move it to bench/params.yaml"),
+])
+def test_a_stage_reading_some_sections_still_names_an_unknown_one(typo, message):
+    """A stage validates only the sections it reads (and depends only on their schemas):
+    a top-level key that is no section of the file is still one line, with the fix."""
+    params = repo_params()
+    params[typo] = params["train"] if typo == "trian" else {"faults": {}}
+    if typo == "trian":
+        del params["train"]
+    with pytest.raises(ParamsError) as raised:
+        validate_params(params, sections(cv=CV))
+    assert str(raised.value) == message
+
+
+def test_a_stage_reading_some_sections_checks_them_whole():
+    params = repo_params()
+    params["cv"]["folds"] = 1
+    with pytest.raises(ParamsError) as raised:
+        validate_params(params, sections(cv=CV))
+    assert str(raised.value).startswith("params.yaml: cv.folds = 1: "), raised.value
+    # another section's mistake is the stages' that read it (and `eskin`'s commands')
+    params = repo_params()
+    params["live"]["tare_frames"] = "many"
+    assert validate_params(params, sections(cv=CV)).cv.folds == repo_params()["cv"]["folds"]
+    with pytest.raises(ParamsError, match="live.tare_frames"):
+        validate_params(params, Params)
 
 
 def test_an_unknown_key_like_no_known_one_lists_the_known_keys():
@@ -173,7 +213,7 @@ def test_an_unknown_key_like_no_known_one_lists_the_known_keys():
     params["acquire"]["prot"] = 1
     with pytest.raises(ParamsError, match=r"acquire\.prot is not a known key of acquire "
                                           r"\(known: indenters, rest_length_mm"):
-        validate_params(params)
+        validate_params(params, Params)
 
 
 # ------------------------------------------------------------------ audit ids

@@ -58,7 +58,7 @@ def test_the_sim_section_names_every_simulator_parameter():
     reads the physics); it must name exactly SkinParams' fields, each required."""
     import dataclasses
 
-    from eskin.config import Sim
+    from eskin.config.acquisition import Sim
     from eskin.device.physics import SkinParams
 
     fields = {f.name for f in dataclasses.fields(SkinParams)}

@@ -26,7 +26,7 @@ from conftest import (
 )
 from test_stage_deps import params_mismatches
 
-from eskin.config import TaskModels
+from eskin.config.train import TaskModels
 from eskin.data.schema import md5_file
 from eskin.learning.choice import model_settings
 from eskin.skin import PAPER_SKIN
@@ -250,7 +250,8 @@ def test_the_mlflow_ui_opens_on_the_training_runs_and_shows_their_figures(scratc
     task, model and variant, the duration is the training's, the figures are artifacts."""
     import mlflow
 
-    from eskin.tracking import runs
+    from eskin.tracking import connection
+
 
     root, env = scratch
     monkeypatch.setenv("MLFLOW_TRACKING_URI", env["MLFLOW_TRACKING_URI"])
@@ -271,12 +272,12 @@ def test_the_mlflow_ui_opens_on_the_training_runs_and_shows_their_figures(scratc
             page.wait_for_selector(f"text={wait_for}", timeout=60_000)
             return page.inner_text("body")
 
-        listing = text_of(runs.ui_url(experiment), parent.info.run_name)
+        listing = text_of(connection.ui_url(experiment), parent.info.run_name)
         assert "/runs" in page.url and "Duration" in listing and "Token Usage" not in listing
-        run_page = text_of(runs.ui_url(experiment, task["run_id"]), "Duration")
-        artifacts = text_of(runs.ui_url(experiment, task["run_id"], artifacts=True),
+        run_page = text_of(connection.ui_url(experiment, task["run_id"]), "Duration")
+        artifacts = text_of(connection.ui_url(experiment, task["run_id"], artifacts=True),
                             "figures")
-        page_artifacts = text_of(runs.ui_url(experiment, parent.info.run_id, artifacts=True),
+        page_artifacts = text_of(connection.ui_url(experiment, parent.info.run_id, artifacts=True),
                                  "index.html")
     assert task["tags.mlflow.runName"] in run_page  # single_force/force <model> @repro-…
     shown = run_page.split("Duration", 1)[1].split()[0]  # "26.9s", "1.2min"

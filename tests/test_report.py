@@ -14,12 +14,18 @@ from conftest import headless_chromium, needs_chromium
 from PIL import Image
 
 from eskin.catalog import SCHEME_NOTES, SCHEMES
-from eskin.config import Report
-from eskin.kinds import DETECTION, FORCE_PARITY, LOCALISATION_CONFUSION, STRETCH_PARITY, get_kind
-from eskin.reporting import report
+from eskin.config.report import Report
+from eskin.kinds import get_kind
+from eskin.reporting import presentation, report
 from eskin.reporting.page import Provenance, headline_markdown, headline_rows, render_page
+from eskin.reporting.presentation import (
+    DETECTION,
+    FORCE_PARITY,
+    LOCALISATION_CONFUSION,
+    STRETCH_PARITY,
+)
 from eskin.skin import PAPER_SKIN
-from eskin.tracking import runs
+from eskin.tracking import connection
 
 # The commit the fixture's report says it ran on top of (a plain `dvc repro`).
 COMMIT = "0123456789abcdef0123456789abcdef01234567"
@@ -100,7 +106,7 @@ def build(root, out, run):
                          plots_dir=out / "plots", page_path=out / "index.html",
                          results_path=out / "results.md", metrics_path=out / "metrics.json",
                          scene_metrics_dir=out / "metrics", run=run,
-                         model_runs=functools.partial(runs.model_runs_url, EXPERIMENT_ID))
+                         model_runs=functools.partial(connection.model_runs_url, EXPERIMENT_ID))
 
 
 @pytest.fixture(scope="module")
@@ -208,7 +214,7 @@ def test_the_page_loads_every_image_in_headless_chromium(built):
         skipped = page.inner_text("#scene-two_force ul")
         models = page.inner_text("h2:text('Models') + p + table")
     assert len(widths) == 12 and all(w > 0 for w in widths), widths
-    rows = get_kind("single_force").headlines
+    rows = presentation.headlines(get_kind("single_force"))
     # every row but the position error in mm, which a skin placed in mm alone has
     assert [h.split(' [')[0] for h in headline] == [row.label for row in rows
                                                     if not row.optional]
@@ -352,7 +358,7 @@ def test_each_models_md5_links_to_the_mlflow_runs_that_carry_it(built):
     for task, (md5, link) in links.items():
         url = urlsplit(link)
         route, _, query = url.fragment.partition("?")
-        assert f"{url.scheme}://{url.netloc}" == runs.ui_base(), link
+        assert f"{url.scheme}://{url.netloc}" == connection.ui_base(), link
         assert route == f"/experiments/{EXPERIMENT_ID}/runs", link
         assert parse_qs(query) == {"searchFilter": [f"tags.`eskin.model_md5` = '{md5}'"],
                                    "orderByKey": ["tags.`mlflow.runName`"],
@@ -371,7 +377,7 @@ def test_a_models_link_opens_the_mlflow_ui_on_its_runs_alone(built, mlflow_serve
 
     root, _ = built
     monkeypatch.setenv("MLFLOW_TRACKING_URI", mlflow_server)
-    experiment = runs.ensure_experiment()
+    experiment = connection.ensure_experiment()
     client = mlflow.MlflowClient(mlflow_server)
     scores = {scene: {path.stem: json.loads(path.read_text())
                       for path in (root / "scores" / scene).glob("*.json")} for scene in SCENES}
@@ -390,7 +396,7 @@ def test_a_models_link_opens_the_mlflow_ui_on_its_runs_alone(built, mlflow_serve
     page_path = tmp_path / "index.html"
     page_path.write_text(render_page(
         [(scene, scene, PAPER_SKIN, by_task) for scene, by_task in scores.items()], {},
-        Provenance(), model_runs=functools.partial(runs.model_runs_url, experiment)))
+        Provenance(), model_runs=functools.partial(connection.model_runs_url, experiment)))
     md5, link = model_links(page_path.read_text())["single_force/force"]
     assert link.startswith(f"{mlflow_server}/#/experiments/{experiment}/runs?"), link
     with headless_chromium() as browser:
@@ -428,7 +434,7 @@ def test_every_text_of_every_figure_is_at_least_10_px_on_the_page_at_1400_px(bui
     confusion matrix's counts 6.4 px."""
     import matplotlib.pyplot as plt
 
-    from eskin.config import scene_skin
+    from eskin.config.scenes import scene_skin
     from eskin.reporting import figures
 
     root, _ = built
@@ -443,7 +449,7 @@ def test_every_text_of_every_figure_is_at_least_10_px_on_the_page_at_1400_px(bui
     assert len(shown) == 12, shown
     sizes, tops = {}, {}
     for scene, conf in SCENES.items():
-        for spec in get_kind(conf.kind).figures:
+        for spec in presentation.figures(get_kind(conf.kind)):
             path = root / "predictions" / scene / f"{spec.task}.parquet"
             if not path.exists():
                 continue

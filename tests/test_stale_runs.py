@@ -3,14 +3,14 @@
 import subprocess
 import sys
 
-from eskin.tracking import compare, runs
+from eskin.tracking import compare, connection, runs
 
 
 def test_a_run_whose_process_died_is_marked_failed_and_audit_says_so(tmp_path, monkeypatch):
     monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp_path / 'mlflow.db'}")
     monkeypatch.chdir(tmp_path)
-    client = runs.connect()
-    experiment_id = client.create_experiment(runs.EXPERIMENT,
+    client = connection.connect()
+    experiment_id = client.create_experiment(connection.EXPERIMENT,
                                              artifact_location=(tmp_path / "a").as_uri())
     dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
                           capture_output=True, text=True, check=True)

@@ -12,9 +12,9 @@ from hypothesis import strategies as st
 
 from eskin.catalog import TASK_NAMES
 from eskin.data.schema import read_dataset
+from eskin.evaluation.tasks import get_task
 from eskin.learning.choice import model_settings
 from eskin.learning.estimators import build_model
-from eskin.learning.tasks import get_task
 from eskin.skin import PAPER_SKIN
 from harness import stress
 

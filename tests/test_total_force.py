@@ -27,7 +27,8 @@ from eskin.catalog import (
     stack_path,
     task_outputs,
 )
-from eskin.config import Report, scene_kind
+from eskin.config.report import Report
+from eskin.config.scenes import scene_kind
 from eskin.data.schema import (
     DatasetError,
     contact_mask,
@@ -41,7 +42,8 @@ from eskin.deploy.export import export_scene
 from eskin.deploy.stack import ExportedStack, SkinStack
 from eskin.deploy.view import LiveView
 from eskin.evaluation.folds import write_scene_folds
-from eskin.evaluation.pairs import score_pairs
+from eskin.evaluation.pairs import score_pairs, score_scene_pairs
+from eskin.evaluation.tasks import get_task
 from eskin.kinds import (
     TOTAL_FORCE_ONLY,
     TWO_CONTACTS,
@@ -51,7 +53,6 @@ from eskin.kinds import (
 )
 from eskin.learning import train
 from eskin.learning.features import featurize_scene
-from eskin.learning.tasks import get_task
 from eskin.reporting import report
 from eskin.skin import skin_from_dict
 
@@ -96,7 +97,7 @@ def pipeline(tmp_path_factory, repo_params):
         **{name: root / path for name, path in task_outputs("two", task).items()})
         for task in TASK_NAMES}
     pairs_outputs = task_outputs("two", PAIRS)
-    paired = train.score_pairs("two", root / "reports/predictions",
+    paired = score_scene_pairs("two", root / "reports/predictions",
                                root / pairs_outputs["scores_path"])
     outs = [featurizer_path("two"), *(model_path("two", task) for task in TASK_NAMES)]
     # dvc.lock as DVC records the outputs the stack is loaded from (their md5s)

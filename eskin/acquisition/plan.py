@@ -28,12 +28,12 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
-from eskin.config import scene_skin
+from eskin.config.scenes import scene_skin
 from eskin.kinds import KINDS, ONE_CONTACT, TWO_CONTACTS
 from eskin.skin import PAPER_SKIN, AnySkin
 
 if TYPE_CHECKING:
-    from eskin.config import AcquiredScene
+    from eskin.config.scenes import AcquiredScene
 
 
 @dataclass(frozen=True, order=True)

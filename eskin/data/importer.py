@@ -48,7 +48,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from eskin.config import FORCE_UNITS, Import, ImportedScene, import_kind, scene_skin
+from eskin.config.scenes import FORCE_UNITS, Import, ImportedScene, import_kind, scene_skin
 from eskin.data.ingest import Ingested, check_policy
 from eskin.data.schema import (
     LABELS,

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from eskin.config import Live, LiveBaseline, LiveContact
+from eskin.config.live import Live, LiveBaseline, LiveContact
 from eskin.deploy.stack import ExportedStack, RestTable, SkinStack
 
 COMMANDS = ("tare",)  # what a client of the page or the JSON socket may ask for

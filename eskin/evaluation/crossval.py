@@ -24,7 +24,7 @@ from tqdm import tqdm
 
 from eskin.evaluation import metrics
 from eskin.evaluation.folds import FoldSplit, fold_splitter
-from eskin.learning.tasks import Task
+from eskin.evaluation.tasks import Task
 from eskin.skin import AnySkin
 
 

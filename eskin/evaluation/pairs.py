@@ -18,11 +18,18 @@ force only is scored on its positions alone.
 
 from __future__ import annotations
 
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
 import numpy as np
 import pandas as pd
 from scipy.optimize import linear_sum_assignment
 
 from eskin.evaluation.metrics import regression, summarise
+from eskin.evaluation.outputs import write_json
+from eskin.kinds import DATASET_KINDS, TOTAL_FORCE_ONLY
 
 TIE_BREAK = 1e-3
 CONTACTS = (1, 2)
@@ -130,3 +137,57 @@ def score_pairs(localise: pd.DataFrame, force: pd.DataFrame | None
                     for f in sorted(rows["fold"].unique())]
         out[str(scheme)] = summarise(per_fold)
     return out
+
+
+@dataclass(frozen=True)
+class PairsScored:
+    """What :func:`score_scene_pairs` did: ``status`` is ``scored`` or ``skipped``
+    (``reason``); ``scores`` per scheme."""
+
+    scene: str
+    status: str
+    summary: str
+    reason: str = ""
+    scores: dict = field(default_factory=dict)
+
+
+def score_scene_pairs(scene: str, predictions_dir: Path, scores_path: Path) -> PairsScored:
+    """Score a two-force scene's contacts as sets (order-free), from its tasks' predictions;
+    the scene's kind and dataset come from the localise task's scores (beside ``scores_path``).
+    A recording of the contacts' total force only has its positions scored, and its
+    per-contact force scores skipped with the reason (``skipped_scores``)."""
+    directory = Path(predictions_dir) / scene
+    scores_doc: dict[str, Any] = {"scene": scene, "task": "pairs"}
+    localise = json.loads((Path(scores_path).with_name("localise.json")).read_text())
+
+    def skip(reason: str) -> None:
+        write_json({**scores_doc, "status": "skipped", "reason": reason}, scores_path)
+
+    kind = DATASET_KINDS.get(localise.get("kind", ""))
+    if kind is None or kind.contacts < 2:
+        reason = f"a {localise.get('kind')} scene has one contact; pairs need two"
+        skip(reason)
+        return PairsScored(scene, "skipped", f"{scene}/pairs: skipped — {reason}", reason)
+    if kind.total_force:
+        scores_doc["skipped_scores"] = {"force": TOTAL_FORCE_ONLY}
+    frames = {}
+    for task in ("localise",) if kind.total_force else ("localise", "force"):
+        path = directory / f"{task}.parquet"
+        if not path.exists():
+            raise FileNotFoundError(f"{path}: no predictions; run `dvc repro train@{scene}-{task}`")
+        frames[task] = pd.read_parquet(path)
+    if any(frame.empty for frame in frames.values()):
+        skipped = [task for task, frame in frames.items() if frame.empty]
+        reason = f"no predictions from {', '.join(skipped)} (skipped)"
+        skip(reason)
+        return PairsScored(scene, "skipped", f"{scene}/pairs: skipped — "
+                           f"{', '.join(skipped)} skipped", reason)
+    scores = score_pairs(frames["localise"], frames.get("force"))
+    write_json({**scores_doc, "status": "scored", **scores}, scores_path)
+    parts = [f"{scheme} pair {s['pair_accuracy']:.3f} (ordered {s['pair_accuracy_ordered']:.3f})"
+             + (f", force R² {s['force_r2']:.3f}" if "force_r2" in s else "")
+             for scheme, s in scores.items()]
+    not_scored = "".join(f"; {what} scores skipped — {reason}"
+                         for what, reason in scores_doc.get("skipped_scores", {}).items())
+    return PairsScored(scene, "scored",
+                       f"{scene}/pairs: {'; '.join(parts)}{not_scored}", scores=scores)

@@ -11,15 +11,13 @@ stages, cannot look up a scene's kind itself.
 
 from __future__ import annotations
 
-import json
 from collections.abc import Mapping
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from eskin.kinds import ONE_CONTACT
 
 if TYPE_CHECKING:
-    from eskin.config import TaskModels
+    from eskin.config.train import TaskModels
     from eskin.skin import AnySkin
 
 # Models that read a row/column skin's x and y terminals (ForceProfile, ActiveTerminals),
@@ -89,33 +87,3 @@ def task_section(task_params: TaskModels, configuration: str, kind: str) -> dict
     if generic is not None:
         section[generic] = hyperparameters(task_params, generic)
     return section
-
-
-def write_settings(path: Path, *, scene: str, kind: str, task: str, configuration: str,
-                   task_params: TaskModels) -> dict[str, Any]:
-    """One scene's task's settings file: its kind, ``train.configuration`` and
-    :func:`task_section`; rewritten with the same bytes when nothing in it changed (so
-    DVC does not rerun the task)."""
-    document = {"scene": scene, "kind": kind, "task": task, "configuration": configuration,
-                "train": task_section(task_params, configuration, kind)}
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(document, indent=2, sort_keys=True) + "\n")
-    return document
-
-
-def read_settings(path: Path, scene: str, task: str) -> tuple[TaskModels, str]:
-    """(``train.<task>`` section, ``train.configuration``) of a scene's task, from its
-    settings file."""
-    from eskin.config import TaskModels
-
-    path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"{path}: no model settings for {scene}/{task}; run "
-                                f"`dvc repro settings` first")
-    document = json.loads(path.read_text())
-    if (document.get("scene"), document.get("task")) != (scene, task):
-        raise ValueError(f"{path} holds the settings of {document.get('scene')}/"
-                         f"{document.get('task')}, not {scene}/{task}; run `dvc repro "
-                         f"settings`")
-    return TaskModels.model_validate(document["train"]), document["configuration"]

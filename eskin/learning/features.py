@@ -26,7 +26,7 @@ from sklearn.base import BaseEstimator, TransformerMixin
 from sklearn.preprocessing import FunctionTransformer, StandardScaler
 from sklearn.utils.validation import check_is_fitted, validate_data
 
-from eskin.config import Featurize
+from eskin.config.featurize import Featurize
 from eskin.data.schema import (
     contact_mask,
     dataset_kind,

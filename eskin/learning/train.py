@@ -2,13 +2,12 @@
 
 ``train`` cross-validates one task of a scene under each CV scheme, refits it
 on all the data, and saves scores, out-of-fold predictions, models and a record of the
-run (which the tracking stage logs to MLflow); ``score_pairs`` scores a two-force
-scene's contacts as sets.
+run (which the tracking stage logs to MLflow). (A two-force scene's contacts are scored
+as sets by eskin.evaluation.pairs.score_scene_pairs.)
 """
 
 from __future__ import annotations
 
-import json
 import os
 import socket
 import sys
@@ -16,11 +15,11 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import pandas as pd
 
-from eskin.config import CV, TaskModels
+from eskin.config.cv import CV
+from eskin.config.train import TaskModels
 from eskin.data.schema import (
     dataset_kind,
     dataset_skin,
@@ -31,11 +30,11 @@ from eskin.data.schema import (
 )
 from eskin.evaluation.crossval import cross_validate, fit_final, parallel_backend
 from eskin.evaluation.folds import read_scene_folds
-from eskin.kinds import DATASET_KINDS, TOTAL_FORCE_ONLY
+from eskin.evaluation.outputs import save_predictions, write_json
+from eskin.evaluation.tasks import Task, get_task
 from eskin.learning.choice import model_for_skin, model_settings
 from eskin.learning.estimators import build_model
 from eskin.learning.saved import save_models
-from eskin.learning.tasks import Task, get_task
 
 
 @dataclass(frozen=True)
@@ -153,71 +152,3 @@ def _headline(task: Task, summary: dict[str, dict[str, float]]) -> str:
                     + [f"{position} error {summary[position]['error_mm']:.2f}±"
                        f"{summary[position]['error_mm_std']:.2f} mm"
                        for position in task.positions if position in summary])
-
-
-def write_json(document: dict, path: Path) -> None:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(document, indent=2, sort_keys=True, allow_nan=True) + "\n")
-
-
-def save_predictions(frame: pd.DataFrame, path: Path) -> None:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    frame.to_parquet(path, index=False)
-
-
-@dataclass(frozen=True)
-class PairsScored:
-    """What :func:`score_pairs` did: ``status`` is ``scored`` or ``skipped``
-    (``reason``); ``scores`` per scheme."""
-
-    scene: str
-    status: str
-    summary: str
-    reason: str = ""
-    scores: dict = field(default_factory=dict)
-
-
-def score_pairs(scene: str, predictions_dir: Path, scores_path: Path) -> PairsScored:
-    """Score a two-force scene's contacts as sets (order-free), from its tasks' predictions;
-    the scene's kind and dataset come from the localise task's scores (beside ``scores_path``).
-    A recording of the contacts' total force only has its positions scored, and its
-    per-contact force scores skipped with the reason (``skipped_scores``)."""
-    from eskin.evaluation.pairs import score_pairs as score
-
-    directory = Path(predictions_dir) / scene
-    scores_doc: dict[str, Any] = {"scene": scene, "task": "pairs"}
-    localise = json.loads((Path(scores_path).with_name("localise.json")).read_text())
-
-    def skip(reason: str) -> None:
-        write_json({**scores_doc, "status": "skipped", "reason": reason}, scores_path)
-
-    kind = DATASET_KINDS.get(localise.get("kind", ""))
-    if kind is None or kind.contacts < 2:
-        reason = f"a {localise.get('kind')} scene has one contact; pairs need two"
-        skip(reason)
-        return PairsScored(scene, "skipped", f"{scene}/pairs: skipped — {reason}", reason)
-    if kind.total_force:
-        scores_doc["skipped_scores"] = {"force": TOTAL_FORCE_ONLY}
-    frames = {}
-    for task in ("localise",) if kind.total_force else ("localise", "force"):
-        path = directory / f"{task}.parquet"
-        if not path.exists():
-            raise FileNotFoundError(f"{path}: no predictions; run `dvc repro train@{scene}-{task}`")
-        frames[task] = pd.read_parquet(path)
-    if any(frame.empty for frame in frames.values()):
-        skipped = [task for task, frame in frames.items() if frame.empty]
-        reason = f"no predictions from {', '.join(skipped)} (skipped)"
-        skip(reason)
-        return PairsScored(scene, "skipped", f"{scene}/pairs: skipped — "
-                           f"{', '.join(skipped)} skipped", reason)
-    scores = score(frames["localise"], frames.get("force"))
-    write_json({**scores_doc, "status": "scored", **scores}, scores_path)
-    parts = [f"{scheme} pair {s['pair_accuracy']:.3f} (ordered {s['pair_accuracy_ordered']:.3f})"
-             + (f", force R² {s['force_r2']:.3f}" if "force_r2" in s else "")
-             for scheme, s in scores.items()]
-    not_scored = "".join(f"; {what} scores skipped — {reason}"
-                         for what, reason in scores_doc.get("skipped_scores", {}).items())
-    return PairsScored(scene, "scored",
-                       f"{scene}/pairs: {'; '.join(parts)}{not_scored}", scores=scores)

@@ -12,7 +12,8 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 from eskin.catalog import SCHEME_NOTES, SCHEMES
-from eskin.kinds import Headline, get_kind
+from eskin.kinds import get_kind
+from eskin.reporting.presentation import Headline, headlines
 from eskin.skin import PAPER_SKIN, AnySkin
 
 # (scene, kind, skin, {task: scores document}) for each scene of params.yaml, in its order.
@@ -61,7 +62,7 @@ def headline_rows(kind: str, scores: Mapping[str, Mapping]) -> list[list[str]]:
     ``kind`` scene whose scores documents are ``scores`` (by task), as display strings."""
     schemes = scored_schemes(scores)
     return [[_label(scores, row), *(score_text(scores, row, s) for s in schemes), row.paper]
-            for row in get_kind(kind).headlines if not row.optional or _scored(scores, row)]
+            for row in headlines(get_kind(kind)) if not row.optional or _scored(scores, row)]
 
 
 def _scored(scores: Mapping[str, Mapping], row: Headline) -> bool:

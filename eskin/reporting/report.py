@@ -23,10 +23,12 @@ import matplotlib.pyplot as plt
 import pandas as pd
 
 from eskin.catalog import HEADLINE_SCHEME, PAIRS, PAIRS_HEADLINE, SCHEME_NOTES, SCORED_TASKS
-from eskin.config import Report, Scene, scene_kind, scene_skin
+from eskin.config.report import Report
+from eskin.config.scenes import Scene, scene_kind, scene_skin
 from eskin.data.schema import force_columns, node_columns
-from eskin.kinds import Figure, Headline, get_kind
+from eskin.kinds import get_kind
 from eskin.reporting import figures as fig
+from eskin.reporting import presentation
 from eskin.reporting.page import (
     FigureRow,
     Provenance,
@@ -35,6 +37,7 @@ from eskin.reporting.page import (
     results_markdown,
     score_text,
 )
+from eskin.reporting.presentation import Figure, Headline
 from eskin.skin import AnySkin
 
 
@@ -278,7 +281,7 @@ def report(*, report: Report, scenes: Mapping[str, Scene], scores_dir: Path,
     jobs: list[tuple[FigureRow, str, FigureJob]] = []
     for scene, kind in kinds.items():
         # each figure under every scheme, side by side on the page
-        for spec in get_kind(kind).figures:
+        for spec in presentation.figures(get_kind(kind)):
             frame = predictions[scene].get(spec.task)
             if frame is None or frame.empty:
                 continue
@@ -331,7 +334,7 @@ def headline_metrics(scores: Mapping[str, Mapping[str, dict]]) -> dict[str, dict
     the headline scheme (``<scene>.<task>.<target>.<score>``, the target left out where
     it is the task: ``single_force.force.r2``; a pairs score sits under its task).
     ``scores``: every scene's scores files by task. A skipped task has no entry."""
-    from eskin.learning.tasks import get_task
+    from eskin.evaluation.tasks import get_task
 
     metrics: dict[str, dict] = {}
     for scene, by_task in scores.items():
@@ -361,7 +364,7 @@ def scene_metrics(by_task: Mapping[str, dict]) -> dict[str, float]:
     accuracy otherwise). Where the scene's contacts are scored as a set (``pairs``: both
     placed right; ``pair_force``: their forces' R²), those stand for each contact's own
     targets (``x1`` … ``force2``), which the full headline (``metrics.json``) keeps."""
-    from eskin.learning.tasks import get_task
+    from eskin.evaluation.tasks import get_task
 
     pairs = by_task.get(PAIRS, {})
     as_set = pairs.get("status") == "scored" and bool(pairs.get(HEADLINE_SCHEME))

@@ -351,17 +351,17 @@ def render_versions(runs: pd.DataFrame, versions: pd.DataFrame, fmt: str) -> str
 # --- reading the store, git and the workspace --------------------------------------------
 
 def load_runs(experiment: str | None = None) -> pd.DataFrame:
-    """Every run of the project's MLflow experiment (``eskin.tracking.runs.tracking_uri``)."""
+    """Every run of the project's MLflow experiment (``eskin.tracking.connection.tracking_uri``)."""
     import mlflow
 
-    from eskin.tracking import runs
+    from eskin.tracking import connection, runs
 
-    client = runs.connect()
-    name = experiment or runs.EXPERIMENT
+    client = connection.connect()
+    name = experiment or connection.EXPERIMENT
     experiment_ = mlflow.get_experiment_by_name(name)
     if experiment_ is None:
-        raise NoRunsError(f"no MLflow experiment {name!r} at {runs.tracking_uri()}: "
-                          f"run {runs.log_pipeline_command()} first "
+        raise NoRunsError(f"no MLflow experiment {name!r} at {connection.tracking_uri()}: "
+                          f"run {connection.log_pipeline_command()} first "
                           "(or set MLFLOW_TRACKING_URI)")
     # A run a killed stage left RUNNING is shown as what it is: FAILED.
     runs.settle_stale_runs(client, [experiment_.experiment_id])
@@ -409,13 +409,13 @@ def run_audit(run_id: str, root: Path) -> dict[str, Any]:
     workspace and DVC's cache still hold what it used."""
     import mlflow
 
-    from eskin.tracking import runs
+    from eskin.tracking import connection, runs
 
-    client = runs.connect()
+    client = connection.connect()
     try:
         run = client.get_run(run_id)
     except mlflow.exceptions.MlflowException as err:
-        raise NoRunsError(f"no run {run_id} at {runs.tracking_uri()}") from err
+        raise NoRunsError(f"no run {run_id} at {connection.tracking_uri()}") from err
     if runs.settle_stale_runs(client, [run.info.experiment_id]):
         run = client.get_run(run_id)
     tags = run.data.tags

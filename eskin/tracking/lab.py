@@ -353,14 +353,14 @@ def main(argv: list[str] | None = None) -> int:
                 data_remote(args.dir, port=args.ssh_port) as remote:
             # The experiment made now, so that its page (in the training view) can be named.
             os.environ["MLFLOW_TRACKING_URI"] = tracking.uri
-            from eskin.tracking import runs
+            from eskin.tracking import connection
 
-            experiment = runs.ensure_experiment()
+            experiment = connection.ensure_experiment()
             try:  # from the line that says Ctrl-C on: a Ctrl-C right after it is a clean stop
                 print(f"MLflow tracking server on {tracking.uri} (PostgreSQL {database.uri}; "
                       f"artifacts in {tracking.artifacts}); in each clone:\n"
                       f"  export MLFLOW_TRACKING_URI={tracking.uri}\n"
-                      f"The training runs: {runs.ui_url(experiment)}\n"
+                      f"The training runs: {connection.ui_url(experiment)}\n"
                       f"DVC remote over SSH on 127.0.0.1:{remote.port} (objects in "
                       f"{remote.objects}); in each clone:\n"
                       + "".join(f"  {command}\n" for command in remote.clone_commands()) +

@@ -43,8 +43,8 @@ from eskin.deploy.stack import (
 )
 from eskin.evaluation.crossval import cross_validate
 from eskin.evaluation.folds import applicable_schemes, assign_folds
+from eskin.evaluation.tasks import get_task
 from eskin.learning.saved import load_models
-from eskin.learning.tasks import get_task
 from eskin.tracking.compare import NoRunsError, dvc_cache_path, parse_param
 
 
@@ -95,9 +95,9 @@ def reproduce(name: str, version: str | None = None, *, root: Path = Path("."),
     """
     import mlflow
 
-    from eskin.tracking import runs
+    from eskin.tracking import connection
 
-    client = runs.connect()
+    client = connection.connect()
     entry = model_version(client, name, version)
     tags = entry.tags
     scene, task_name, target = tags["eskin.scene"], tags["eskin.task"], tags["eskin.target"]
@@ -176,9 +176,9 @@ def stack_from_registry(scene: str, alias: str, root: Path = Path("."),
     recorded, in the workspace or DVC's cache, and checked before it is loaded, as
     ``eskin reproduce`` does; all must come from the same features version. ``log`` is
     told which versions these are."""
-    from eskin.tracking import runs
+    from eskin.tracking import connection
 
-    client = runs.connect()
+    client = connection.connect()
     versions = [client.get_model_version_by_alias(model.name, alias)
                 for model in scene_models(client, scene) if alias in (model.aliases or {})]
     by_task = {v.tags.get("eskin.task"): v for v in versions}
@@ -257,15 +257,15 @@ def promote(scene: str, alias: str = "champion", *, variant: str | None = None,
     whose task runs logged the models ``dvc.lock`` records (the workspace's stack, which
     ``eskin live`` runs without an alias). A task DVC reused in that run brings the
     versions the run named by ``eskin.reused_from`` registered."""
-    from eskin.tracking import runs
+    from eskin.tracking import connection
 
-    with runs._naming_the_store(f"promoting {scene}'s models"):
-        client = runs.connect()
-        experiment = client.get_experiment_by_name(runs.EXPERIMENT)
+    with connection._naming_the_store(f"promoting {scene}'s models"):
+        client = connection.connect()
+        experiment = client.get_experiment_by_name(connection.EXPERIMENT)
         if experiment is None:
-            raise NoRunsError(f"no MLflow experiment {runs.EXPERIMENT!r} at "
-                              f"{runs.tracking_uri()}: run {runs.log_pipeline_command()} "
-                              "to log one")
+            raise NoRunsError(f"no MLflow experiment {connection.EXPERIMENT!r} at "
+                              f"{connection.tracking_uri()}: run "
+                              f"{connection.log_pipeline_command()} to log one")
         ids = [experiment.experiment_id]
         if run_id:
             pipeline = _given_pipeline_run(client, ids, run_id)
@@ -428,10 +428,10 @@ def _workspace_pipeline_run(client, ids: list[str], scene: str, root: Path):
         if all(run.data.tags.get("eskin.model_md5") == wanted.get(task)
                for task, run in logged.items()):
             return pipeline
-    from eskin.tracking import runs
+    from eskin.tracking import connection
 
     raise NoRunsError(f"no pipeline run logged the {scene} models dvc.lock records: run "
-                      f"{runs.log_pipeline_command()} (its track stage logs them), or name "
+                      f"{connection.log_pipeline_command()} (its track stage logs them), or name "
                       "one with "
                       f"--experiment ({_variants(client, ids)}) or --run")
 

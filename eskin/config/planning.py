@@ -1,0 +1,27 @@
+"""bench/params.yaml's ``learning_curve``: make bench's learning curves and `eskin plan`'s
+costs (the one bench section eskin itself reads)."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from pydantic import Field, field_validator
+
+from eskin.config.base import Count, NonNegative, Positive, Section, TaskName
+
+
+class LearningCurve(Section):
+    """make bench's learning curves (harness/learning_curve.py) and `eskin plan`'s costs."""
+
+    repeats: Annotated[list[Count], Field(min_length=1)]  # trials per condition trained on
+    placement_s: NonNegative    # an operator's time to place one trial's weights
+    frames_per_s: Positive      # the board's frame rate (the firmware's, measured)
+    gap_share: Annotated[float, Field(gt=0, lt=1)] = 0.8  # of the paper→bound gap, to close
+    gap_tasks: list[TaskName] = []   # the tasks whose recommended repeats are checked
+
+    @field_validator("repeats")
+    @classmethod
+    def _increasing(cls, value: list[int]) -> list[int]:
+        if value != sorted(set(value)):
+            raise ValueError(f"must be increasing, without repeats: {value}")
+        return value

@@ -1,0 +1,104 @@
+"""bench/params.yaml and stress/params.yaml: `make bench`'s and `make stress`'s knobs,
+beside the harness that reads them (eskin reads only ``learning_curve``:
+eskin.config.planning)."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from eskin.config.acquisition import Faults
+from eskin.config.base import (
+    BENCH_PARAMS,
+    STRESS_PARAMS,
+    Backend,
+    Count,
+    Jobs,
+    NonNegative,
+    Positive,
+    Probability,
+    Scheme,
+    Section,
+    Seed,
+    real,
+)
+from eskin.config.planning import LearningCurve
+
+
+class Soak(Section):
+    corrupt_fraction: Probability
+    faults: Faults
+    timeout_s: Positive
+    reconnect_s: NonNegative
+    kill_at: list[real(gt=0, lt=1)]
+
+
+class Fuzz(Section):
+    examples: Count
+
+
+class Variant(BaseModel):
+    model_config = ConfigDict(extra="allow", strict=True)
+    model: str
+
+
+class Bench(Section):
+    schemes: Annotated[list[Scheme], Field(min_length=1)]
+    evaluate_folds: Count
+    scaling_fractions: list[Positive]
+    seed: Seed
+    n_jobs: Jobs
+    backend: Backend
+    import_rows: list[Count] = []
+    repro_baseline: str = ""  # the revision make bench's repro_speed times against
+    tasks: dict[str, dict[str, Variant]]
+
+
+class NoiseScene(Section):
+    stretches: Annotated[list[real(ge=1)], Field(min_length=1)]
+    forces: Annotated[list[NonNegative], Field(min_length=1)]
+    samples: Count
+
+
+class Stress(Section):
+    trials: Count
+    folds: Annotated[int, Field(ge=2)]
+    seed: Seed
+    noise_scene: NoiseScene
+    large_gp_rows: Annotated[int, Field(ge=0)]
+
+
+class LiveHour(Section):
+    """make bench's live hour (harness/live_hour.py): the script of the hour."""
+
+    seed: Seed
+    minutes: Positive
+    untouched_s: Positive        # between two events of the script
+    presses: Annotated[int, Field(ge=0)]
+    press_s: Positive
+    sustained_s: Positive
+    stretches_mm: list[NonNegative]
+    retare_after_sustained: bool
+    press_ramp_ms: NonNegative
+    batch_frames: Count
+
+
+class BenchParams(Section):
+    """bench/params.yaml: `make bench`'s knobs (bench/dvc.yaml)."""
+
+    file = BENCH_PARAMS
+
+    bench: Bench
+    soak: Soak
+    fuzz: Fuzz
+    live_hour: LiveHour
+    learning_curve: LearningCurve
+
+
+class StressParams(Section):
+    """stress/params.yaml: `make stress`'s knobs (stress/dvc.yaml)."""
+
+    file = STRESS_PARAMS
+
+    stress: Stress
