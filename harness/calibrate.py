@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from eskin.acquisition.plan import ScenePlan, plan_from_params
+from eskin.data.plan import ScenePlan, plan_from_params
 from eskin.device.physics import SkinModel, SkinParams, Trial
 from eskin.evaluation.crossval import cross_validate
 from eskin.evaluation.folds import assign_folds

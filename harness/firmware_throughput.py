@@ -16,10 +16,10 @@ import time
 
 import serial
 
-from eskin.acquisition.plan import plan_from_params
 from eskin.config.base import load_params
 from eskin.config.params import Params
 from eskin.config.scenes import get_scene, scene_skin
+from eskin.data.plan import plan_from_params
 from eskin.device.emulated import emulated_board
 from eskin.device.physics import SkinParams, skin_params
 from eskin.device.protocol import Frame, parse_line

@@ -23,11 +23,11 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from eskin.acquisition.plan import ScenePlan, plan_from_params
 from eskin.catalog import stack_path
 from eskin.config.base import load_params
 from eskin.config.params import Params
 from eskin.config.scenes import get_scene
+from eskin.data.plan import ScenePlan, plan_from_params
 from eskin.deploy.live import live_estimates
 from eskin.deploy.stack import ExportedStack
 from eskin.device.board import SimulatedBoard

@@ -41,7 +41,7 @@ import pandas as pd
 from scipy.special import logsumexp, ndtri
 from scipy.stats import qmc
 
-from eskin.acquisition.plan import two_force_plan
+from eskin.data.plan import two_force_plan
 from eskin.device.physics import SkinModel, SkinParams, spread_kernel
 from eskin.kinds import TWO_CONTACTS
 from eskin.skin import PAPER_SKIN, AnySkin
@@ -84,7 +84,7 @@ class PairConditions:
 
 
 def pair_conditions(stretches, forces, nodes_x, nodes_y) -> PairConditions:
-    """The two-force plan's conditions (:func:`eskin.acquisition.plan.two_force_plan`); each
+    """The two-force plan's conditions (:func:`eskin.data.plan.two_force_plan`); each
     has the same number of samples, so the prior is uniform."""
     plan = two_force_plan("bound", stretches, forces, nodes_x, nodes_y, 1)
     rows = [(c.stretch, a.x, a.y, a.force, b.x, b.y, b.force)

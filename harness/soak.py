@@ -28,10 +28,10 @@ import numpy as np
 import pandas as pd
 import yaml
 
-from eskin.acquisition.plan import ScenePlan, plan_from_params
 from eskin.config.base import untraced, validate_params
 from eskin.config.params import Params
 from eskin.data import build
+from eskin.data.plan import ScenePlan, plan_from_params
 from eskin.data.schema import LABELS
 from eskin.device.faults import KINDS
 from harness.params import Soak

@@ -18,9 +18,9 @@ from conftest import (
     typed,
 )
 
-from eskin.acquisition.plan import plan_from_params
-from eskin.acquisition.rawlog import read_log
 from eskin.acquisition.session import acquire_scene, simulated_board
+from eskin.data.plan import plan_from_params
+from eskin.data.rawlog import read_log
 from eskin.data.schema import LABELS, DatasetError, read_metadata
 from eskin.device.physics import skin_params
 from eskin.skin import PAPER_SKIN

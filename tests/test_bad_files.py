@@ -11,10 +11,10 @@ import pandas as pd
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
-from eskin.acquisition.plan import single_force_plan  # noqa: E402
-from eskin.acquisition.rawlog import RawLogError, RawLogWriter  # noqa: E402
 from eskin.data.importer import import_paper_layout  # noqa: E402
 from eskin.data.ingest import ingest_log  # noqa: E402
+from eskin.data.plan import single_force_plan  # noqa: E402
+from eskin.data.rawlog import RawLogError, RawLogWriter  # noqa: E402
 from eskin.data.schema import DatasetError  # noqa: E402
 from eskin.device.protocol import encode_frame, parse_line  # noqa: E402
 

@@ -205,7 +205,7 @@ def test_variants_go_through_joblib_and_a_parallel_run_scores_the_same(small_dat
 def light_and_heavy(repo_params):
     """Directly simulated single-force rows at one stretch, light and heavy weights (where the
     seating latent matters most), and the physical-force target."""
-    from eskin.acquisition.plan import single_force_plan
+    from eskin.data.plan import single_force_plan
     from harness.calibrate import simulate_plan
 
     sim = SkinParams.from_mapping(repo_params["sim"])
@@ -254,7 +254,7 @@ def test_the_strongest_force_model_does_not_beat_the_bound_on_held_out_trials(li
 def two_contacts(repo_params):
     """Directly simulated two-contact rows: 15 pairs of 6 nodes (sharing rows, columns and
     node 8's neighbourhood), every force pair, 2 samples a trial."""
-    from eskin.acquisition.plan import two_force_plan
+    from eskin.data.plan import two_force_plan
     from harness.calibrate import simulate_plan
 
     sim = SkinParams.from_mapping(repo_params["sim"])

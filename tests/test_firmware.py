@@ -19,10 +19,10 @@ import pandas as pd
 import pytest
 import serial
 
-from eskin.acquisition.plan import two_force_plan
-from eskin.acquisition.rawlog import LOG_NAME, read_log
 from eskin.acquisition.runner import AcquisitionError
 from eskin.acquisition.session import acquire_scene
+from eskin.data.plan import two_force_plan
+from eskin.data.rawlog import LOG_NAME, read_log
 from eskin.device.board import FIRMWARE, SimulatedBoard, simulator_identity
 from eskin.device.emulated import (
     EMULATED_ID,

@@ -20,13 +20,13 @@ import pytest
 from conftest import eskin, small_scenes, write_params
 from hostile_board import HostileBoard, Served, damaged, frame_line
 
-from eskin.acquisition.plan import plan_from_params
-from eskin.acquisition.rawlog import MAGIC, read_log
 from eskin.acquisition.runner import AcquisitionError, SimulatedPlacer
 from eskin.acquisition.session import run_session
 from eskin.config.base import validate_params
 from eskin.config.params import Params
 from eskin.data.ingest import ingest_log
+from eskin.data.plan import plan_from_params
+from eskin.data.rawlog import MAGIC, read_log
 from eskin.data.schema import LABELS
 from eskin.device.host import (
     Greeted,

@@ -366,7 +366,7 @@ def test_force_profile_reads_stretch_and_press_in_any_units(repo_params):
     """The physics features: a stretch estimate that follows the stretch whatever the press,
     a press peak that rises with the force, and the same features (and predictions) in
     counts as in farads or offset by a constant."""
-    from eskin.acquisition.plan import single_force_plan
+    from eskin.data.plan import single_force_plan
     from eskin.device.physics import SkinParams
     from eskin.learning.estimators import ForceProfile
     from harness.calibrate import simulate_plan

@@ -176,7 +176,7 @@ def test_record_keeps_the_stream_in_the_raw_log_apart_from_the_training_data(sta
     """`--record`: every streamed frame, damaged lines and gaps included, goes into the
     scene's raw log as a live session; ingest gives the same training data as before and
     the recorded frames beside it, and acquisition still finds nothing left to do."""
-    from eskin.acquisition.rawlog import read_log
+    from eskin.data.rawlog import read_log
 
     params, skin = stack
     processed = prepared_scene(params, "single_force", tmp_path)
@@ -224,7 +224,7 @@ def test_the_stream_goes_on_across_board_restarts_and_a_vanishing_port(stack, tm
     assert [r["seq"] for r in estimates] == arrived[TARE:TARE + 500]
     assert np.any(np.diff(arrived) < 0)  # the board restarted
     # Recorded whole, in unbroken runs: a restart ends one.
-    from eskin.acquisition.rawlog import read_log
+    from eskin.data.rawlog import read_log
 
     attempts = sorted(read_log(tmp_path / "raw" / "acquisition.log").completed.values(),
                       key=lambda a: a.number)
@@ -284,7 +284,7 @@ def test_another_board_mid_stream_ends_live_and_none_of_its_frames_is_kept(stack
     """The wave's bug, live: another board's #HELLO mid-stream, then its frames from seq 0.
     eskin live stops with one line naming both ids; nothing of the other board is
     predicted or recorded."""
-    from eskin.acquisition.rawlog import read_log
+    from eskin.data.rawlog import read_log
     from eskin.device.link import DeviceChanged
 
     _, skin = stack

@@ -98,7 +98,7 @@ def test_a_ghost_pair_is_counted_as_a_ghost_and_a_plain_error_is_not():
 
 
 def test_active_terminals_find_the_pressed_rows_and_columns_in_any_units(repo_params):
-    from eskin.acquisition.plan import two_force_plan
+    from eskin.data.plan import two_force_plan
     from eskin.device.physics import SkinParams
     from eskin.learning.estimators import ActiveTerminals
     from harness.calibrate import simulate_plan

@@ -5,7 +5,7 @@ import copy
 import pytest
 from conftest import acquire_step, eskin, ingest_step, write_params
 
-from eskin.acquisition.rawlog import RawLogError, RawLogWriter, read_log
+from eskin.data.rawlog import RawLogError, RawLogWriter, read_log
 from eskin.data.schema import DatasetError
 from eskin.device.protocol import encode_frame, parse_line
 

@@ -10,7 +10,7 @@ import pandas as pd
 import pytest
 from conftest import acquire_step, acquire_until, ingest_step, resume_and_ingest, small_scenes
 
-from eskin.acquisition.rawlog import read_log
+from eskin.data.rawlog import read_log
 from eskin.data.schema import LABELS, read_metadata
 from eskin.evaluation.folds import applicable_schemes, assign_folds, write_scene_folds
 from eskin.skin import PAPER_SKIN

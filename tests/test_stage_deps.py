@@ -343,3 +343,23 @@ def test_a_params_section_schema_imports_no_other_section():
         others = sorted(m for m in reached if m.startswith("eskin.config.")
                         and m not in (module_name(path), "eskin.config.base"))
         assert not others, f"{module_name(path)} imports {others}"
+
+
+def test_no_two_packages_import_each_other():
+    """The layout is the pipeline: each package of eskin builds on those below it, and
+    none imports one that imports it back (acquisition writes the raw log that data
+    reads; evaluation scores what learning trains)."""
+    packages = sorted(p.name for p in (ROOT / "eskin").iterdir()
+                      if (p / "__init__.py").is_file())
+    imports: dict[str, set[str]] = {name: set() for name in packages}
+    for name in packages:
+        for path in (ROOT / "eskin" / name).rglob("*.py"):
+            for module in imported_modules(path):
+                parts = module.split(".")
+                if parts[0] == "eskin" and len(parts) > 1 and parts[1] in imports \
+                        and parts[1] != name:
+                    imports[name].add(parts[1])
+    mutual = sorted({tuple(sorted((a, b))) for a in packages for b in imports[a]
+                     if a in imports[b]})
+    assert not mutual, f"packages that import each other: {mutual}"
+

@@ -12,13 +12,13 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
-from eskin.acquisition.plan import plan_from_params
 from eskin.acquisition.runner import AcquisitionReport
 from eskin.acquisition.session import acquire_scene
 from eskin.config.acquisition import Acquire, Sim, SimBoard
 from eskin.config.cv import CV
 from eskin.config.scenes import Scene, scene_skin
 from eskin.data.importer import check_import, copy_import
+from eskin.data.plan import plan_from_params
 from eskin.device.faults import LinkFaults
 from eskin.device.physics import skin_params
 

@@ -31,8 +31,8 @@ from typing import Protocol
 
 from tqdm import tqdm
 
-from eskin.acquisition.plan import Condition, ScenePlan
-from eskin.acquisition.rawlog import RawLogWriter
+from eskin.data.plan import Condition, ScenePlan
+from eskin.data.rawlog import RawLogWriter
 from eskin.device.link import (
     BoardRefused,
     BoardReset,

@@ -20,14 +20,6 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 from eskin import __version__
-from eskin.acquisition.plan import ScenePlan
-from eskin.acquisition.rawlog import (
-    LOG_NAME,
-    LogContents,
-    RawLogWriter,
-    acquisition_sessions,
-    read_log_if_any,
-)
 from eskin.acquisition.runner import (
     AcquisitionError,
     AcquisitionReport,
@@ -36,6 +28,14 @@ from eskin.acquisition.runner import (
     Placer,
     SimulatedPlacer,
     acquire,
+)
+from eskin.data.plan import ScenePlan
+from eskin.data.rawlog import (
+    LOG_NAME,
+    LogContents,
+    RawLogWriter,
+    acquisition_sessions,
+    read_log_if_any,
 )
 from eskin.device.faults import LinkFaults
 from eskin.device.link import SerialLink, SkinMismatch, set_device_id

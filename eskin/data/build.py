@@ -6,12 +6,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from eskin.acquisition.plan import plan_from_params
-from eskin.acquisition.rawlog import LOG_NAME
 from eskin.config.ingest import Ingest
 from eskin.config.scenes import ImportedScene, Scene, scene_skin
 from eskin.data.importer import find_import, import_recording, import_to_dataset
 from eskin.data.ingest import ingest_log, live_frames
+from eskin.data.plan import plan_from_params
+from eskin.data.rawlog import LOG_NAME
 from eskin.data.schema import write_dataset, write_quarantine
 from eskin.kinds import get_kind
 

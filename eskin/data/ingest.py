@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from eskin.acquisition.plan import ScenePlan
-from eskin.acquisition.rawlog import LogContents, acquisition_sessions, read_log_if_any
+from eskin.data.plan import ScenePlan
+from eskin.data.rawlog import LogContents, acquisition_sessions, read_log_if_any
 from eskin.data.schema import DatasetError, sha256_file
 from eskin.kinds import get_kind
 from eskin.skin import PAPER_SKIN, AnySkin

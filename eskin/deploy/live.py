@@ -496,7 +496,7 @@ class LiveRecorder:
         from datetime import UTC, datetime
 
         from eskin import __version__
-        from eskin.acquisition.rawlog import LOG_NAME, RawLogWriter, read_log_if_any
+        from eskin.data.rawlog import LOG_NAME, RawLogWriter, read_log_if_any
 
         path = Path(raw_dir) / LOG_NAME
         contents = read_log_if_any(path)
