@@ -1,1 +1,7 @@
-"""Datasets: schema, ingest of raw logs, import of external files."""
+"""Datasets: scene plans, the raw log, ingest, import of other instruments' files, and the
+dataset schema.
+
+Public: :mod:`~eskin.data.plan` (what a scene records), :mod:`~eskin.data.rawlog` (the
+append-only log), :func:`eskin.data.build.ingest` (the ingest stage's step),
+:mod:`~eskin.data.importer`, and :mod:`~eskin.data.schema` (``read_dataset``,
+``write_dataset``, ``contact_mask``)."""

@@ -1,1 +1,5 @@
-"""Figures, DVC plot data and the report page, from predictions and metrics only."""
+"""The report, from predictions and scores only.
+
+Public: :func:`eskin.reporting.report.report` (the report stage's step),
+:mod:`~eskin.reporting.presentation` (each kind's headline rows and figures),
+:mod:`~eskin.reporting.figures` and :mod:`~eskin.reporting.page`."""

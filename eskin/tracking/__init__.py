@@ -1,2 +1,8 @@
-"""MLflow runs, compare and audit, the model registry, a lab's server; the planner that
-reads make bench's learning curves (`eskin plan`)."""
+"""MLflow and the planner.
+
+Public: :mod:`~eskin.tracking.connection` (the store, its experiment, the UI's links),
+:func:`eskin.tracking.runs.track_pipeline` (the track stage's step),
+:mod:`~eskin.tracking.compare` (``eskin compare``, ``eskin audit``),
+:mod:`~eskin.tracking.registry` (``eskin promote``, ``eskin reproduce``),
+:mod:`~eskin.tracking.lab` (a lab's server) and :mod:`~eskin.tracking.planning`
+(``eskin plan``)."""
