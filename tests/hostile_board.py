@@ -38,7 +38,12 @@ Misbehaviours, each at the ``at``-th ``SAMPLE`` request (1-based):
 * ``time_back``: the answer's first frame says ``t_ms`` 0, its CRC right (digits
   lost in a frame whose CRC-8 matched by chance); its seq goes in ``time_back``;
 * ``long_line``: a 1 MiB junk line, ended by a newline, before the answer;
-* ``cr_only``: from then on, every line it sends ends in CR only (``\r``).
+* ``cr_only``: from then on, every line it sends ends in CR only (``\r``);
+* ``dup_ok``: the answer whole, and its ``#OK SAMPLE n`` sent again at the start of the
+  next ``SAMPLE``'s answer, a pause (:data:`PAUSE`) between them, as a line paced at
+  115,200 baud would leave it: the duplicate arrives alone, before that answer's frames;
+* ``spoof_ok``: an ``#OK SAMPLE n`` after the first n // 2 frames, then a pause, the rest
+  and the real ``#OK``.
 
 ``damage_first``: the first frame of the first answer after each greeting (``HELLO``
 asked, or its own restart) goes out damaged (its CRC wrong), when the host has no
@@ -96,6 +101,10 @@ def time_fallen(line: bytes) -> bytes:
 
 
 LONG_LINE = b"~" * (1 << 20) + b"\n"  # 1 MiB of junk in one line
+# In what the board answers: the bytes before it go out, then 50 ms of silence, then the
+# rest (what a slow line does between two writes: they arrive in separate reads).
+PAUSE = b"\x00<pause>\x00"
+PAUSE_S = 0.05
 
 
 class HostileBoard:
@@ -129,6 +138,7 @@ class HostileBoard:
         self.streaming = False
         self.streamed = 0
         self.sent: list[tuple[int, list[int]]] = []  # streamed frames: (seq, counts)
+        self.ok_due = b""            # dup_ok: the #OK to send again before the next answer
         self._inbox = b""
 
     # ---------------------------------------------------------------- readings
@@ -188,6 +198,10 @@ class HostileBoard:
         return f"#ERR {name} unknown command\n".encode()
 
     def sample(self, n: int) -> bytes:
+        due, self.ok_due = self.ok_due, b""
+        return due + self._sample(n)
+
+    def _sample(self, n: int) -> bytes:
         self.samples_asked += 1
         cue = self.misbehaviour if self.samples_asked == self.at else None
         ok = b"#OK SAMPLE %d\n" % n
@@ -241,6 +255,11 @@ class HostileBoard:
             out = self.last_answer + answer
         elif cue == "early_ok":
             out = b"".join(frames[:-1]) + ok + frames[-1]
+        elif cue == "dup_ok":
+            self.ok_due = ok + PAUSE
+            out = answer
+        elif cue == "spoof_ok":
+            out = b"".join(frames[:n // 2]) + ok + PAUSE + b"".join(frames[n // 2:]) + ok
         elif cue == "extra_frame":
             out = b"".join(frames) + self.frame() + ok
         elif cue == "restart_after_ok":  # in the same write as the answer: one read
@@ -309,6 +328,7 @@ class Served:
 
     def _pump(self, read, write, readable) -> None:
         pending = b""
+        held_until = 0.0  # a PAUSE in what the board sends: nothing goes out before this
         next_frame = time.monotonic()
         while not self._stop.is_set():
             if self.board.gone_wild and not pending:
@@ -320,16 +340,24 @@ class Served:
                 pending += self.board.stream_next()
                 next_frame = max(next_frame + 0.012, now)
             wait = max(0.0, min(0.05, next_frame - now)) if self.board.streaming else 0.05
-            ready_r, ready_w, _ = select.select([readable], [readable] if pending else [], [],
-                                                wait)
+            paused = time.monotonic() < held_until
+            if paused:
+                wait = min(wait, held_until - time.monotonic())
+            ready_r, ready_w, _ = select.select(
+                [readable], [readable] if pending and not paused else [], [], max(0.0, wait))
             if ready_r:
                 data = read()
                 if data is None:
                     return
                 pending += self.board.received(data)
             if ready_w and pending:
+                if pending.startswith(PAUSE):
+                    pending = pending[len(PAUSE):]
+                    held_until = time.monotonic() + PAUSE_S
+                    continue
+                cut = pending.find(PAUSE)
                 try:
-                    sent = write(pending)
+                    sent = write(pending if cut < 0 else pending[:cut])
                 except (BlockingIOError, InterruptedError):
                     sent = 0
                 except OSError:

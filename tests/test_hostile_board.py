@@ -20,7 +20,7 @@ import pytest
 from conftest import eskin, small_scenes, write_params
 from hostile_board import HostileBoard, Served, damaged, frame_line
 
-from eskin.acquisition.runner import AcquisitionError, SimulatedPlacer
+from eskin.acquisition.runner import AcquisitionError, OperatorPlacer, SimulatedPlacer
 from eskin.acquisition.session import run_session
 from eskin.config.base import validate_params
 from eskin.config.params import Params
@@ -29,6 +29,7 @@ from eskin.data.plan import plan_from_params
 from eskin.data.rawlog import MAGIC, read_log
 from eskin.data.schema import LABELS
 from eskin.device.host import (
+    Answered,
     Greeted,
     HostProtocol,
     Junk,
@@ -54,10 +55,11 @@ def hostile_params(repo_params):
     return params
 
 
-def acquire_from(board, tmp_path, params, transport="pty"):
+def acquire_from(board, tmp_path, params, transport="pty", placer=None):
     plan = plan_from_params("single_force", validate_params(params, Params).scenes["single_force"])
     with Served(board, transport) as served:
-        report = run_session(plan, tmp_path, port=served.port, placer=SimulatedPlacer(),
+        report = run_session(plan, tmp_path, port=served.port,
+                             placer=placer or SimulatedPlacer(),
                              rest_length_mm=101.0, simulator=None, timeout_s=TIMEOUT_S,
                              reconnect_s=RECONNECT_S, progress=False)
     return report, plan
@@ -111,7 +113,9 @@ def test_protocol_an_early_ok_leaves_places_empty_and_an_extra_frame_is_a_violat
     events = host.receive(frames(0, 2) + b"#OK SAMPLE 3\n" + frames(2, 1))
     assert [type(e) for e in events] == [SampleFrame, SampleFrame, SampleIncomplete, Stray]
     assert events[2] == SampleIncomplete(2, 2, 3), "the late frame belongs to no request"
-    assert not host.needs_fence, "the board ended its answer in turn"
+    assert host.needs_fence, "a short answer is fenced: its #OK may not have been the answer's"
+    host.send_fence()
+    host.receive(b"#OK STREAM OFF\n")
     host.send_sample(3)
     events = host.receive(frames(3, 4) + b"#OK SAMPLE 3\n")
     assert isinstance(events[3], Violation) and "more than the 3" in events[3].reason
@@ -143,7 +147,9 @@ def test_protocol_places_each_frame_by_its_seq_so_an_answer_keeps_what_came():
     credited = [e for e in events if isinstance(e, SampleFrame)]
     assert [(e.index, e.frame.seq, e.placed) for e in credited] == [
         (0, 2, True), (2, 4, True), (3, 5, True), (5, 7, True)]
-    assert events[-1] == SampleIncomplete(3, 4, 6) and not host.needs_fence
+    assert events[-1] == SampleIncomplete(3, 4, 6) and host.needs_fence
+    host.send_fence()  # absorbs nothing: the seq the next answer begins at stays known
+    host.receive(b"#OK STREAM OFF\n")
     host.send_sample(2)  # the next answer's places start after the whole of that one
     events = host.receive(frames(8, 2) + b"#OK SAMPLE 2\n")
     assert [e.index for e in events if isinstance(e, SampleFrame)] == [0, 1]
@@ -162,7 +168,7 @@ def test_protocol_places_each_frame_by_its_seq_so_an_answer_keeps_what_came():
                           + damaged(frame_line(4, 48, [500] * 20)) + b"#OK SAMPLE 5\n")
     assert [(e.index, e.placed) for e in events if isinstance(e, SampleFrame)] == [
         (0, False), (2, False)]
-    assert events[-1] == SampleIncomplete(7, 2, 5)
+    assert events[-1] == SampleIncomplete(8, 2, 5)
     # Its last frame was lost too, so where the board's count stands is unknown: the next
     # answer begins at its first frame (seq 4 did not arrive: 5 is the answer's first).
     host.send_sample(3)
@@ -663,3 +669,52 @@ def test_invalid_yaml_and_a_directory_import_path_are_one_line(tmp_path, repo_pa
     assert result.returncode == 1 and "Traceback" not in result.stderr
     assert "the folder has no CSV or Parquet file" in result.stderr and \
         "import.path" in result.stderr, result.stderr
+
+
+# ---------------------------------------------------------------- issue 56
+
+def test_protocol_an_ok_that_is_not_the_answers_is_fenced_so_the_host_is_never_behind():
+    """Item 1: a duplicated #OK SAMPLE n closed the next request with 0 frames, and with no
+    fence its real #OK closed the request after, one reply behind for good."""
+    host = greeted()
+    host.send_sample(3)
+    host.receive(frames(0, 3) + b"#OK SAMPLE 3\n")
+    host.send_sample(3)
+    events = host.receive(b"#OK SAMPLE 3\n")  # the duplicate, alone in its read
+    assert events == [SampleIncomplete(3, 0, 3)] and host.needs_fence
+    host.send_fence()  # its real answer, then the fence's #OK
+    events = host.receive(frames(3, 3) + b"#OK SAMPLE 3\n#OK STREAM OFF\n")
+    assert [type(e) for e in events] == [Stray] * 3 + [Answered]
+    host.send_sample(3)  # placed by seq: the first answer's seqs are owed
+    events = host.receive(frames(6, 3) + b"#OK SAMPLE 3\n")
+    assert [(type(e), getattr(e, "index", None)) for e in events] == [
+        (SampleFrame, 0), (SampleFrame, 1), (SampleFrame, 2), (SampleComplete, None)]
+    host.receive(b"#OK SAMPLE 3\n")  # an #OK with no request open: fenced too
+    assert host.needs_fence
+
+
+@pytest.mark.parametrize("transport", ["pty", "socket"])
+@pytest.mark.parametrize("misbehaviour", ["dup_ok", "spoof_ok"])
+def test_a_duplicated_or_spoofed_ok_costs_one_retry(honest, tmp_path, misbehaviour,
+                                                     transport):
+    """Item 1, with SIM commands between requests: old code spent two answers on it (the
+    duplicate closed one request, its real #OK broke the next command)."""
+    params, clean = honest
+    report, plan = acquire_from(HostileBoard(misbehaviour=misbehaviour, at=50), tmp_path,
+                                params, transport)
+    assert (report.retries, report.reconnects) == (1, 0), report.summary()
+    frame = ingest_log(tmp_path / "acquisition.log", plan).frame
+    pd.testing.assert_frame_equal(frame[CONTENT], clean[CONTENT])
+
+
+@pytest.mark.parametrize("transport", ["pty", "socket"])
+@pytest.mark.parametrize("misbehaviour", ["dup_ok", "spoof_ok"])
+def test_a_stray_ok_on_a_bench_that_sends_only_samples_costs_one_retry(
+        honest, tmp_path, misbehaviour, transport):
+    """Item 1 on a real rig, where a retry is SAMPLE again and nothing else: old code
+    stayed one reply behind and gave up (`failed 5 times ... 0 of 20 frames arrived`)."""
+    params, _ = honest
+    report, _ = acquire_from(HostileBoard(misbehaviour=misbehaviour, at=50), tmp_path,
+                             params, transport, placer=OperatorPlacer(ask=lambda _: None))
+    assert (report.acquired, report.retries, report.reconnects) == (404, 1, 0), \
+        report.summary()

@@ -53,9 +53,12 @@ The accounting of frames to requests lives here and only here:
   or across answers, as the sequence never does: a frame whose time fell is a
   damaged frame whose CRC-8 matched by chance, a :class:`Violation` in a
   ``SAMPLE`` and :class:`Junk` in the stream;
-* after a violation the next request should be preceded by a fence
-  (``STREAM OFF``, answered in order): what the board sent before its
-  ``#OK`` belongs to no request (:attr:`HostProtocol.needs_fence`);
+* after a violation, an answer that ended with fewer frames than asked, or an
+  ``#OK`` that is not the open request's (a duplicated or spoofed one, or one
+  with no request open), the next request is preceded by a fence (``STREAM
+  OFF``, answered in order): what the board sent before its ``#OK`` belongs to
+  no request (:attr:`HostProtocol.needs_fence`), so the host is never a reply
+  behind the board: a stray ``#OK`` costs at most one retry;
 * after ``#OK STREAM ON`` (:meth:`HostProtocol.send_stream`) frames outside a
   ``SAMPLE`` are :class:`StreamFrame`, and a lost sequence number is a
   :class:`StreamGap`, until the ``#OK`` of a ``STREAM OFF``, a greeting, or a
@@ -268,7 +271,11 @@ class HostProtocol:
     def send_fence(self) -> bytes:
         """``STREAM OFF``: when its ``#OK`` arrives the board has sent all it owed."""
         self._start("fence", "STREAM", "STREAM OFF")
-        self._next_seq_known = False  # what it absorbs may have lost frames
+        if self.streaming:  # a streamed frame it absorbs may have been lost
+            self._next_seq_known = False
+        # Else the next answer's first seq stays known unless what the fence absorbs says
+        # otherwise (a damaged line, a frame nobody was owed): a short answer's top-up is
+        # placed by seq as it would have been without the fence.
         return b"STREAM OFF\n"
 
     def send_stream(self) -> bytes:
@@ -365,6 +372,8 @@ class HostProtocol:
                     return
             if request is not None and request.kind == "sample" and request.got == 0:
                 request.junk_first = True
+            if request is not None and request.kind == "fence":
+                self._next_seq_known = False  # it may have been a frame sent unasked
             self.junk_lines += 1
             events.append(Junk(event))
         elif isinstance(event, Reply):
@@ -398,7 +407,11 @@ class HostProtocol:
         request = self._open
         command = reply.command.upper()
         if request is None:
-            return  # a late answer to a request already given up on: nothing to credit
+            # A late answer to a request given up on, or an #OK the board sent twice or
+            # unasked: nothing to credit, and the next request is fenced, as the board's
+            # output is not where the host thought it was.
+            self.needs_fence = True
+            return
         if request.kind in ("greet", "fence"):
             # A fence absorbs everything the board owed before it; only its own #OK ends it.
             if command == "STREAM" and reply.ok and reply.details.strip().upper() in ("", "OFF"):
@@ -440,7 +453,12 @@ class HostProtocol:
         self._next_seq_known = request.start is not None and request.placed
         if request.got == request.n:
             events.append(SampleComplete(request.number, request.got))
-        else:  # the board ended its answer in turn: no fence is needed
+        else:
+            # Frames lost on the line, or this #OK was not the board's answer to this
+            # request (a duplicate of the last one, a spoof): then the answer is still on
+            # its way, and without a fence its #OK would close the next request, and so
+            # on, one reply behind for good. The fence absorbs it.
+            self.needs_fence = True
             events.append(SampleIncomplete(request.number, request.got, request.n))
 
     def _credit(self, request: _Request, frame: Frame, events: list[HostEvent]) -> None:
