@@ -43,7 +43,9 @@ Misbehaviours, each at the ``at``-th ``SAMPLE`` request (1-based):
   next ``SAMPLE``'s answer, a pause (:data:`PAUSE`) between them, as a line paced at
   115,200 baud would leave it: the duplicate arrives alone, before that answer's frames;
 * ``spoof_ok``: an ``#OK SAMPLE n`` after the first n // 2 frames, then a pause, the rest
-  and the real ``#OK``.
+  and the real ``#OK``;
+* ``lost_ok``: the answer whole, its ``#OK`` lost on the line (never sent);
+* ``refuse``: ``#ERR SAMPLE busy`` instead of an answer.
 
 ``damage_first``: the first frame of the first answer after each greeting (``HELLO``
 asked, or its own restart) goes out damaged (its CRC wrong), when the host has no
@@ -210,6 +212,8 @@ class HostileBoard:
             return b""
         if cue == "silent":
             return b""
+        if cue == "refuse":
+            return b"#ERR SAMPLE busy\n"
         if cue == "cr_only":
             self.cr_only = True
         if (self.misbehaviour == "restart_mid"
@@ -255,6 +259,8 @@ class HostileBoard:
             out = self.last_answer + answer
         elif cue == "early_ok":
             out = b"".join(frames[:-1]) + ok + frames[-1]
+        elif cue == "lost_ok":
+            out = b"".join(frames)
         elif cue == "dup_ok":
             self.ok_due = ok + PAUSE
             out = answer

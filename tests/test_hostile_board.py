@@ -55,12 +55,13 @@ def hostile_params(repo_params):
     return params
 
 
-def acquire_from(board, tmp_path, params, transport="pty", placer=None):
+def acquire_from(board, tmp_path, params, transport="pty", placer=None,
+                 timeout_s=TIMEOUT_S):
     plan = plan_from_params("single_force", validate_params(params, Params).scenes["single_force"])
     with Served(board, transport) as served:
         report = run_session(plan, tmp_path, port=served.port,
                              placer=placer or SimulatedPlacer(),
-                             rest_length_mm=101.0, simulator=None, timeout_s=TIMEOUT_S,
+                             rest_length_mm=101.0, simulator=None, timeout_s=timeout_s,
                              reconnect_s=RECONNECT_S, progress=False)
     return report, plan
 
@@ -718,3 +719,51 @@ def test_a_stray_ok_on_a_bench_that_sends_only_samples_costs_one_retry(
                              params, transport, placer=OperatorPlacer(ask=lambda _: None))
     assert (report.acquired, report.retries, report.reconnects) == (404, 1, 0), \
         report.summary()
+
+
+@pytest.mark.parametrize("transport", ["pty", "socket"])
+def test_a_lost_ok_costs_a_short_gap_not_the_timeout_and_a_reconnect(honest, tmp_path,
+                                                                      transport):
+    """Item 4: at the default timeout_s (5 s) a lost #OK SAMPLE cost the whole timeout and a
+    reconnect. Now a silence of 0.25 s after a frame sends the probe (STREAM OFF, the
+    request left open); its #OK says the answer is over: all its frames came, so it is
+    whole, with no retry."""
+    params, clean = honest
+    started = time.monotonic()
+    report, plan = acquire_from(HostileBoard(misbehaviour="lost_ok", at=50), tmp_path,
+                                params, transport, timeout_s=5.0)
+    assert (report.retries, report.reconnects) == (0, 0), report.summary()
+    assert time.monotonic() - started < 4.0, report.summary()
+    frame = ingest_log(tmp_path / "acquisition.log", plan).frame
+    pd.testing.assert_frame_equal(frame[CONTENT], clean[CONTENT])
+
+
+def test_protocol_a_probe_ends_an_answer_whose_ok_was_lost_and_is_absorbed_after_one():
+    host = greeted()
+    host.send_sample(3)
+    host.receive(frames(0, 3))
+    assert host.answer_begun
+    host.send_probe()
+    events = host.receive(b"#OK STREAM OFF\n")
+    assert events == [SampleComplete(2, 3)] and not host.needs_fence
+    host.send_sample(3)  # the probe came too soon: the answer's own #OK, then the probe's
+    host.receive(frames(3, 2))
+    host.send_probe()
+    events = host.receive(frames(5, 1) + b"#OK SAMPLE 3\n#OK STREAM OFF\n")
+    assert isinstance(events[-1], SampleComplete) and not host.needs_fence
+    host.send_command("SIM CLEAR")
+    assert [type(e) for e in host.receive(b"#OK SIM CLEAR\n")] == [Answered]
+
+
+def test_an_err_stops_the_run_saying_what_the_board_said_and_that_rerunning_resumes(
+        honest, tmp_path):
+    params, _ = honest
+    code, stderr, _, _ = run_cli_against(HostileBoard(misbehaviour="refuse", at=50),
+                                         tmp_path, params)
+    lines = [line for line in stderr.splitlines() if line.startswith("eskin: error")]
+    assert code == 1 and len(lines) == 1 and "Traceback" not in stderr, stderr
+    assert "it said '#ERR SAMPLE busy'" in lines[0], lines[0]
+    assert "49 condition(s) complete so far are kept" in lines[0], lines[0]
+    assert "rerunning resumes after the last of them" in lines[0], lines[0]
+    log = tmp_path / "data" / "raw" / "single_force" / "acquisition.log"
+    assert len(read_log(log).completed) == 49

@@ -237,9 +237,14 @@ def acquire(plan: ScenePlan, link: SerialLink, writer: RawLogWriter, placer: Pla
                         writer.rejected(attempt, batch.rejected)
                         report.frames_rejected += batch.rejected_count
                     problem = batch.problem
-                except BoardRefused:
-                    _close(writer, attempt, "the board refused a command")
-                    raise
+                except BoardRefused as err:
+                    _close(writer, attempt, str(err))
+                    raise AcquisitionError(
+                        f"{plan.name}: {condition.describe()}: {err}. A board that refuses "
+                        "a command will refuse it again, so the run stops here; the "
+                        f"{report.acquired + report.reused} condition(s) complete so far are "
+                        f"kept in {writer.path}, and rerunning resumes after the last of "
+                        "them.") from err
                 except DeviceChanged as err:
                     _close(writer, attempt, "another board answered")
                     raise AcquisitionError(

@@ -59,6 +59,11 @@ The accounting of frames to requests lives here and only here:
   OFF``, answered in order): what the board sent before its ``#OK`` belongs to
   no request (:attr:`HostProtocol.needs_fence`), so the host is never a reply
   behind the board: a stray ``#OK`` costs at most one retry;
+* a ``SAMPLE`` whose answer has stalled may be probed (:meth:`HostProtocol.send_probe`:
+  ``STREAM OFF``, the request left open): the board answers commands in order, so
+  when the probe's ``#OK`` comes with the ``SAMPLE`` still open, the answer is over
+  and its ``#OK`` was lost on the line; the frames that came keep their places, and
+  a probe ``#OK`` that comes after the ``SAMPLE``'s own is absorbed;
 * after ``#OK STREAM ON`` (:meth:`HostProtocol.send_stream`) frames outside a
   ``SAMPLE`` are :class:`StreamFrame`, and a lost sequence number is a
   :class:`StreamGap`, until the ``#OK`` of a ``STREAM OFF``, a greeting, or a
@@ -208,6 +213,8 @@ class _Request:
     start: int | None = None  # SAMPLE: the seq its answer begins at (index 0), once known
     placed: bool = True       # SAMPLE: start is known to be the answer's first seq
     junk_first: bool = False  # SAMPLE: a line that could not be trusted came before it
+    probed: bool = False      # SAMPLE: a probe (STREAM OFF) was sent while it was open
+    begun: bool = False       # SAMPLE: a line of its answer (a frame, or junk) arrived
 
 
 class ProtocolStateError(RuntimeError):
@@ -246,6 +253,7 @@ class HostProtocol:
         # Every frame the board sent since the sequence was known is seen or owed, so its
         # next frame's seq is known: a SAMPLE answer can be placed before it arrives.
         self._next_seq_known = False
+        self._probe_oks = 0  # probes sent whose #OK STREAM OFF has not come yet
 
     # ------------------------------------------------------------ requests
 
@@ -293,6 +301,21 @@ class HostProtocol:
             request.start = max(last, owed) + 1
         return b"SAMPLE %d\n" % n
 
+    def send_probe(self) -> bytes:
+        """``STREAM OFF`` with the open ``SAMPLE`` left open: its ``#OK`` ends the answer
+        if the answer's own ``#OK`` was lost (:meth:`_reply`)."""
+        request = self._open
+        if request is None or request.kind != "sample":
+            raise ProtocolStateError("a probe is sent only while a SAMPLE is open")
+        request.probed = True
+        self._probe_oks += 1
+        return b"STREAM OFF\n"
+
+    @property
+    def answer_begun(self) -> bool:
+        """The open ``SAMPLE``'s answer has begun: a frame or a damaged line came."""
+        return self._open is not None and self._open.begun
+
     def abandon(self) -> None:
         """Give up on the open request (its deadline passed, the port failed): what the
         board sends for it later is stray, and the next request is fenced."""
@@ -308,6 +331,7 @@ class HostProtocol:
         self._open = None
         self._forget_sequence()
         self.streaming = False
+        self._probe_oks = 0
 
     @property
     def line_ending_hint(self) -> str | None:
@@ -333,6 +357,8 @@ class HostProtocol:
 
     def _handle(self, event, events: list[HostEvent]) -> None:
         request = self._open
+        if request is not None and isinstance(event, Frame | ParseError):
+            request.begun = True
         if isinstance(event, Hello):
             self._hello(event, events)
         elif isinstance(event, Frame):
@@ -383,6 +409,7 @@ class HostProtocol:
         request = self._open
         self._forget_sequence()  # the board's sequence and time start again
         self.streaming = False  # and it has forgotten STREAM ON
+        self._probe_oks = 0  # and any probe it had not answered
         known = self.device_id
         if known is not None and hello.device_id != known:
             self._open = None
@@ -406,6 +433,12 @@ class HostProtocol:
     def _reply(self, reply: Reply, events: list[HostEvent]) -> None:
         request = self._open
         command = reply.command.upper()
+        if (self._probe_oks and command == "STREAM" and reply.ok
+                and reply.details.strip().upper() == "OFF"):
+            self._probe_oks -= 1  # answers are in order: this is the oldest probe's
+            if request is not None and request.kind == "sample" and request.probed:
+                self._answer_over(request, events, by_probe=True)
+            return
         if request is None:
             # A late answer to a request given up on, or an #OK the board sent twice or
             # unasked: nothing to credit, and the next request is fenced, as the board's
@@ -448,6 +481,13 @@ class HostProtocol:
             self._violate(events, f"#OK SAMPLE {reply.details.strip()!r} answered "
                           f"SAMPLE {request.n}", reply.line, request)
             return
+        self._answer_over(request, events)
+
+    def _answer_over(self, request: _Request, events: list[HostEvent], *,
+                     by_probe: bool = False) -> None:
+        """The board's answer to ``request`` is over: its ``#OK``, or a probe's after it
+        (the ``#OK`` lost on the line: the board has sent all it owed, no fence needed)."""
+        self._open = None
         self._owe(request)
         # The answer's n seqs are known only if it was placed: then the next follows them.
         self._next_seq_known = request.start is not None and request.placed
@@ -457,8 +497,9 @@ class HostProtocol:
             # Frames lost on the line, or this #OK was not the board's answer to this
             # request (a duplicate of the last one, a spoof): then the answer is still on
             # its way, and without a fence its #OK would close the next request, and so
-            # on, one reply behind for good. The fence absorbs it.
-            self.needs_fence = True
+            # on, one reply behind for good. The fence absorbs it; after a probe's #OK
+            # the board has sent everything already.
+            self.needs_fence = not by_probe
             events.append(SampleIncomplete(request.number, request.got, request.n))
 
     def _credit(self, request: _Request, frame: Frame, events: list[HostEvent]) -> None:

@@ -48,6 +48,12 @@ READ_CHUNK = 4096          # bytes per read: what a flood can put in memory at o
 POLL_S = 0.05              # longest a read waits for a first byte: how often deadlines are seen
 MAX_EVIDENCE_LINES = 64    # rejected lines kept per attempt (the rest only counted)
 STREAM_BACKLOG = 4096      # stream events kept while a command is answered (~50 s of frames)
+# Longest silence within a SAMPLE's answer, once it has begun, before the host probes with
+# STREAM OFF (the request left open): a board sends its frames back to back (a frame takes
+# ~10 ms at 115,200 baud), so this much silence after a frame means the answer's #OK was
+# lost, or the board stalled; the probe's #OK, answered in order, tells which. Without it a
+# lost #OK cost the whole timeout_s and a reconnect.
+ANSWER_GAP_S = 0.25
 
 
 @dataclass(frozen=True)
@@ -289,27 +295,36 @@ class SerialLink:
         return False
 
     def _exchange(self, request: bytes, what: str, on_event: Callable[[HostEvent], bool | None],
-                  timeout_s: float | None = None) -> None:
+                  timeout_s: float | None = None, *, probe: bool = False) -> None:
         """Send a request and feed events to ``on_event`` until it returns True.
 
         ``on_event`` returns None for an event that is not progress; anything else
         that is not True is progress (the deadline moves). An ``#ERR`` for the
-        request is BoardRefused. The deadline passing, the request is abandoned and
-        LinkError names the port."""
+        request is BoardRefused. ``probe`` (a SAMPLE): once its answer has begun, a
+        silence of :data:`ANSWER_GAP_S` (at most half the timeout) sends the protocol's
+        probe, once, so that a lost ``#OK`` costs that, not the timeout. The deadline
+        passing, the request is abandoned and LinkError names the port."""
         timeout = self.timeout_s if timeout_s is None else timeout_s
+        gap = min(ANSWER_GAP_S, timeout / 2)
         self._write(request, what)
-        deadline = time.monotonic() + timeout
+        progressed = time.monotonic()
+        deadline = progressed + timeout
         junk = _JunkSeen()
         while True:
+            if (probe and self.protocol.answer_begun
+                    and time.monotonic() - progressed > gap):
+                probe = False
+                self._write(self.protocol.send_probe(), "STREAM OFF")
             if not self._pending:
-                self._read()
+                self._read(min(POLL_S, gap) if probe else POLL_S)
             # One event at a time: what follows the answer in the same read (a restart,
             # say) stays queued for the next request to see.
             while self._pending:
                 event = self._pending.popleft()
                 if isinstance(event, Refused):  # #ERR: asking again will not help
-                    raise BoardRefused(f"board on {self.port} refused {what!r}: "
-                                       f"{event.reply.details}")
+                    said = event.reply.line.decode("ascii", "backslashreplace").strip()
+                    raise BoardRefused(f"the board on {self.port} refused {what!r}: it "
+                                       f"said {said!r}")
                 if self._kept_for_stream(event):
                     continue
                 junk.note(event)
@@ -317,7 +332,8 @@ class SerialLink:
                 if result is True:
                     return
                 if result is not None:
-                    deadline = time.monotonic() + timeout
+                    progressed = time.monotonic()
+                    deadline = progressed + timeout
             if time.monotonic() > deadline:
                 self.protocol.abandon()
                 raise LinkError(f"board on {self.port} did not answer {what!r} within "
@@ -477,7 +493,7 @@ class SerialLink:
                 return True
             return None
 
-        self._exchange(self.protocol.send_sample(n), f"SAMPLE {n}", on_event)
+        self._exchange(self.protocol.send_sample(n), f"SAMPLE {n}", on_event, probe=True)
         return batch
 
 
