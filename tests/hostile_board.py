@@ -45,6 +45,11 @@ Misbehaviours, each at the ``at``-th ``SAMPLE`` request (1-based):
 * ``spoof_ok``: an ``#OK SAMPLE n`` after the first n // 2 frames, then a pause, the rest
   and the real ``#OK``;
 * ``lost_ok``: the answer whole, its ``#OK`` lost on the line (never sent);
+* ``time_jump``: the answer's last frame says a ``t_ms`` 100,000 ms later, its CRC right;
+  its seq goes in ``time_jumped`` (the next frame, the next answer's, judges it);
+* ``time_back_twice``: the answer's last frame says ``t_ms`` 0, and the next answer's
+  first a tenth of its own (a digit lost), both CRCs right: the second is below the
+  true time but above the first fallen one; both seqs go in ``time_back``;
 * ``refuse``: ``#ERR SAMPLE busy`` instead of an answer.
 
 ``damage_first``: the first frame of the first answer after each greeting (``HELLO``
@@ -95,10 +100,10 @@ def damaged(line: bytes) -> bytes:
     return body + b"*" + (f"{crc8(body) ^ 0xFF:02X}").encode() + b"\n"
 
 
-def time_fallen(line: bytes) -> bytes:
-    """A frame line with ``t_ms`` 0 and its CRC made right again."""
-    _, seq, _, rest = line.rstrip(b"\n").rpartition(b"*")[0].split(b",", 3)
-    body = b"D," + seq + b",0," + rest
+def time_fallen(line: bytes, to=lambda t_ms: 0) -> bytes:
+    """A frame line with ``t_ms`` 0 (or ``to(t_ms)``) and its CRC made right again."""
+    _, seq, t_ms, rest = line.rstrip(b"\n").rpartition(b"*")[0].split(b",", 3)
+    body = b"D," + seq + b",%d," % to(int(t_ms)) + rest
     return body + b"*" + (f"{crc8(body):02X}").encode() + b"\n"
 
 
@@ -123,6 +128,8 @@ class HostileBoard:
         self.greeted = False         # greeted since its last answer: damage_first is due
         self.cr_only = False         # its lines end in CR only
         self.time_back: list[int] = []  # seqs sent with t_ms 0 and a right CRC
+        self.time_jumped: list[int] = []  # seqs sent with t_ms jumped forward, CRC right
+        self.fall_next = False       # time_back_twice: the next answer's first frame falls
         self.junk_due = False        # stream_junk: a junk line where each frame was due
         self.samples_asked = 0
         self.seq = 0
@@ -241,6 +248,19 @@ class HostileBoard:
             self.time_back.append(self.seq)
             first = time_fallen(self.frame())
             return first + b"".join(self.frame() for _ in range(n - 1)) + ok
+        if cue == "time_jump":
+            frames = [self.frame() for _ in range(n)]
+            self.time_jumped.append(self.seq - 1)
+            return (b"".join(frames[:-1]) + time_fallen(frames[-1], lambda t: t + 100_000)
+                    + ok)
+        if cue == "time_back_twice" or self.fall_next:
+            frames = [self.frame() for _ in range(n)]
+            at = 0 if self.fall_next else n - 1
+            self.time_back.append(self.seq - n + at)
+            frames[at] = time_fallen(frames[at], (lambda t: t // 10) if self.fall_next
+                                     else (lambda t: 0))
+            self.fall_next = not self.fall_next
+            return b"".join(frames) + ok
         if cue == "long_line":
             return LONG_LINE + b"".join(self.frame() for _ in range(n)) + ok
         if cue == "other_board":

@@ -24,6 +24,7 @@ from __future__ import annotations
 import logging
 import sys
 import time
+from collections import deque
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -201,19 +202,61 @@ def acquire(plan: ScenePlan, link: SerialLink, writer: RawLogWriter, placer: Pla
                disable=not progress, leave=False)
     say = notify or (lambda message: tqdm.write(f"acquire {plan.name}: {message}",
                                                 file=sys.stderr))
+    queue: deque[tuple[Condition, _Carried | None]] = deque(
+        (condition, None) for condition in plan.conditions)
+    # A condition whose places are all filled, held until the board's next frame has
+    # judged its last one (board time: TimeJumped), then stored or asked again.
+    pending: _Pending | None = None
+
+    def settle(*, force: bool = False) -> None:
+        """Store the pending condition if the frame after its last one vouched for it; put
+        it back in the queue with that place empty if that frame jumped forward, or if the
+        board restarted before anything judged it (or ``force``); else leave it pending."""
+        nonlocal pending
+        held = pending
+        if held is None or (link.protocol.watch_open and not force):
+            return
+        pending = None
+        still_open = writer.open_attempt  # its records may follow a later attempt's B
+        if link.protocol.watched_verdict is True:
+            _store(writer, held.record, held.kept, held.attempt, held.frames)
+            report.frames_stored += n
+            completed[held.key] = n
+            report.acquired += 1
+            bar.update()
+        else:
+            why = ("its last frame's board time jumped forward (the next frame fell below it)"
+                   if link.protocol.watched_verdict is False else
+                   "nothing the board sent after its last frame judged that frame's board "
+                   "time")
+            _close(writer, held.attempt, f"{why}: asked again")
+            del held.kept[held.place]
+            report.retries += 1
+            queue.append((held.condition,
+                          _Carried(held.kept, held.answers, held.interruptions)))
+        if still_open != held.attempt:
+            writer.open_attempt = still_open
+
     with bar, _closed_on_the_way_out(writer):
-        for condition in plan.conditions:
+        while queue or pending is not None:
+            if not queue:  # the last condition's last frame: one more frame judges it
+                _judge(link, settle)
+                continue
+            condition, carried = queue.popleft()
             key = condition.key(hello.device_id, hello.firmware)
-            if completed.get(key, 0) >= plan.samples:
+            if carried is None and completed.get(key, 0) >= plan.samples:
                 report.reused += 1
                 bar.update()
                 continue
             wanted_mm = f"{(condition.stretch - 1.0) * rest_length_mm:.3f}"
             record = {"key": key, "scene": plan.name, **condition.as_dict()}
-            kept: dict[int, tuple[int, Frame]] = {}  # place -> (attempt, its first valid copy)
+            # place -> (attempt, its first valid copy)
+            kept: dict[int, tuple[int, Frame]] = carried.kept if carried else {}
             placed = False  # the board holds this condition's weights
             problem = None
-            answers = interruptions = 0
+            answers = carried.answers if carried else 0
+            interruptions = carried.interruptions if carried else 0
+            asked = 0  # requests for it since it was taken from the queue
             while True:
                 asked_before = answers + interruptions > 0
                 first = min(set(range(n)) - kept.keys())
@@ -224,15 +267,21 @@ def acquire(plan: ScenePlan, link: SerialLink, writer: RawLogWriter, placer: Pla
                         link.command(f"STRETCH {wanted_mm}")
                         stretch_mm = wanted_mm
                     if not placed:
-                        placer.place(link, condition, key, repeat=asked_before)
+                        # Put back in the queue, it is placed anew: another condition's
+                        # weights lie on the skin now.
+                        placer.place(link, condition, key, repeat=asked > 0)
                         placed = True
                     if asked_before:
                         placer.replay(link, first)
-                    attempt = number = writer.begin(record)
                     batch = SampleBatch(n - first)
+                    if pending is None:
+                        attempt = number = writer.begin(record)
                     try:
                         link.sample(batch)
                     finally:  # an error or Ctrl-C mid-batch: what arrived is kept
+                        if attempt is None:  # its frames judged the pending condition
+                            settle()
+                            attempt = number = writer.begin(record)
                         writer.frames(attempt, batch.frames)
                         writer.rejected(attempt, batch.rejected)
                         report.frames_rejected += batch.rejected_count
@@ -272,30 +321,49 @@ def acquire(plan: ScenePlan, link: SerialLink, writer: RawLogWriter, placer: Pla
                         raise AcquisitionError(
                             f"{plan.name}: {lost}. Everything received is in {writer.path}; "
                             "rerun to resume.") from lost
+                asked += 1
                 if cut_short:
                     interruptions += 1
                 else:
                     answers += 1
                 if batch is not None:
                     _keep(kept, batch, first, number)
+                for frame in link.take_jumped():  # judged by a frame of this request
+                    _drop(kept, frame)
                 if len(kept) == n:
+                    settle(force=True)  # (frames came: it was judged) before another waits
                     frames = [kept[place][1] for place in range(n)]
                     lost = digits_lost(frames, max_jump_counts)
                     if lost is None:
-                        _store(writer, record, kept, attempt, frames)
-                        report.frames_stored += n
-                        break
-                    place, problem = lost
+                        tail = _tail(kept, link.protocol.last_accepted)
+                        if tail is None:  # the frame after the last one judged it
+                            _store(writer, record, kept, attempt, frames)
+                            report.frames_stored += n
+                            completed[key] = n
+                            report.acquired += 1
+                            bar.update()
+                            break
+                        if link.protocol.last_accepted is tail[1]:
+                            link.protocol.watch(tail[1])  # the next request's frames judge it
+                            pending = _Pending(condition, key, record, kept, attempt, frames,
+                                               tail[0], tail[1], answers, interruptions)
+                            break
+                        # The board's time started again (a restart) before a frame after
+                        # the last one came: nothing can judge it; ask for its place again.
+                        place, problem = tail[0], ("the board's time started again before "
+                                                   "its last frame was judged")
+                    else:
+                        place, problem = lost
                     del kept[place]  # asked again with what follows it
                 _close(writer, attempt, problem if len(kept) == 0 else
                        f"{problem}; {len(kept)} of {n} frames kept")
-                if answers == max_attempts:
+                if answers >= max_attempts:
                     raise AcquisitionError(
                         f"{plan.name}: {condition.describe()} failed {max_attempts} times "
                         f"(acquire.max_attempts) on {link.port} ({len(kept)} of its {n} "
                         f"frames arrived valid), last: {problem}. Received data is in "
                         f"{writer.path}; rerun to resume.")
-                if interruptions == max_interruptions:
+                if interruptions >= max_interruptions:
                     raise AcquisitionError(
                         f"{plan.name}: {condition.describe()} was cut short {interruptions} "
                         f"times (acquire.max_interruptions) on {link.port} by board "
@@ -307,9 +375,6 @@ def acquire(plan: ScenePlan, link: SerialLink, writer: RawLogWriter, placer: Pla
                 report.retries += 1
                 log.info("%s: %s; asking again (%d answer(s), %d interruption(s) so far)",
                          condition.describe(), problem, answers, interruptions)
-            completed[key] = n
-            report.acquired += 1
-            bar.update()
     report.seconds = time.monotonic() - started
     return report
 
@@ -323,6 +388,65 @@ def _closed_on_the_way_out(writer: RawLogWriter) -> Iterator[None]:
     except BaseException:
         _close(writer, writer.open_attempt, "interrupted")
         raise
+
+
+@dataclass
+class _Carried:
+    """What a condition put back in the queue keeps: its valid frames and its counts."""
+
+    kept: dict[int, tuple[int, Frame]]
+    answers: int
+    interruptions: int
+
+
+@dataclass
+class _Pending:
+    """A condition with every place filled whose last frame (``tail``, at ``place``) awaits
+    the board's next frame to judge its time."""
+
+    condition: Condition
+    key: str
+    record: dict
+    kept: dict[int, tuple[int, Frame]]
+    attempt: int | None
+    frames: list[Frame]
+    place: int
+    tail: Frame
+    answers: int
+    interruptions: int
+
+
+def _judge(link: SerialLink, settle: Callable[..., None]) -> None:
+    """After the plan's last condition: one frame more, asked for nothing but to judge the
+    board time of the frame before it (none of it is stored)."""
+    try:
+        link.sample(SampleBatch(1))
+    except (BoardReset, ProtocolViolation):
+        pass  # nothing judged it: settle() puts the condition back
+    except LinkError as err:
+        if isinstance(err, BoardRefused | DeviceChanged):
+            raise
+    settle(force=True)  # a frame judged it, or none will: it is asked again
+
+
+def _tail(kept: dict[int, tuple[int, Frame]], last: Frame | None) -> tuple[int, Frame] | None:
+    """The kept frame the board sent last, with its place, if nothing judged it yet: the
+    board-time check's last frame (``last``), or any if its time started again (None).
+    None if a frame after all of them came (every one was judged)."""
+    if last is None:
+        place, (_, frame) = max(kept.items(), key=lambda item: (item[1][0], item[1][1].seq))
+        return place, frame
+    for place, (_, frame) in kept.items():
+        if frame is last:
+            return place, frame
+    return None
+
+
+def _drop(kept: dict[int, tuple[int, Frame]], frame: Frame) -> None:
+    """Empty the place of ``frame`` (judged to have jumped forward), if it is kept."""
+    for place, (_, mine) in list(kept.items()):
+        if mine is frame:
+            del kept[place]
 
 
 def _keep(kept: dict[int, tuple[int, Frame]], batch: SampleBatch, first: int,

@@ -49,10 +49,18 @@ The accounting of frames to requests lives here and only here:
   counts from the first that arrived) unless all n arrive, and nothing after its
   last frame is owed (owing it would cost every later answer its first frame, and the
   condition its attempts);
-* board time (``t_ms``) never falls from one frame to the next, within an answer
-  or across answers, as the sequence never does: a frame whose time fell is a
-  damaged frame whose CRC-8 matched by chance, a :class:`Violation` in a
-  ``SAMPLE`` and :class:`Junk` in the stream;
+* board time (``t_ms``) never falls from one frame the board sends to the next,
+  within an answer or across answers, as the sequence never does. Each frame is
+  judged against both its neighbours among the frames accepted: against the last
+  one, when it arrives, and by the next one. A frame whose time fell below the last
+  accepted is :class:`Junk` (a damaged frame whose CRC-8 matched by chance; its place
+  stays empty), and the time is not followed down, so a second fallen frame is
+  caught as surely as the first. A next frame that falls below the last accepted
+  but not below the one before it says the last one jumped forward: that one is
+  :class:`TimeJumped` (taken back from its answer, open or closed) and the next is
+  accepted. With no frame before the last to tell which of the two is wrong, both
+  go. :meth:`HostProtocol.watch` asks for the verdict on a frame that has no next
+  neighbour yet (the last frame of a condition);
 * after a violation, an answer that ended with fewer frames than asked, or an
   ``#OK`` that is not the open request's (a duplicated or spoofed one, or one
   with no request open), the next request is preceded by a fence (``STREAM
@@ -191,6 +199,26 @@ class StreamGap:
 
 
 @dataclass(frozen=True)
+class TimeJumped:
+    """``frame``, accepted before, was judged by the frame after it: its board time jumped
+    forward (a damaged frame whose CRC-8 matched by chance). Credited to ``request`` at
+    ``index`` (None: credited to no request), it is taken back: its place is empty."""
+
+    frame: Frame
+    request: int | None
+    index: int | None
+
+
+@dataclass
+class _Timed:
+    """A frame accepted by the board-time check, and where it was credited."""
+
+    frame: Frame
+    request: int | None = None
+    index: int | None = None
+
+
+@dataclass(frozen=True)
 class Junk:
     """A line that could not be trusted (bad CRC, torn, garbage)."""
 
@@ -199,7 +227,7 @@ class Junk:
 
 HostEvent = (Greeted | Answered | Refused | SampleFrame | SampleComplete | SampleIncomplete
              | Violation | Restarted | OtherBoard | OtherSkin | Stray | StreamFrame
-             | StreamGap | Junk)
+             | StreamGap | Junk | TimeJumped)
 
 
 @dataclass
@@ -248,7 +276,14 @@ class HostProtocol:
         self._requests = 0
         self._greet_hello: Hello | None = None
         self._last_seq: int | None = None   # of the last frame seen, any request
-        self._last_t_ms: int | None = None  # its board time
+        # The last two frames the board-time check accepted (each judged by the next).
+        self._time_last: _Timed | None = None
+        self._time_before: _Timed | None = None
+        self._watched: Frame | None = None
+        self.watched_verdict: bool | None = None  # see watch()
+        # After a reconnect, the watched frame's time: a next frame not below it vouches for
+        # it; one below may be a restarted board's, and judges nothing.
+        self._watch_floor: int | None = None
         self._owed_up_to: int | None = None  # seqs that belong to an earlier SAMPLE's answer
         # Every frame the board sent since the sequence was known is seen or owed, so its
         # next frame's seq is known: a SAMPLE answer can be placed before it arrives.
@@ -329,7 +364,7 @@ class HostProtocol:
         """A new connection: partial lines and the sequence are forgotten."""
         self._parser = FrameParser(self.terminals)
         self._open = None
-        self._forget_sequence()
+        self._forget_sequence(keep_watch=True)
         self.streaming = False
         self._probe_oks = 0
 
@@ -362,7 +397,7 @@ class HostProtocol:
         if isinstance(event, Hello):
             self._hello(event, events)
         elif isinstance(event, Frame):
-            time_fell = self._time_fell(event)
+            time_fell = self._judge_time(event, events)
             self._last_seq = event.seq
             owed = self._owed_up_to is not None and event.seq <= self._owed_up_to
             if self.streaming and (request is None or request.kind != "sample"):
@@ -379,7 +414,10 @@ class HostProtocol:
                 self.stray_frames += 1
                 events.append(Stray(event))
             elif time_fell:
-                self._violate(events, time_fell, event.line)
+                if request.got == 0:
+                    request.junk_first = True
+                self.junk_lines += 1
+                events.append(Junk(ParseError(time_fell, event.line)))
             else:
                 self._credit(request, event, events)
         elif isinstance(event, SequenceGap):
@@ -407,7 +445,8 @@ class HostProtocol:
 
     def _hello(self, hello: Hello, events: list[HostEvent]) -> None:
         request = self._open
-        self._forget_sequence()  # the board's sequence and time start again
+        # The board's sequence and time start again (a greeting's #HELLO: perhaps).
+        self._forget_sequence(keep_watch=request is not None and request.kind == "greet")
         self.streaming = False  # and it has forgotten STREAM ON
         self._probe_oks = 0  # and any probe it had not answered
         known = self.device_id
@@ -515,6 +554,8 @@ class HostProtocol:
                           f"(seq {frame.seq})", frame.line)
             return
         request.got += 1
+        if self._time_last is not None and self._time_last.frame is frame:
+            self._time_last.request, self._time_last.index = request.number, index
         events.append(SampleFrame(request.number, index, frame, request.placed))
 
     def _violate(self, events: list[HostEvent], reason: str, line: bytes = b"",
@@ -536,16 +577,72 @@ class HostProtocol:
         # that line may have been its first frame, so the seqs after its last frame are
         # not taken as its own (each later answer would lose its first frame as owed).
 
-    def _forget_sequence(self) -> None:
-        self._last_seq = self._last_t_ms = self._owed_up_to = None
+    def _forget_sequence(self, *, keep_watch: bool = False) -> None:
+        if keep_watch and self.watch_open and self._watch_floor is None:
+            self._watch_floor = self._watched.t_ms
+        elif not keep_watch:
+            self._watched = self._watch_floor = None
+        self._last_seq = self._owed_up_to = None
+        self._time_last = self._time_before = None  # the board's time starts again too
         self._next_seq_known = False
 
-    def _time_fell(self, frame: Frame) -> str | None:
-        """Why ``frame``'s board time cannot be right: it fell since the last frame (but for
-        the 32-bit wrap after 49 days). Followed either way, as the sequence is, so one
-        damaged frame costs one frame."""
-        last, self._last_t_ms = self._last_t_ms, frame.t_ms
-        if last is not None and frame.t_ms < last and last - frame.t_ms < 2**31:
-            return (f"board time went backwards at seq {frame.seq} ({last} then "
-                    f"{frame.t_ms}): a damaged frame whose CRC-8 matched by chance")
+    @property
+    def watch_open(self) -> bool:
+        """The watched frame (:meth:`watch`) awaits its verdict and may still get one."""
+        return self._watched is not None and self.watched_verdict is None and (
+            self._watch_floor is not None or self.last_accepted is self._watched)
+
+    @property
+    def last_accepted(self) -> Frame | None:
+        """The last frame the board-time check accepted: the next frame judges it."""
+        return self._time_last.frame if self._time_last else None
+
+    def watch(self, frame: Frame) -> None:
+        """Report the verdict on ``frame``, the last accepted (:attr:`last_accepted`), in
+        :attr:`watched_verdict`: True once a frame after it is accepted, False if that
+        frame says it jumped forward; None until then (:attr:`watch_open`), and for good
+        if the board restarts first. After a reconnect the next frame vouches for it if
+        its time is not below it (below, the board may have restarted)."""
+        self._watched, self.watched_verdict, self._watch_floor = frame, None, None
+
+    def _judge_time(self, frame: Frame, events: list[HostEvent]) -> str | None:
+        """Judge ``frame``'s board time against the last frames accepted; why it cannot be
+        right, or None if it is accepted. May take back the last frame accepted
+        (:class:`TimeJumped`): then this one is accepted in its stead."""
+        last, before = self._time_last, self._time_before
+        if self._watch_floor is not None and last is None:
+            self.watched_verdict = True if not _fell(self._watch_floor, frame.t_ms) else None
+            if self.watched_verdict is None:
+                self._watched = None  # a restarted board's time: nothing judged it
+            self._watch_floor = None
+        if last is None or not _fell(last.frame.t_ms, frame.t_ms):
+            if last is not None and last.frame is self._watched:
+                self.watched_verdict = True
+            self._time_before, self._time_last = last, _Timed(frame)
+            return None
+        reason = (f"board time went backwards at seq {frame.seq} ({last.frame.t_ms} then "
+                  f"{frame.t_ms}): a damaged frame whose CRC-8 matched by chance")
+        if before is not None and _fell(before.frame.t_ms, frame.t_ms):
+            return reason  # below both: this one fell; the time is not followed down
+        # Above the one before the last (or no such one to ask): the last one may have
+        # jumped forward. With the one before to vouch for this frame, the last goes;
+        # with none, either may be wrong, and both go.
+        self._take_back(last, events)
+        if before is None:
+            self._time_last = None
+            return reason + " (or the frame before it jumped forward)"
+        self._time_last = _Timed(frame)
         return None
+
+    def _take_back(self, timed: _Timed, events: list[HostEvent]) -> None:
+        if timed.frame is self._watched:
+            self.watched_verdict = False
+        request = self._open
+        if request is not None and timed.request == request.number:
+            request.got -= 1
+        events.append(TimeJumped(timed.frame, timed.request, timed.index))
+
+
+def _fell(earlier: int, later: int) -> bool:
+    """Board time fell from ``earlier`` to ``later`` (but for its 32-bit wrap, 49 days)."""
+    return later < earlier and earlier - later < 2**31

@@ -38,6 +38,7 @@ from eskin.device.host import (
     SampleIncomplete,
     StreamFrame,
     StreamGap,
+    TimeJumped,
     Violation,
 )
 from eskin.device.protocol import UNSET_ID, Frame, Hello, ParseError
@@ -108,6 +109,16 @@ class SampleBatch:
     rejected_count: int = 0
     violation: str | None = None
 
+    def take_back(self, frame: Frame, reason: str) -> bool:
+        """Take ``frame`` out of the batch (its board time jumped forward: the frame after
+        it said so), keeping it as a rejected line; False if it is not in the batch."""
+        for i, mine in enumerate(self.frames):
+            if mine is frame:
+                del self.frames[i], self.indexes[i]
+                self.reject(ParseError(reason, frame.line))
+                return True
+        return False
+
     def reject(self, error: ParseError) -> None:
         """Count a rejected line; keep the first few as evidence (bounded memory)."""
         self.rejected_count += 1
@@ -168,11 +179,20 @@ class SerialLink:
         # bounded: the oldest go first, counted, and stream() reports them (StreamOverflow).
         self._backlog: deque[HostEvent] = deque(maxlen=STREAM_BACKLOG)
         self._overflowed = 0
+        # Frames of answers already closed that the frame after them judged jumped forward
+        # (TimeJumped): the caller takes them back from what it kept (take_jumped).
+        self._jumped: list[Frame] = []
         self._serial = self._open()
 
     @property
     def hello(self) -> Hello | None:
         return self.protocol.hello
+
+    def take_jumped(self) -> list[Frame]:
+        """The frames of closed answers found since the last call to have jumped forward in
+        board time (the protocol judged them by the frame after them)."""
+        jumped, self._jumped = self._jumped, []
+        return jumped
 
     def _open(self) -> serial.SerialBase:
         try:
@@ -282,7 +302,9 @@ class SerialLink:
             waiting = max(0, waiting - READ_CHUNK)
         while self._pending:  # events left over from the last request's read count too
             event = self._pending.popleft()
-            if not self._kept_for_stream(event):
+            if isinstance(event, TimeJumped):
+                self._jumped.append(event.frame)
+            elif not self._kept_for_stream(event):
                 self._raise_for_board(event, "before a request")
 
     def _kept_for_stream(self, event: HostEvent) -> bool:
@@ -329,6 +351,8 @@ class SerialLink:
                     continue
                 junk.note(event)
                 result = on_event(event)
+                if isinstance(event, TimeJumped) and result is None:
+                    self._jumped.append(event.frame)  # not the open request's
                 if result is True:
                     return
                 if result is not None:
@@ -486,6 +510,11 @@ class SerialLink:
             if isinstance(event, Junk):
                 batch.reject(event.error)
                 return None
+            if isinstance(event, TimeJumped):
+                taken = batch.take_back(event.frame, (
+                    f"board time jumped forward at seq {event.frame.seq} ({event.frame.t_ms}):"
+                    " the next frame fell below it, not below the one before it"))
+                return False if taken else None
             if isinstance(event, SampleComplete | SampleIncomplete):
                 return True
             if isinstance(event, Violation):
