@@ -45,6 +45,9 @@ Misbehaviours, each at the ``at``-th ``SAMPLE`` request (1-based):
 * ``spoof_ok``: an ``#OK SAMPLE n`` after the first n // 2 frames, then a pause, the rest
   and the real ``#OK``;
 * ``lost_ok``: the answer whole, its ``#OK`` lost on the line (never sent);
+* ``glued_long_line``: 64 KiB of NULs with no newline, then 300 more, each burst followed
+  by a pause (so that a read ends where the burst does), then the answer, its first frame
+  glued to the end of that line; its seq goes in ``glued``;
 * ``time_jump``: the answer's last frame says a ``t_ms`` 100,000 ms later, its CRC right;
   its seq goes in ``time_jumped`` (the next frame, the next answer's, judges it);
 * ``time_back_twice``: the answer's last frame says ``t_ms`` 0, and the next answer's
@@ -130,6 +133,7 @@ class HostileBoard:
         self.time_back: list[int] = []  # seqs sent with t_ms 0 and a right CRC
         self.time_jumped: list[int] = []  # seqs sent with t_ms jumped forward, CRC right
         self.fall_next = False       # time_back_twice: the next answer's first frame falls
+        self.glued: list[int] = []   # glued_long_line: seqs glued to an overlong line
         self.junk_due = False        # stream_junk: a junk line where each frame was due
         self.samples_asked = 0
         self.seq = 0
@@ -261,6 +265,10 @@ class HostileBoard:
                                      else (lambda t: 0))
             self.fall_next = not self.fall_next
             return b"".join(frames) + ok
+        if cue == "glued_long_line":
+            self.glued.append(self.seq)
+            return (b"\0" * (1 << 16) + PAUSE + b"\0" * 300 + PAUSE
+                    + b"".join(self.frame() for _ in range(n)) + ok)
         if cue == "long_line":
             return LONG_LINE + b"".join(self.frame() for _ in range(n)) + ok
         if cue == "other_board":

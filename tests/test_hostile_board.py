@@ -845,3 +845,19 @@ def _assert_time_rises_as_sent(contents):
     for attempt in contents.completed.values():
         times = [f.t_ms for f in sorted(attempt.frames, key=lambda f: f.seq)]
         assert times == sorted(times), (attempt.condition["key"], times)
+
+
+@pytest.mark.parametrize("transport", ["pty", "socket"])
+def test_a_frame_glued_to_an_overlong_line_is_dropped_with_it(honest, tmp_path, transport):
+    """Item 5: the parser emptied its buffer at 246 bytes, so when a read ended where a
+    64 KiB burst did, the frame glued to its end parsed and was stored (eskin cf46b9c:
+    35 rows on a socket). By the line rule that frame was lost: its place is asked again."""
+    params, clean = honest
+    board = HostileBoard(misbehaviour="glued_long_line", at=50)
+    report, plan = acquire_from(board, tmp_path, params, transport)
+    assert (report.retries, report.reconnects) == (1, 0), report.summary()
+    contents = read_log(tmp_path / "acquisition.log")
+    stored = {f.seq for a in contents.completed.values() for f in a.frames}
+    assert board.glued[0] not in stored
+    frame = ingest_log(tmp_path / "acquisition.log", plan).frame
+    pd.testing.assert_frame_equal(frame[CONTENT], clean[CONTENT])

@@ -216,6 +216,10 @@ class FrameParser:
         self._expects = terminals is not None
         self._max_line = MAX_LINE_BYTES if terminals is None else max_line_bytes(terminals)
         self._buffer = bytearray()
+        # A line grew past the longest the protocol allows: everything up to its newline
+        # is dropped, whatever is glued to its end (a frame, say): by the line rule that
+        # frame was lost, and a read boundary must not make it parse.
+        self._discarding = False
         self._last_seq: int | None = None
         self._cr_since_lf = False  # a CR came since the last LF: CR-only line endings?
 
@@ -239,6 +243,12 @@ class FrameParser:
             line = bytes(self._buffer[:end])
             del self._buffer[: end + 1]
             self._cr_since_lf = False
+            if self._discarding:
+                self._discarding = False
+                events.append(ParseError(
+                    f"end of a line longer than {self._max_line} bytes, dropped up to its "
+                    "newline with whatever was glued to it", line))
+                continue
             if len(line) > self._max_line:
                 events.append(ParseError(f"line longer than {self._max_line} bytes", line))
                 continue
@@ -249,6 +259,7 @@ class FrameParser:
             events.append(ParseError(f"no newline within {self._max_line} bytes{hint}",
                                      bytes(self._buffer)))
             self._buffer.clear()
+            self._discarding = True
         return events
 
     def _handle(self, event: Frame | Hello | Reply | ParseError, events: list[Event]) -> None:
