@@ -6,10 +6,14 @@ the host is tested against a counterpart that does not share its mistakes. Its s
 has ``rows`` × ``columns`` terminals (the paper's 10 × 10 unless told): it announces
 ``terminals=rows+columns`` and sends that many readings, x1..xR then y1..yC.
 It speaks the simulated-board extension too (``SIM CLEAR``, ``SIM TRIAL n``,
-``SIM PRESS x y N``, ``SIM REPLAY i``), so readings are a function of the trial,
-the stretch, the presses and the sample index (from 0 at ``SIM TRIAL``, from i at
-``SIM REPLAY i``): a condition asked again reads the same, and a run with
-misbehaviours can be compared row by row with an honest one.
+``SIM PRESS x y N``, ``SIM REPLAY i``, ``SIM PICK n i j ...``), so readings are a function
+of the trial, the stretch, the presses and the sample index (from 0 at ``SIM TRIAL``, from
+i at ``SIM REPLAY i``, i, j, ... after ``SIM PICK``): a condition asked again reads the
+same, and a run with misbehaviours can be compared row by row with an honest one.
+``picks=False`` makes it a board older than ``SIM PICK`` (it answers ``#ERR``).
+``damage_rate``: each frame line it sends goes out damaged (its CRC wrong) with that
+probability, from its own seeded stream. ``frames_asked`` counts the frames its
+``SAMPLE`` requests asked for.
 
 Misbehaviours, each at the ``at``-th ``SAMPLE`` request (1-based):
 
@@ -76,6 +80,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import random
 import select
 import socket
 import threading
@@ -120,7 +125,8 @@ PAUSE_S = 0.05
 class HostileBoard:
     def __init__(self, *, device_id: str = "hostile-0001", misbehaviour: str | None = None,
                  at: int = 50, times: int = 1, damage_first: bool = False,
-                 rows: int = 10, columns: int = 10) -> None:
+                 rows: int = 10, columns: int = 10, picks: bool = True,
+                 damage_rate: float = 0.0, seed: int = 0) -> None:
         self.device_id = device_id
         self.rows = rows
         self.terminals = rows + columns
@@ -134,6 +140,11 @@ class HostileBoard:
         self.time_jumped: list[int] = []  # seqs sent with t_ms jumped forward, CRC right
         self.fall_next = False       # time_back_twice: the next answer's first frame falls
         self.glued: list[int] = []   # glued_long_line: seqs glued to an overlong line
+        self.picks = picks
+        self.pick: list[int] = []    # SIM PICK: the sample indexes of the next answer
+        self.damage_rate = damage_rate
+        self._random = random.Random(seed)
+        self.frames_asked = 0
         self.junk_due = False        # stream_junk: a junk line where each frame was due
         self.samples_asked = 0
         self.seq = 0
@@ -167,11 +178,18 @@ class HostileBoard:
                 for t in range(self.terminals)]
 
     def frame(self) -> bytes:
+        if self.pick:
+            self.index = self.pick.pop(0)
         line = frame_line(self.seq, self.t_ms, self.counts(self.hijacked))
         self.seq += 1
         self.t_ms += 12
         self.index += 1
         return line
+
+    def indexed_frame(self) -> tuple[int, bytes]:
+        """The next frame and its sample index."""
+        line = self.frame()
+        return self.index - 1, line
 
     def hello(self) -> bytes:
         who = "OTHER-9999" if self.hijacked else self.device_id
@@ -200,11 +218,15 @@ class HostileBoard:
             if sub == "CLEAR":
                 self.presses = []
             elif sub == "TRIAL":
-                self.trial, self.index = int(words[2]), 0
+                self.trial, self.index, self.pick = int(words[2]), 0, []
             elif sub == "PRESS":
                 self.presses.append((words[2], words[3], words[4]))
             elif sub == "REPLAY":
-                self.index = int(words[2])
+                self.index, self.pick = int(words[2]), []
+            elif sub == "PICK":
+                if not self.picks:
+                    return b"#ERR SIM unknown command\n"
+                self.pick = [int(w) for w in words[3:]]
             return f"#OK SIM {sub}\n".encode()
         if name == "SAMPLE":
             return self.sample(int(words[1]))
@@ -212,7 +234,13 @@ class HostileBoard:
 
     def sample(self, n: int) -> bytes:
         due, self.ok_due = self.ok_due, b""
-        return due + self._sample(n)
+        self.frames_asked += n
+        out = self._sample(n)
+        if self.damage_rate:
+            out = b"".join(damaged(line) if line.startswith(b"D,")
+                           and self._random.random() < self.damage_rate else line
+                           for line in out.splitlines(keepends=True))
+        return due + out
 
     def _sample(self, n: int) -> bytes:
         self.samples_asked += 1
@@ -245,7 +273,7 @@ class HostileBoard:
         if self.damage_trial is not None and self.trial == self.damage_trial:
             parity = self.damaged_answers % 2
             self.damaged_answers += 1
-            frames = [(self.index, self.frame()) for _ in range(n)]
+            frames = [self.indexed_frame() for _ in range(n)]
             return b"".join(damaged(line) if index % 2 == parity else line
                             for index, line in frames) + ok
         if cue == "time_back":

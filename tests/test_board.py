@@ -40,6 +40,35 @@ def test_same_trial_replays_the_same_readings_after_other_work():
     assert trial() == first
 
 
+def test_sim_pick_answers_the_places_named_as_the_first_answer_read_them():
+    """Issue 56: a top-up asks for the missing places alone; SIM REPLAY could only ask from
+    the first of them on."""
+    board = SimulatedBoard(SkinParams())
+    board.handle(b"SIM TRIAL 99")
+    board.handle(b"SIM PRESS 3 3 3.2536")
+    first = [e.counts for e in events(board, "SAMPLE 20") if isinstance(e, Frame)]
+    reply = events(board, "SIM PICK 20 3 11 12 19")[0]
+    assert isinstance(reply, Reply) and reply.ok and reply.details == "PICK 20 4"
+    picked = [e.counts for e in events(board, "SAMPLE 4") if isinstance(e, Frame)]
+    assert picked == [first[i] for i in (3, 11, 12, 19)]
+    events(board, "SIM PICK 20 1 2")
+    refused = events(board, "SAMPLE 3")[-1]  # 3 frames for 2 places named
+    assert isinstance(refused, Reply) and not refused.ok and "named 2" in refused.details
+
+
+def test_the_emulated_rig_picks_as_the_python_board_does():
+    from eskin.device.emulated import EmulatedRig
+    from eskin.skin import PAPER_SKIN
+
+    rig = EmulatedRig(SkinParams(), skin=PAPER_SKIN, rest_length_mm=101.0, samples=6)
+    rig.place(99, [(3, 3, 3.2536)])
+    first = [rig.volts(0) for _ in range(6)]
+    rig.pick([1, 4])
+    assert [rig.volts(0), rig.volts(0)] == [first[1], first[4]]
+    rig.replay(4)
+    assert [rig.volts(0), rig.volts(0)] == first[4:]
+
+
 @pytest.mark.parametrize("command, reason", [
     ("SIM PRESS 0 3 1", "outside"), ("SIM PRESS 3 3 nan", "outside"),
     ("STRETCH -1", "outside"), ("STRETCH abc", "not a number"),

@@ -6,7 +6,7 @@ person prompted at the terminal on a real one — and asks for the samples. A
 condition is stored only whole. A frame that fails its CRC, is malformed or
 never arrives leaves its place in the answer empty (the sequence number places
 the others); the attempt is logged as abandoned, its valid frames are kept, and
-the condition is asked again from its first missing frame on, the weights left
+the condition is asked again for its missing places only, the weights left
 where they lie (the simulated board replays those frames of the trial, so a
 faulty link still gives the clean run's data). Once every place is filled, the
 frames are stored: as the attempt that brought them, or, if several did, as a
@@ -88,11 +88,28 @@ def trial_seed(key: str) -> int:
 class Placer(Protocol):
     """The bench's hands: they place a condition's weights (once per condition, and again
     only for a board that may have forgotten them: a restart, a reconnect), and before a
-    condition is asked again, let the board answer again from frame ``first`` on."""
+    condition is asked again, let the board answer for the ``missing`` places of an
+    ``n``-sample answer: they return the places the next ``SAMPLE`` answers, in order
+    (``missing``, or more where the board can only answer from the first of them on)."""
 
     def place(self, link: SerialLink, condition: Condition, key: str, repeat: bool) -> None: ...
 
-    def replay(self, link: SerialLink, first: int) -> None: ...
+    def replay(self, link: SerialLink, missing: list[int], n: int) -> list[int]: ...
+
+
+# Longest SIM PICK line sent: a board takes command lines of up to 256 bytes.
+MAX_PICK_LINE = 240
+
+
+def _picked(missing: list[int], n: int) -> tuple[list[int], str | None]:
+    """The places a top-up asks for and the ``SIM PICK`` that asks for them; no command
+    (None) when ``SIM REPLAY <first>`` asks for exactly those (one run to the end), or
+    when the line would be too long: then from the first missing place on."""
+    first = missing[0]
+    line = f"SIM PICK {n} " + " ".join(map(str, missing))
+    if missing == list(range(first, n)) or len(line) > MAX_PICK_LINE:
+        return list(range(first, n)), None
+    return missing, line
 
 
 class SimulatedPlacer:
@@ -106,9 +123,21 @@ class SimulatedPlacer:
             if contact.touches:
                 link.command(f"SIM PRESS {contact.x} {contact.y} {contact.force!r}")
 
-    def replay(self, link: SerialLink, first: int) -> None:
-        """``SIM REPLAY``: the frames asked again read as in the trial's first answer."""
-        link.command(f"SIM REPLAY {first}")
+    def __init__(self) -> None:
+        self.picks = True  # the board takes SIM PICK (a board older than it answers #ERR)
+
+    def replay(self, link: SerialLink, missing: list[int], n: int) -> list[int]:
+        """``SIM PICK`` (or ``SIM REPLAY``): the frames asked again read as in the trial's
+        first answer."""
+        places, pick = _picked(missing, n)
+        if pick is not None and self.picks:
+            try:
+                link.command(pick)
+                return places
+            except BoardRefused:
+                self.picks = False  # an older simulated board: from the first on, as then
+        link.command(f"SIM REPLAY {missing[0]}")
+        return list(range(missing[0], n))
 
 
 class EmulatedPlacer:
@@ -125,8 +154,13 @@ class EmulatedPlacer:
         self.rig.place(trial_seed(condition.key(*self.simulated)),
                        [(c.x, c.y, c.force) for c in condition.contacts if c.touches])
 
-    def replay(self, link: SerialLink, first: int) -> None:
-        self.rig.replay(first)
+    def replay(self, link: SerialLink, missing: list[int], n: int) -> list[int]:
+        places, pick = _picked(missing, n)
+        if pick is None:
+            self.rig.replay(places[0])
+        else:
+            self.rig.pick(places)
+        return places
 
 
 class OperatorPlacer:
@@ -153,8 +187,10 @@ class OperatorPlacer:
                 "everything recorded so far is kept, rerun to resume") from None
         self._on_skin = touching
 
-    def replay(self, link: SerialLink, first: int) -> None:
-        """Nothing: a real board reads on, the weights where they lie."""
+    def replay(self, link: SerialLink, missing: list[int], n: int) -> list[int]:
+        """Nothing: a real board reads on, the weights where they lie; its next frames fill
+        the missing places (samples of one static load are alike in all but noise)."""
+        return missing
 
 
 def for_terminal(text: str, stream) -> str:
@@ -184,9 +220,9 @@ def acquire(plan: ScenePlan, link: SerialLink, writer: RawLogWriter, placer: Pla
     requests cut short (a board restart, a port that failed, a silence past the link's
     timeout): those are the link's faults, not attempts at the condition, and the
     link already bounds each one's wait. The valid frames of each answer are kept in
-    their places, and an answer that lost frames is followed by a request for the
-    answer again from its first missing frame on (the simulated board replays them, a
-    real one reads on, the weights where they lie). A board that restarts gets its
+    their places, and an answer that lost frames is followed by a request for its
+    missing places only (the simulated board replays them, a real one reads on, the
+    weights where they lie). A board that restarts gets its
     stretch and indenters again; a link that fails is reopened with backoff for up to
     ``reconnect_s``. Every frame that arrived, in whole attempts or not, is in the log
     before any error or Ctrl-C leaves this function.
@@ -259,7 +295,7 @@ def acquire(plan: ScenePlan, link: SerialLink, writer: RawLogWriter, placer: Pla
             asked = 0  # requests for it since it was taken from the queue
             while True:
                 asked_before = answers + interruptions > 0
-                first = min(set(range(n)) - kept.keys())
+                missing = sorted(set(range(n)) - kept.keys())
                 attempt = number = batch = None
                 cut_short = False  # a link fault ended the request, not the board's answer
                 try:
@@ -271,9 +307,11 @@ def acquire(plan: ScenePlan, link: SerialLink, writer: RawLogWriter, placer: Pla
                         # weights lie on the skin now.
                         placer.place(link, condition, key, repeat=asked > 0)
                         placed = True
-                    if asked_before:
-                        placer.replay(link, first)
-                    batch = SampleBatch(n - first)
+                    # A top-up asks only for the places missing (issue 56): the frames
+                    # of the answer fill them in order.
+                    places = (placer.replay(link, missing, n) if asked_before
+                              else list(range(n)))
+                    batch = SampleBatch(len(places))
                     if pending is None:
                         attempt = number = writer.begin(record)
                     try:
@@ -327,7 +365,7 @@ def acquire(plan: ScenePlan, link: SerialLink, writer: RawLogWriter, placer: Pla
                 else:
                     answers += 1
                 if batch is not None:
-                    _keep(kept, batch, first, number)
+                    _keep(kept, batch, places, number, n)
                 for frame in link.take_jumped():  # judged by a frame of this request
                     _drop(kept, frame)
                 if len(kept) == n:
@@ -449,16 +487,16 @@ def _drop(kept: dict[int, tuple[int, Frame]], frame: Frame) -> None:
             del kept[place]
 
 
-def _keep(kept: dict[int, tuple[int, Frame]], batch: SampleBatch, first: int,
-          attempt: int) -> None:
-    """Keep the placed frames of ``batch``, an answer from place ``first`` on, where no
-    valid frame is kept yet; a whole answer from place 0 replaces what was kept, so that it
-    is stored as it came."""
+def _keep(kept: dict[int, tuple[int, Frame]], batch: SampleBatch, places: list[int],
+          attempt: int, n: int) -> None:
+    """Keep the placed frames of ``batch``, an answer for ``places`` (its frame i for place
+    ``places[i]``), where no valid frame is kept yet; a whole answer for all ``n`` places
+    replaces what was kept, so that it is stored as it came."""
     placed = batch.placed()
-    if first == 0 and len(placed) == batch.requested:
+    if places == list(range(n)) and len(placed) == batch.requested:
         kept.clear()
     for index, frame in placed.items():
-        kept.setdefault(first + index, (attempt, frame))
+        kept.setdefault(places[index], (attempt, frame))
 
 
 def _store(writer: RawLogWriter, record: dict, kept: dict[int, tuple[int, Frame]],

@@ -2,13 +2,16 @@
 
 It speaks wire protocol v1 exactly as the firmware does, plus the simulated-
 board commands ``SIM PRESS <x> <y> <newtons> [<ramp_ms>]``, ``SIM CLEAR``, ``SIM TRIAL
-<n>``, ``SIM WAIT <ms>`` and ``SIM REPLAY <from>``. ``SIM TRIAL`` starts trial n:
-placements, noise and its start in board time come from streams seeded by (sim seed, n),
-drift and creep from the skin in board time. ``SIM REPLAY`` rewinds the trial, its
-weights left where they lie, so that the next ``SAMPLE k`` answers frames from .. from +
-k - 1 of the trial's first (from + k)-frame answer: the frames an answer lost on the line
-are asked again and read as they did, and a run with link faults gives the same dataset
-as a clean one. Transports live in ``simulate.py``.
+<n>``, ``SIM WAIT <ms>``, ``SIM REPLAY <from>`` and ``SIM PICK <n> <i> <j> ...``.
+``SIM TRIAL`` starts trial n: placements, noise and its start in board time come from
+streams seeded by (sim seed, n), drift and creep from the skin in board time. ``SIM
+REPLAY`` rewinds the trial, its weights left where they lie, so that the next ``SAMPLE
+k`` answers frames from .. from + k - 1 of the trial's first (from + k)-frame answer:
+the frames an answer lost on the line are asked again and read as they did, and a run
+with link faults gives the same dataset as a clean one. ``SIM PICK n i j ...`` does
+the same for places that are not one run: the next ``SAMPLE k`` (k places named)
+answers samples i, j, ... of a first n-frame answer, so a top-up asks only for the
+places missing. Transports live in ``simulate.py``.
 """
 
 from __future__ import annotations
@@ -150,6 +153,7 @@ class SimulatedBoard:
         self._trial = Trial(self.model, [0], frame_period_s=frame_period_ms / 1000)
         self._indenters: list[Indenter] = []
         self._replay_from = 0  # SIM REPLAY: the frames of the next answer to leave out
+        self._pick: tuple[int, list[int]] | None = None  # SIM PICK: (of n frames, which)
 
     @functools.cached_property
     def device_id(self) -> str:
@@ -166,7 +170,15 @@ class SimulatedBoard:
         """The next n frames at the current stretch and indenters (after ``SIM REPLAY
         <from>``, frames from .. from + n - 1 of a (from + n)-frame answer)."""
         skip, self._replay_from = self._replay_from, 0
-        counts = self._trial.sample_counts(skip + n, self._stretch, self._indenters)[skip:]
+        pick, self._pick = self._pick, None
+        if pick is not None:  # SIM PICK: those of a first answer of pick[0] frames
+            total, places = pick
+            if n != len(places):
+                raise ValueError(f"SIM PICK named {len(places)} sample(s), not {n}")
+            counts = self._trial.sample_counts(total, self._stretch, self._indenters)[places]
+        else:
+            counts = self._trial.sample_counts(skip + n, self._stretch,
+                                               self._indenters)[skip:]
         lines = []
         for row in counts:
             lines.append(self._wire(encode_frame(self._seq, self._t_ms, row)))
@@ -228,7 +240,7 @@ class SimulatedBoard:
         if sub == "TRIAL" and len(args) == 1:
             n = _number(args[0], int, 0, 2**63 - 1)
             self._trial = Trial(self.model, [n], frame_period_s=self.frame_period_ms / 1000)
-            self._replay_from = 0
+            self._replay_from, self._pick = 0, None
             return f"#OK SIM TRIAL {n}\n".encode()
         if sub == "WAIT" and len(args) == 1:  # board time passes unread: drift, creep
             ms = _number(args[0], int, 0, MAX_WAIT_MS)
@@ -236,9 +248,16 @@ class SimulatedBoard:
             self._t_ms = (self._t_ms + ms) & SEQ_MAX
             return f"#OK SIM WAIT {ms}\n".encode()
         if sub == "REPLAY" and len(args) == 1:
-            self._replay_from = _number(args[0], int, 0, MAX_SAMPLE)
+            self._replay_from, self._pick = _number(args[0], int, 0, MAX_SAMPLE), None
             self._trial.rewind()
             return f"#OK SIM REPLAY {self._replay_from}\n".encode()
+        if sub == "PICK" and len(args) >= 2:
+            # The top-up of places that are not one run: SIM REPLAY i can only ask from i on.
+            total = _number(args[0], int, 1, MAX_SAMPLE)
+            places = [_number(a, int, 0, total - 1) for a in args[1:]]
+            self._trial.rewind()
+            self._replay_from, self._pick = 0, (total, places)
+            return f"#OK SIM PICK {total} {len(places)}\n".encode()
         if sub == "PRESS" and len(args) in (3, 4):
             x = _number(args[0], int, 1, self.skin.rows)  # a node of this skin only
             y = _number(args[1], int, 1, self.skin.columns)

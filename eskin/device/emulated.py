@@ -111,6 +111,7 @@ class EmulatedRig:
         self._indenters: list[Indenter] = []
         self._block: list[np.ndarray] = []
         self._replay_from = 0  # replay(): the scans of the next block to leave out
+        self._pick: list[int] | None = None  # pick(): the scans of the next block to send
         self._half_step = params.supply_v / (2**params.adc_bits - 1) / 2
 
     # ------------------------------------------------------------ the bench's hands
@@ -122,6 +123,7 @@ class EmulatedRig:
             self._indenters = [self._trial.place(x, y, newtons) for x, y, newtons in contacts]
             self._block = []
             self._replay_from = 0
+            self._pick = None
 
     def replay(self, first: int) -> None:
         """Rewind the trial, the weights left where they lie: the scans from now on read
@@ -131,6 +133,17 @@ class EmulatedRig:
             self._trial.rewind()
             self._block = []
             self._replay_from = first
+            self._pick = None
+
+    def pick(self, places: Sequence[int]) -> None:
+        """Rewind the trial, the weights left where they lie: the scans from now on read as
+        its first block's scans ``places``, in that order (as the Python board's ``SIM
+        PICK``), then as blocks after it."""
+        with self._lock:
+            self._trial.rewind()
+            self._block = []
+            self._replay_from = 0
+            self._pick = list(places)
 
     # ------------------------------------------------------------ the harness's questions
 
@@ -141,8 +154,9 @@ class EmulatedRig:
             if not self._block:
                 stretch = 1.0 + steps / STEPS_PER_MM / self.rest_length_mm
                 block = self._trial.sample_pf(self.samples, stretch, self._indenters)
-                self._block = list(block[self._replay_from:])
-                self._replay_from = 0
+                self._block = (list(block[self._replay_from:]) if self._pick is None
+                               else [block[place] for place in self._pick])
+                self._replay_from, self._pick = 0, None
             capacitance = self._block.pop(0)
         supply = self.model.params.supply_v
         volts = cav424_volts(self.model, capacitance) + self._half_step
