@@ -891,3 +891,32 @@ def test_a_board_older_than_sim_pick_is_topped_up_as_before(honest, tmp_path):
     assert board.frames_asked / report.frames_stored > 1.2, board.frames_asked
     frame = ingest_log(tmp_path / "acquisition.log", plan).frame
     pd.testing.assert_frame_equal(frame[CONTENT], clean[CONTENT])
+
+
+def test_protocol_after_a_stray_ok_or_an_unplaced_answer_the_next_is_still_placed():
+    """The acceptance soak on a pty: a duplicated #OK landed on a SAMPLE (a violation), and
+    the fence forgot the next seq; each later answer, its first line damaged, was unplaced
+    and kept nothing (only a whole one places), so the condition failed 5 times."""
+    host = greeted()
+    host.send_sample(2)
+    host.receive(frames(0, 2) + b"#OK SAMPLE 2\n")
+    host.send_sample(2)
+    events = host.receive(b"#OK SIM PICK 20 2\n")  # a duplicate of another command's #OK
+    assert isinstance(events[0], Violation) and host.needs_fence
+    host.send_fence()
+    host.receive(frames(2, 2) + b"#OK SAMPLE 2\n#OK STREAM OFF\n")  # owed, then the fence
+    host.send_sample(2)  # placed by seq: its damaged first line leaves place 0 empty
+    events = host.receive(damaged(frame_line(4, 48, [500] * 20)) + frames(5, 1)
+                          + b"#OK SAMPLE 2\n")
+    assert [(e.index, e.placed) for e in events if isinstance(e, SampleFrame)] == [(1, True)]
+    host.reset_link()  # a connect: no seq known
+    host.send_fence()
+    host.receive(b"#OK STREAM OFF\n")
+    host.send_sample(2)  # unplaced (a damaged line first), but its last line was a frame
+    host.receive(damaged(frame_line(6, 72, [500] * 20)) + frames(7, 1) + b"#OK SAMPLE 2\n")
+    host.send_fence()
+    host.receive(b"#OK STREAM OFF\n")
+    host.send_sample(2)  # ... so the next begins after it, and is placed
+    events = host.receive(damaged(frame_line(8, 96, [500] * 20)) + frames(9, 1)
+                          + b"#OK SAMPLE 2\n")
+    assert [(e.index, e.placed) for e in events if isinstance(e, SampleFrame)] == [(1, True)]

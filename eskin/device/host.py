@@ -242,6 +242,7 @@ class _Request:
     placed: bool = True       # SAMPLE: start is known to be the answer's first seq
     junk_first: bool = False  # SAMPLE: a line that could not be trusted came before it
     probed: bool = False      # SAMPLE: a probe (STREAM OFF) was sent while it was open
+    junk_last: bool = False   # SAMPLE: a line that could not be trusted since its last frame
     begun: bool = False       # SAMPLE: a line of its answer (a frame, or junk) arrived
 
 
@@ -416,6 +417,7 @@ class HostProtocol:
             elif time_fell:
                 if request.got == 0:
                     request.junk_first = True
+                request.junk_last = True
                 self.junk_lines += 1
                 events.append(Junk(ParseError(time_fell, event.line)))
             else:
@@ -434,8 +436,9 @@ class HostProtocol:
                     self._violate(events, f"{event.reason} (a replayed or stale frame)",
                                   event.line, owe=False)
                     return
-            if request is not None and request.kind == "sample" and request.got == 0:
-                request.junk_first = True
+            if request is not None and request.kind == "sample":
+                request.junk_first = request.junk_first or request.got == 0
+                request.junk_last = True
             if request is not None and request.kind == "fence":
                 self._next_seq_known = False  # it may have been a frame sent unasked
             self.junk_lines += 1
@@ -503,7 +506,7 @@ class HostProtocol:
             return
         if command != request.name:
             self._violate(events, f"a reply to {command} while waiting for {request.text!r}",
-                          reply.line)
+                          reply.line, by_reply=True)
             return
         self._open = None
         if not reply.ok:
@@ -518,7 +521,7 @@ class HostProtocol:
             return
         if reply.details.strip() != str(request.n):
             self._violate(events, f"#OK SAMPLE {reply.details.strip()!r} answered "
-                          f"SAMPLE {request.n}", reply.line, request)
+                          f"SAMPLE {request.n}", reply.line, request, by_reply=True)
             return
         self._answer_over(request, events)
 
@@ -529,7 +532,11 @@ class HostProtocol:
         self._open = None
         self._owe(request)
         # The answer's n seqs are known only if it was placed: then the next follows them.
-        self._next_seq_known = request.start is not None and request.placed
+        # Not placed, its last frame was still its last line (no damaged line after it,
+        # then its #OK), so the next answer follows that frame: without this, one damaged
+        # first line left every later answer unplaced too, each keeping nothing.
+        self._next_seq_known = (request.start is not None and request.placed) or (
+            request.got > 0 and not request.junk_last)
         if request.got == request.n:
             events.append(SampleComplete(request.number, request.got))
         else:
@@ -554,16 +561,24 @@ class HostProtocol:
                           f"(seq {frame.seq})", frame.line)
             return
         request.got += 1
+        request.junk_last = False
         if self._time_last is not None and self._time_last.frame is frame:
             self._time_last.request, self._time_last.index = request.number, index
         events.append(SampleFrame(request.number, index, frame, request.placed))
 
     def _violate(self, events: list[HostEvent], reason: str, line: bytes = b"",
-                 request: _Request | None = None, *, owe: bool = True) -> None:
+                 request: _Request | None = None, *, owe: bool = True,
+                 by_reply: bool = False) -> None:
         request = request or self._open
         self._open = None
         self.needs_fence = True
-        self._next_seq_known = False  # the board may have sent frames beyond its answer
+        if not (by_reply and request is not None and request.kind == "sample"
+                and request.start is not None and request.placed):
+            # The board may have sent frames beyond its answer. A reply out of turn (a
+            # duplicated #OK, say) says nothing of the frames: a placed answer's seqs are
+            # owed, and what the fence absorbs beyond them (a frame nobody was owed, a
+            # damaged line) forgets the next seq then.
+            self._next_seq_known = False
         if request is not None and owe:
             self._owe(request)
         events.append(Violation(request.number if request else 0, reason, line))
