@@ -9,17 +9,31 @@ conditions is complete; the last run resumes and finishes. The dataset then
 built from the raw log must equal the clean one in every channel, label and
 provenance column except the board's own counters (``seq``, ``t_ms``: a
 retried condition uses more wire traffic, and a reset restarts them).
+
+``transport``: ``pty`` (the scene's own simulated board, one per run, as `eskin acquire`
+starts it) or ``socket`` (one simulated board for the whole soak, served with `eskin
+device simulate --socket 0`, and the scene acquired from it as a serial board at its
+``socket://`` port, its indenters placed by ``SIM`` commands). The board logs every
+``SAMPLE`` request with the faults, so the result counts requests per condition and
+frames asked per frame stored across the SIGKILLs too.
+
+    python -m harness.soak single_force --transport socket --drop 0.05 --corrupt 0.05 \
+        --ok-dup 0.01 --ok-spoof 0.01 --out reports/soak-link
 """
 
 from __future__ import annotations
 
+import argparse
+import contextlib
+import json
 import os
+import re
 import signal
 import subprocess
 import sys
 import time
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -60,19 +74,33 @@ class SoakResult:
                                    # CRC-8 with digits lost (a reading or t_ms)
     seconds: float
     runs: list[str] = field(default_factory=list)   # each run's summary or how it ended
+    transport: str = "pty"
+    requests: int = 0              # SAMPLE requests the board answered (or was sent)
+    frames_requested: int = 0      # the frames they asked for
 
     @property
     def passed(self) -> bool:
         return (self.lost == self.duplicated == self.extra == self.differing == 0
                 and self.rows == self.rows_expected and all(self.faults.values()))
 
+    @property
+    def requests_per_condition(self) -> float:
+        return self.requests / self.conditions if self.conditions else 0.0
+
+    @property
+    def frames_requested_per_stored(self) -> float:
+        return self.frames_requested / self.rows if self.rows else 0.0
+
     def as_dict(self) -> dict[str, Any]:
-        return {**asdict(self), "faults_total": sum(self.faults.values()), "passed": self.passed}
+        return {**asdict(self), "faults_total": sum(self.faults.values()), "passed": self.passed,
+                "requests_per_condition": round(self.requests_per_condition, 3),
+                "frames_requested_per_stored": round(self.frames_requested_per_stored, 3)}
 
     def markdown(self) -> str:
         faults = " · ".join(f"{k} {v}" for k, v in self.faults.items())
         lines = [
-            f"# Soak: {self.scene} over a faulty link, {self.kills} SIGKILL(s)",
+            f"# Soak: {self.scene} over a faulty link ({self.transport}), {self.kills} "
+            "SIGKILL(s)",
             "",
             "| | |", "|---|---|",
             f"| conditions | {self.conditions} |",
@@ -84,6 +112,10 @@ class SoakResult:
             f"{self.extra} / {self.differing} |",
             f"| damaged frames that passed CRC-8, caught by the digit checks | "
             f"{self.crc_passed} |",
+            f"| SAMPLE requests (per condition) | {self.requests} "
+            f"({self.requests_per_condition:.2f}) |",
+            f"| frames asked (per frame stored) | {self.frames_requested} "
+            f"({self.frames_requested_per_stored:.3f}) |",
             f"| wall time | {self.seconds:.0f} s |",
             f"| verdict | {'PASS' if self.passed else 'FAIL'} |",
             "", "Runs:", "",
@@ -129,10 +161,34 @@ def compare(reference: pd.DataFrame, frame: pd.DataFrame, plan: ScenePlan) -> di
             "differing": int(differs.sum())}
 
 
+def expected_kinds(settings: Soak) -> list[str]:
+    """The fault kinds the soak's settings inject (their counts must not be 0)."""
+    rates = settings.faults.model_dump()
+    return [kind for kind in KINDS
+            if (settings.corrupt_fraction if kind == "corrupt" else rates.get(kind, 0.0)) > 0]
+
+
+@contextlib.contextmanager
+def socket_board(workdir: Path, scene: str) -> Iterator[str]:
+    """The simulated board of ``workdir``'s params.yaml (its sim, sim_board and faults, the
+    scene's skin) served on a loopback socket for the whole soak; yields its port."""
+    board = subprocess.Popen([sys.executable, "-m", "eskin", "device", "simulate", "--socket",
+                              "0", "--scene", scene], cwd=workdir, stdout=subprocess.PIPE,
+                             stderr=subprocess.DEVNULL, text=True)
+    try:
+        port = board.stdout.readline().strip()
+        if not port.startswith("socket://"):
+            raise SoakError(f"the simulated board did not announce a socket port: {port!r}")
+        yield port
+    finally:
+        board.terminate()
+        board.wait(timeout=10)
+
+
 def run_soak(params: Params, settings: Soak, workdir: Path,
              reference: pd.DataFrame, *, scene: str,
              kill_at: Sequence[float] = (1 / 3, 2 / 3), run_timeout_s: float = 3600.0,
-             say=print) -> SoakResult:
+             transport: str = "pty", say=print) -> SoakResult:
     """Acquire ``scene`` under ``settings``' faults in ``workdir``, SIGKILL it at each
     share of ``kill_at`` complete conditions, resume, ingest, compare with ``reference``."""
     workdir = Path(workdir)
@@ -140,6 +196,22 @@ def run_soak(params: Params, settings: Soak, workdir: Path,
     fault_log = workdir / "faults.log"
     written = soak_params(params, settings, fault_log, scene)
     (workdir / "params.yaml").write_text(yaml.safe_dump(written, sort_keys=False))
+    with contextlib.ExitStack() as stack:
+        if transport == "socket":
+            port = stack.enter_context(socket_board(workdir, scene))
+            written["scenes"][scene].update(source="serial", port=port)
+            written["acquire"]["indenters"] = "board"
+            (workdir / "params.yaml").write_text(yaml.safe_dump(written, sort_keys=False))
+        elif transport != "pty":
+            raise ValueError(f"transport is pty or socket, not {transport!r}")
+        return _soak(written, settings, workdir, reference, scene=scene, kill_at=kill_at,
+                     run_timeout_s=run_timeout_s, transport=transport, say=say)
+
+
+def _soak(written: dict, settings: Soak, workdir: Path, reference: pd.DataFrame, *,
+          scene: str, kill_at: Sequence[float], run_timeout_s: float, transport: str,
+          say) -> SoakResult:
+    fault_log = workdir / "faults.log"
     soaked = validate_params(written, Params, workdir / "params.yaml")
     plan = plan_from_params(scene, soaked.scenes[scene])
     raw_dir = workdir / "data" / "raw" / scene
@@ -178,17 +250,21 @@ def run_soak(params: Params, settings: Soak, workdir: Path,
     build.ingest(scene, soaked.scenes[scene], raw_dir, workdir / "data" / "processed",
                  ingest=soaked.ingest)
     frame = pd.read_parquet(workdir / "data" / "processed" / f"{scene}.parquet")
-    counted = Counter(line.split("\t", 1)[0] for line in fault_log.read_text().splitlines())
+    fault_lines = fault_log.read_text().splitlines()
+    counted = Counter(line.split("\t", 1)[0] for line in fault_lines)
+    asked = [int(m[1]) for line in fault_lines
+             if (m := re.fullmatch(r"request\tSAMPLE (\d+)", line))]
     # Asked again because a frame passed its CRC with digits lost (eskin.device.link).
     crc_passed = sum(1 for line in log.read_text(encoding="ascii").splitlines()
                      if line.startswith("X\t") and ("digits lost" in line
                                                     or "board time went backwards" in line))
     return SoakResult(
         scene=scene, conditions=len(plan.conditions), rows_expected=plan.n_samples,
-        rows=len(frame), faults={kind: counted.get(kind, 0) for kind in KINDS},
+        rows=len(frame), faults={kind: counted.get(kind, 0) for kind in expected_kinds(settings)},
         kills=len(killed_after), killed_after=killed_after,
         **compare(reference, frame, plan), crc_passed=crc_passed,
-        seconds=time.monotonic() - started, runs=runs)
+        seconds=time.monotonic() - started, runs=runs, transport=transport,
+        requests=len(asked), frames_requested=sum(asked))
 
 
 def wait_for_conditions(log: Path, target: int, process: subprocess.Popen,
@@ -215,3 +291,49 @@ def wait_for_conditions(log: Path, target: int, process: subprocess.Popen,
 
 def _tail(path: Path, lines: int = 5) -> str:
     return " | ".join(path.read_text().strip().splitlines()[-lines:])
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """A soak from the command line: params.yaml's settings (the acquisition's defaults
+    included), the faults given, against the pipeline's clean dataset of the scene
+    (``data/processed/<scene>.parquet``: `dvc checkout` gives it). Writes the result as
+    JSON and Markdown to ``--out``; exit 1 if it did not pass."""
+    from eskin.catalog import processed_path
+    from eskin.config.base import load_params
+    from eskin.config.params import Params
+
+    parser = argparse.ArgumentParser(prog="python -m harness.soak", description=main.__doc__)
+    parser.add_argument("scene")
+    parser.add_argument("--transport", choices=("pty", "socket"), default="pty")
+    parser.add_argument("--corrupt", type=float, default=0.0, help="sim_board.corrupt_fraction")
+    for kind in ("drop", "garbage", "reset", "stall", "vanish", "ok_dup", "ok_spoof"):
+        parser.add_argument(f"--{kind.replace('_', '-')}", type=float, default=0.0,
+                            help=f"sim_board.faults.{kind}")
+    parser.add_argument("--stall-s", type=float, default=0.3)
+    parser.add_argument("--vanish-s", type=float, default=0.05)
+    parser.add_argument("--seed", type=int, default=11)
+    parser.add_argument("--kill-at", type=float, nargs="*", default=[0.33, 0.67])
+    parser.add_argument("--workdir", type=Path, required=True, help="scratch directory")
+    parser.add_argument("--out", type=Path, required=True)
+    args = parser.parse_args(argv)
+    params = load_params(Params)
+    faults = {kind: getattr(args, kind) for kind in
+              ("drop", "garbage", "reset", "stall", "vanish", "ok_dup", "ok_spoof")}
+    settings = Soak.model_validate({
+        "corrupt_fraction": args.corrupt, "kill_at": args.kill_at,
+        "timeout_s": params.acquire.timeout_s, "reconnect_s": params.acquire.reconnect_s,
+        "faults": {**faults, "stall_s": args.stall_s, "vanish_s": args.vanish_s,
+                   "seed": args.seed}})
+    reference = pd.read_parquet(processed_path(args.scene))
+    result = run_soak(params, settings, args.workdir, reference, scene=args.scene,
+                      kill_at=args.kill_at, transport=args.transport)
+    args.out.mkdir(parents=True, exist_ok=True)
+    stem = args.out / f"{args.scene}-{args.transport}"
+    stem.with_suffix(".json").write_text(json.dumps(result.as_dict(), indent=2) + "\n")
+    stem.with_suffix(".md").write_text(result.markdown())
+    print(result.markdown())
+    return 0 if result.passed else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

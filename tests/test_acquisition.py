@@ -200,6 +200,25 @@ def test_soak_every_fault_kind_and_two_sigkills_lose_and_duplicate_nothing(clean
     assert re.search(r", [1-9][0-9]* board restart\(s\), [1-9][0-9]* reconnect", result.runs[-1])
 
 
+def test_soak_over_a_socket_with_stray_oks_counts_requests(clean_run, tmp_path,
+                                                           repo_bench_params):
+    """Issue 56's acceptance soak, on the small scene: 10 % of frame lines damaged, 2 % of
+    #OKs duplicated or spoofed, the acquisition's own timeout, one simulated board served
+    on a socket for the whole soak (two SIGKILLs of `eskin acquire`)."""
+    params, _, clean = clean_run
+    settings = {**repo_bench_params["soak"], "corrupt_fraction": 0.05, "timeout_s": 5.0}
+    settings["faults"] = {**dict.fromkeys(["garbage", "reset", "stall", "vanish"], 0.0),
+                          "drop": 0.05, "ok_dup": 0.01, "ok_spoof": 0.01, "stall_s": 0.3,
+                          "vanish_s": 0.05, "seed": 11}
+    result = run_soak(typed(params), Soak.model_validate(settings), tmp_path, clean,
+                      scene="single_force", transport="socket", say=lambda message: None)
+    assert result.passed and result.kills == 2, result.markdown()
+    assert set(result.faults) == {"corrupt", "drop", "ok_dup", "ok_spoof"}, result.faults
+    assert 1.0 < result.requests_per_condition < 3.0, result.markdown()
+    assert result.frames_requested_per_stored <= 1.3, result.markdown()
+    assert "socket://127.0.0.1:" in result.runs[-1]
+
+
 def test_ctrl_c_stops_cleanly_with_everything_received_on_disk(clean_run, tmp_path):
     params, _, clean = clean_run
     process, log = acquire_until(params, tmp_path, complete=100)

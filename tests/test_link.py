@@ -16,6 +16,7 @@ from eskin.device.link import (
     BoardReset,
     DeviceChanged,
     LinkError,
+    ProtocolViolation,
     SampleBatch,
     SerialLink,
     list_serial_ports,
@@ -134,6 +135,30 @@ def test_a_vanishing_link_is_reopened_and_a_reset_board_is_noticed(socket_port):
     if socket_port is None:  # the pty's path is gone while the link is down: tries fail first
         assert any("reconnected" in message for message in said), said
     assert all(message.count(board.port) == 1 for message in said), said
+
+
+def test_duplicated_and_spoofed_oks_from_the_simulated_board_cost_a_retry_each(tmp_path):
+    """Issue 56: the faulty line learns ok_dup (an #OK sent again before the next answer)
+    and ok_spoof (a SAMPLE's #OK sent early too); each costs at most that request."""
+    log = tmp_path / "faults.log"
+    faults = LinkFaults(ok_dup=0.1, ok_spoof=0.1, seed=5, log=str(log))
+    whole = fenced = 0
+    with simulated_board(SkinParams(), rest_length_mm=101.0, faults=faults) as board:
+        with SerialLink(board.port, timeout_s=2.0) as link:
+            link.connect()
+            for _ in range(100):
+                try:
+                    link.command("SIM CLEAR")
+                except ProtocolViolation:  # a duplicate #OK SAMPLE landed on it: fenced
+                    fenced += 1
+                    continue
+                whole += link.sample(SampleBatch(10)).problem is None
+    kinds = [line.split("\t")[0] for line in log.read_text().splitlines()]
+    dup, spoof = kinds.count("ok_dup"), kinds.count("ok_spoof")
+    assert dup >= 5 and spoof >= 5 and kinds.count("request") == 100 - fenced, (dup, spoof)
+    # A duplicate that lands on a command or a SAMPLE costs that one; a spoof its SAMPLE:
+    # the host is never left a reply behind.
+    assert whole >= 100 - dup - spoof, (whole, dup, spoof)
 
 
 @pytest.mark.parametrize("transport", ["pty", "socket"])

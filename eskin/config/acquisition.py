@@ -54,6 +54,8 @@ class Faults(Section):
     vanish_s: NonNegative
     seed: Seed
     log: str | None = None
+    ok_dup: Probability = 0.0    # per #OK line: sent again before the next answer
+    ok_spoof: Probability = 0.0  # per SAMPLE #OK: sent early too, before one of its frames
 
 
 class SimBoard(Section):

@@ -14,6 +14,11 @@ seeded stream. Kinds, each a probability per frame line (``sim_board.faults``):
 ``vanish``   the port disappears before the line (pty closed, socket dropped)
              and comes back ``vanish_s`` later, at the same path
 
+Two more are drawn per ``#OK`` line, from a stream of their own (so the kinds above
+draw as before): ``ok_dup``, the ``#OK`` sent again at the start of the board's next
+answer (it arrives after the host's next request); ``ok_spoof``, a ``SAMPLE``'s
+``#OK`` sent early too, before a frame of its answer drawn at random.
+
 Byte corruption (a flipped byte or a truncated line) is the board's own
 ``corrupt_fraction``: it lives in ``board.py``. It stayed there while that
 file's bytes were part of the simulator's identity; now the identity is what
@@ -22,7 +27,8 @@ it would keep every dataset. This layer still counts it — a frame line that
 leaves the board already failing its CRC is logged as ``corrupt`` — so the
 fault log has every kind. With ``log`` set, every fault
 is appended to that file as it happens (``<kind>\\t<detail>``), flushed, so
-a test or the soak counts them even after the process was killed.
+a test or the soak counts them even after the process was killed; so is every
+``SAMPLE`` request (``request\\tSAMPLE <n>``), which the soak counts.
 """
 
 from __future__ import annotations
@@ -36,7 +42,7 @@ import numpy as np
 from eskin.device.board import SimulatedBoard
 from eskin.device.protocol import Frame, parse_line
 
-KINDS = ("corrupt", "drop", "garbage", "reset", "stall", "vanish")
+KINDS = ("corrupt", "drop", "garbage", "reset", "stall", "vanish", "ok_dup", "ok_spoof")
 
 
 @dataclass(frozen=True)
@@ -52,12 +58,17 @@ class LinkFaults:
     vanish_s: float = 0.5
     seed: int = 0
     log: str | None = None
+    ok_dup: float = 0.0     # per #OK line: sent again before the next answer
+    ok_spoof: float = 0.0   # per SAMPLE #OK: sent early too, before one of its frames
 
     def __post_init__(self) -> None:
         rates = [self.drop, self.garbage, self.reset, self.stall, self.vanish]
         if any(not 0.0 <= r < 1.0 for r in rates) or sum(rates) >= 1.0:
             raise ValueError(f"sim_board.faults: each rate must be in [0, 1) and together < 1, "
-                             f"got {dict(zip(KINDS[1:], rates, strict=True))}")
+                             f"got {dict(zip(KINDS[1:6], rates, strict=True))}")
+        if not (0.0 <= self.ok_dup < 1.0 and 0.0 <= self.ok_spoof < 1.0):
+            raise ValueError(f"sim_board.faults: ok_dup and ok_spoof must be in [0, 1), got "
+                             f"{self.ok_dup} and {self.ok_spoof}")
         if self.stall_s < 0 or self.vanish_s < 0:
             raise ValueError("sim_board.faults: stall_s and vanish_s must be ≥ 0")
 
@@ -98,6 +109,8 @@ class FaultyLine:
         cuts = np.cumsum([faults.drop, faults.garbage, faults.reset, faults.stall,
                           faults.vanish])
         self._cuts = cuts
+        self._ok_rng = np.random.default_rng([faults.seed, 5])  # #OK faults: their own stream
+        self._ok_due = b""  # ok_dup: the #OK to send before the next answer
         self.injected = dict.fromkeys(KINDS, 0)
 
     def close(self) -> None:
@@ -110,12 +123,39 @@ class FaultyLine:
             self._log.write(f"{kind}\t{detail}\n")
             self._log.flush()
 
+    def asked(self, command: bytes) -> None:
+        """Log a ``SAMPLE`` request (the soak counts requests and the frames they ask)."""
+        if self._log and command.strip().upper().startswith(b"SAMPLE"):
+            self._log.write(f"request\t{command.strip().decode('ascii', 'replace')}\n")
+            self._log.flush()
+
+    def _ok_faults(self, lines: list[bytes]) -> list[bytes]:
+        """``lines`` with this answer's #OK faults: the last answer's duplicate first, a
+        SAMPLE's #OK early too; the #OK that is to be duplicated is noted."""
+        out = [self._ok_due] if self._ok_due else []
+        self._ok_due = b""
+        frames = [i for i, line in enumerate(lines) if line.startswith(b"D,")]
+        last = lines[-1] if lines else b""
+        if (self.faults.ok_spoof and frames and last.startswith(b"#OK SAMPLE")
+                and self._ok_rng.random() < self.faults.ok_spoof):
+            at = frames[int(self._ok_rng.integers(0, len(frames)))]
+            self._note("ok_spoof", f"before line {at} of {len(lines)}")
+            lines = [*lines[:at], last, *lines[at:]]
+        for line in lines:
+            if (self.faults.ok_dup and line.startswith(b"#OK")
+                    and self._ok_rng.random() < self.faults.ok_dup):
+                self._note("ok_dup", ascii(line.strip()))
+                self._ok_due = line
+        return out + lines
+
     def answer(self, output: bytes) -> list[Chunk]:
         """Damage the board's answer ``output`` line by line."""
         if not output:
             return []
         chunks: list[Chunk] = []
         lines = output.splitlines(keepends=True)
+        if self.faults.ok_dup or self.faults.ok_spoof:
+            lines = self._ok_faults(lines)
         for i, line in enumerate(lines):
             if not line.startswith(b"D,"):
                 chunks.append(line)

@@ -44,6 +44,7 @@ class _LineServer:
         while (end := self._pending.find(b"\n")) >= 0:
             line = bytes(self._pending[:end])
             del self._pending[: end + 1]
+            self.line.asked(line)
             out += self.line.answer(self.board.handle(line))
         if len(self._pending) > MAX_LINE_BYTES:
             self._pending.clear()
