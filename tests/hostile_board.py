@@ -49,6 +49,8 @@ Misbehaviours, each at the ``at``-th ``SAMPLE`` request (1-based):
 * ``spoof_ok``: an ``#OK SAMPLE n`` after the first n // 2 frames, then a pause, the rest
   and the real ``#OK``;
 * ``lost_ok``: the answer whole, its ``#OK`` lost on the line (never sent);
+* ``lose_place``: in that request's trial, the frame of sample index 1 goes out damaged
+  the first 5 times it is sent (a place the line keeps losing);
 * ``glued_long_line``: 64 KiB of NULs with no newline, then 300 more, each burst followed
   by a pause (so that a read ends where the burst does), then the answer, its first frame
   glued to the end of that line; its seq goes in ``glued``;
@@ -140,6 +142,8 @@ class HostileBoard:
         self.time_jumped: list[int] = []  # seqs sent with t_ms jumped forward, CRC right
         self.fall_next = False       # time_back_twice: the next answer's first frame falls
         self.glued: list[int] = []   # glued_long_line: seqs glued to an overlong line
+        self.lose_trial: int | None = None  # lose_place: the trial whose index 1 is lost
+        self.lost_sends = 0                 # and how many times it was so far
         self.picks = picks
         self.pick: list[int] = []    # SIM PICK: the sample indexes of the next answer
         self.damage_rate = damage_rate
@@ -268,6 +272,17 @@ class HostileBoard:
         if cue == "last_lost":
             frames = [self.frame() for _ in range(n)]
             return b"".join(frames[:-1]) + damaged(frames[-1]) + ok
+        if cue == "lose_place":
+            self.lose_trial = self.trial
+        if self.lose_trial is not None and self.trial == self.lose_trial:
+            out = []
+            for _ in range(n):
+                index, line = self.indexed_frame()
+                if index == 1 and self.lost_sends < 5:
+                    self.lost_sends += 1
+                    line = damaged(line)
+                out.append(line)
+            return b"".join(out) + ok
         if cue == "damage_each":
             self.damage_trial = self.trial
         if self.damage_trial is not None and self.trial == self.damage_trial:
