@@ -720,8 +720,8 @@ def test_a_duplicated_or_spoofed_ok_costs_one_retry(honest, tmp_path, misbehavio
 @pytest.mark.parametrize("misbehaviour", ["dup_ok", "spoof_ok"])
 def test_a_stray_ok_on_a_bench_that_sends_only_samples_costs_one_retry(
         honest, tmp_path, misbehaviour, transport):
-    """Item 1 on a real rig, where a retry is SAMPLE again and nothing else: old code
-    stayed one reply behind and gave up (`failed 5 times ... 0 of 20 frames arrived`)."""
+    """Item 1 on a real rig, where a retry is SAMPLE again and nothing else: the answer's
+    own #OK closed the retry too (old code: 2 retries)."""
     params, _ = honest
     report, _ = acquire_from(HostileBoard(misbehaviour=misbehaviour, at=50), tmp_path,
                              params, transport, placer=OperatorPlacer(ask=lambda _: None))
