@@ -152,10 +152,16 @@ class EmulatedPlacer:
         self.simulated = (simulated_id, simulated_firmware)
 
     def place(self, link: SerialLink, condition: Condition, key: str, repeat: bool) -> None:
+        link.quiet()  # the rig draws scans in order: none may go to an earlier answer
         self.rig.place(trial_seed(condition.key(*self.simulated)),
                        [(c.x, c.y, c.force) for c in condition.contacts if c.touches])
 
     def replay(self, link: SerialLink, missing: list[int], n: int) -> list[int]:
+        """The rig rewinds the trial: the firmware's next scans read the places asked for.
+        The firmware must first have sent all it owed (:meth:`SerialLink.quiet`): after an
+        answer broken off (a violation), it scans on for the frames it still owes, and
+        those scans would take the replayed places, each later frame one place off."""
+        link.quiet()
         places, pick = _picked(missing, n)
         if pick is None:
             self.rig.replay(places[0])

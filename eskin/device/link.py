@@ -416,7 +416,12 @@ class SerialLink:
 
         self._exchange(self.protocol.send_fence(), "STREAM OFF", on_event)
 
-    def _prepare(self) -> None:
+    def quiet(self) -> None:
+        """Take in what the board already sent and, if it may still owe frames (a violation,
+        a short answer, an ``#OK`` out of turn), fence: after this the board sends nothing
+        unasked. A request does this first; so must whatever acts on the board outside the
+        protocol (the emulated rig's weights and replays): a scan the board still owed an
+        earlier answer would otherwise read what was meant for the next one."""
         self._drain()
         if self.protocol.needs_fence:
             self.fence()
@@ -428,7 +433,7 @@ class SerialLink:
         Frames arriving meanwhile (a board left streaming) are stray and dropped:
         they belong to no requested condition.
         """
-        self._prepare()
+        self.quiet()
 
         def on_event(event: HostEvent) -> bool | None:
             self._raise_for_board(event, f"during {command!r}")
@@ -497,7 +502,7 @@ class SerialLink:
         error or a Ctrl-C is in ``batch``; a protocol violation ends the request with
         ``batch.violation`` set."""
         n = batch.requested
-        self._prepare()
+        self.quiet()
 
         def on_event(event: HostEvent) -> bool | None:
             self._raise_for_board(event, f"during SAMPLE {n} ({len(batch.frames)} frame(s) "
