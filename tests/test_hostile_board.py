@@ -763,6 +763,33 @@ def test_protocol_a_probe_ends_an_answer_whose_ok_was_lost_and_is_absorbed_after
     assert [type(e) for e in host.receive(b"#OK SIM CLEAR\n")] == [Answered]
 
 
+@pytest.mark.parametrize("first_seq", [0, 1], ids=["its-first-frame", "its-first-lost"])
+def test_protocol_a_probe_answered_by_a_board_that_restarted_unheard_places_nothing(
+        first_seq):
+    """The emulated firmware, reset mid-answer: its last line torn, its #HELLO glued to it
+    and lost. The probe's #OK then looks like a lost #OK's, and the next answer's frames
+    come from a count started again: none is placed after the old answer's (seq 1 at
+    place 0 of a top-up would be a frame one place off). A count that went back is a
+    restart (the runner tells the board its stretch and weights again); seqs the old
+    answer owned are stray."""
+    host = greeted()
+    host.send_sample(4)
+    torn = frame_line(1, 12, [500] * 20)[:30]
+    events = host.receive(frames(0, 1) + torn
+                          + b"#HELLO eskin fw terminals=20 adc_bits=10 id=b1\n")
+    assert [type(e) for e in events] == [SampleFrame, Junk]
+    host.send_probe()
+    assert host.receive(b"#OK STREAM OFF\n") == [SampleIncomplete(2, 1, 4)]
+    host.send_sample(3)
+    events = host.receive(frames(first_seq, 3 - first_seq) + b"#OK SAMPLE 3\n")
+    assert not any(isinstance(e, SampleFrame) for e in events), events
+    if first_seq == 0:
+        assert isinstance(events[0], Violation) and events[0].restart, events
+        assert host.needs_fence
+    else:
+        assert [type(e) for e in events] == [Stray, Stray, SampleIncomplete], events
+
+
 def test_an_err_stops_the_run_saying_what_the_board_said_and_that_rerunning_resumes(
         honest, tmp_path):
     params, _ = honest

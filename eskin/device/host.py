@@ -15,7 +15,9 @@ The accounting of frames to requests lives here and only here:
 * the sequence check runs across requests, never restarting but at a
   ``#HELLO``: a replayed answer goes backwards and is a :class:`Violation`
   (and what was owed is forgotten: a count that went back may be a restart
-  whose ``#HELLO`` was lost);
+  whose ``#HELLO`` was lost, glued to a line the reset tore; so the violation
+  has ``restart`` set, and the link calls it a restart: the board is told its
+  stretch and weights again);
 * a frame credited to a ``SAMPLE n`` is placed in its answer by its sequence
   number: its index is its seq less the seq the answer begins at, so a frame
   lost on the line leaves its place empty and the frames after it keep theirs
@@ -145,11 +147,16 @@ class SampleIncomplete:
 
 @dataclass(frozen=True)
 class Violation:
-    """The board broke the protocol for the open request, which is now closed."""
+    """The board broke the protocol for the open request, which is now closed.
+
+    ``restart``: a ``SAMPLE``'s frame count went back: the board may have restarted with
+    its ``#HELLO`` lost on the line, and forgotten what it was told (or it replayed an old
+    answer)."""
 
     request: int
     reason: str
     line: bytes = field(default=b"", repr=False)
+    restart: bool = False
 
 
 @dataclass(frozen=True)
@@ -431,11 +438,10 @@ class HostProtocol:
             if event.reason.startswith(_BACKWARDS):
                 # The board's count started again (a restart whose #HELLO was lost) or an
                 # old answer is replayed: what was owed, and the time, mean nothing now.
-                self._forget_sequence()
                 if request is not None and request.kind == "sample":
-                    self._violate(events, f"{event.reason} (a replayed or stale frame)",
-                                  event.line, owe=False)
+                    self._count_restarted(events, event.reason, event.line)
                     return
+                self._forget_sequence()
             if request is not None and request.kind == "sample":
                 request.junk_first = request.junk_first or request.got == 0
                 request.junk_last = True
@@ -566,9 +572,18 @@ class HostProtocol:
             self._time_last.request, self._time_last.index = request.number, index
         events.append(SampleFrame(request.number, index, frame, request.placed))
 
+    def _count_restarted(self, events: list[HostEvent], reason: str, line: bytes) -> None:
+        """The board's frame count went back during a ``SAMPLE``'s answer: a restart whose
+        ``#HELLO`` was lost (or an old answer replayed). What was owed, and the time, mean
+        nothing now; the request is a :class:`Violation` with ``restart`` set: the board
+        may have forgotten what it was told."""
+        self._forget_sequence()
+        self._violate(events, f"{reason} (its frame count started again: a restart whose "
+                      "#HELLO was lost, or a replayed answer)", line, owe=False, restart=True)
+
     def _violate(self, events: list[HostEvent], reason: str, line: bytes = b"",
                  request: _Request | None = None, *, owe: bool = True,
-                 by_reply: bool = False) -> None:
+                 by_reply: bool = False, restart: bool = False) -> None:
         request = request or self._open
         self._open = None
         self.needs_fence = True
@@ -581,7 +596,7 @@ class HostProtocol:
             self._next_seq_known = False
         if request is not None and owe:
             self._owe(request)
-        events.append(Violation(request.number if request else 0, reason, line))
+        events.append(Violation(request.number if request else 0, reason, line, restart))
 
     def _owe(self, request: _Request) -> None:
         """A closed ``SAMPLE``'s n seqs are its own, from where its answer began: the seq

@@ -74,7 +74,8 @@ class BoardRefused(LinkError):
 
 
 class BoardReset(LinkError):
-    """A ``#HELLO`` arrived mid-request: the board restarted and forgot its state."""
+    """A ``#HELLO`` arrived mid-request, or a ``SAMPLE``'s frame count started again (its
+    ``#HELLO`` lost on the line): the board restarted and forgot its state."""
 
 
 class DeviceChanged(LinkError):
@@ -524,6 +525,9 @@ class SerialLink:
                 return True
             if isinstance(event, Violation):
                 batch.violation = event.reason
+                if event.restart:  # nothing in the batch is kept, and the board is told
+                    raise BoardReset(f"board on {self.port} during SAMPLE {n}: "  # again
+                                     f"{event.reason}")
                 return True
             return None
 
