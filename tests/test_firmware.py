@@ -236,7 +236,10 @@ def test_link_faults_mid_request_cost_nothing(sim, tmp_path):
 
 def test_a_failing_rig_is_named_in_the_hosts_error(sim, tmp_path, monkeypatch):
     """If the Python side of the harness fails, the host loses the board; its one-line
-    error says why, and the conditions already recorded are kept."""
+    error says why, and the conditions already recorded are kept. The second condition's
+    frames all came, but a condition is recorded only once the frame after its last one
+    has judged that frame's board time (docs/acquisition.md), and that frame, the third
+    condition's first, never came: its frames are in the log, its attempt abandoned."""
     from eskin.device.emulated import EmulatedRig
 
     answer = EmulatedRig.answer
@@ -252,7 +255,16 @@ def test_a_failing_rig_is_named_in_the_hosts_error(sim, tmp_path, monkeypatch):
                        "skin model broke"):
         acquire_scene(plan, tmp_path, source="emulated", sim=sim, rest_length_mm=REST_MM,
                       progress=False, timeout_s=1.0, max_attempts=1, reconnect_s=1.0)
-    assert len(read_log(tmp_path / LOG_NAME).completed) == 2
+    log = read_log(tmp_path / LOG_NAME)
+    first, second = (c.key(EMULATED_ID, log.sessions[-1]["device"]["firmware"])
+                     for c in plan.conditions[:2])
+    assert list(log.completed) == [first]
+    lines = (tmp_path / LOG_NAME).read_text().splitlines()
+    attempt = next(line.split("\t")[1] for line in lines
+                   if line.startswith("B\t") and f'"key": "{second}"' in line)
+    assert sum(line.startswith(f"F\t{attempt}\t") for line in lines) == 4
+    assert any(line.startswith(f"X\t{attempt}\t") and "judged that frame's board time" in line
+               for line in lines), "the held condition's attempt is closed, saying why"
 
 
 @pytest.mark.parametrize("skin", [None, {"rows": 16, "columns": 12}], ids=["paper", "16x12"])

@@ -280,7 +280,7 @@ def acquire(plan: ScenePlan, link: SerialLink, writer: RawLogWriter, placer: Pla
         if still_open != held.attempt:
             writer.open_attempt = still_open
 
-    with bar, _closed_on_the_way_out(writer):
+    with bar, _closed_on_the_way_out(writer), _held_on_the_way_out(writer, lambda: pending):
         while queue or pending is not None:
             if not queue:  # the last condition's last frame: one more frame judges it
                 _judge(link, settle)
@@ -447,6 +447,25 @@ def _closed_on_the_way_out(writer: RawLogWriter) -> Iterator[None]:
         yield
     except BaseException:
         _close(writer, writer.open_attempt, "interrupted")
+        raise
+
+
+@contextmanager
+def _held_on_the_way_out(writer: RawLogWriter,
+                         held: Callable[[], _Pending | None]) -> Iterator[None]:
+    """An error or Ctrl-C with a condition held for its last frame's verdict: its attempt
+    is marked abandoned (its frames are in the log; a rerun asks for it again)."""
+    try:
+        yield
+    except BaseException:
+        pending = held()
+        if pending is not None and pending.attempt is not None:
+            still_open = writer.open_attempt
+            _close(writer, pending.attempt, "every frame came, but the run stopped before a "
+                   "frame after its last one judged that frame's board time: asked again "
+                   "on a rerun")
+            if still_open != pending.attempt:
+                writer.open_attempt = still_open
         raise
 
 
