@@ -35,6 +35,10 @@ Misbehaviours, each at the ``at``-th ``SAMPLE`` request (1-based):
 * ``restart_mid``: that request and the ``times`` - 1 after it are each cut short by a
   restart half-way through the answer (its first n // 2 frames, then ``#HELLO``; the
   stretch and presses forgotten, the sequence from 0), then it answers as before;
+* ``restart_unheard``: a restart half-way through that request's answer whose ``#HELLO``
+  is lost: its first n // 2 frames, then the next frame cut short by the reset, the
+  ``#HELLO`` glued to it on the same line; the stretch, presses and trial forgotten, the
+  sequence and the clock from 0 (a reset tears the line being sent);
 * ``damage_each``: every answer in that request's trial (``SIM TRIAL`` of the same
   number again included) goes out with every other frame damaged: those of even
   sample index in the first answer, of odd index in the next, and so on, so no
@@ -265,6 +269,11 @@ class HostileBoard:
             self.stretch_mm, self.presses, self.trial, self.seq = "0", [], 0, 0
             self.greeted = True
             return half + self.hello()
+        if cue == "restart_unheard":
+            half = b"".join(self.frame() for _ in range(n // 2))
+            torn = self.frame()[:40]
+            self.stretch_mm, self.presses, self.trial, self.seq, self.t_ms = "0", [], 0, 0, 0
+            return half + torn + self.hello()
         greeted, self.greeted = self.greeted, False
         if greeted and self.damage_first:
             first = damaged(self.frame())

@@ -433,6 +433,23 @@ def test_requests_cut_short_by_restarts_are_not_attempts_at_the_condition(honest
     pd.testing.assert_frame_equal(frame[CONTENT], clean[CONTENT])
 
 
+@pytest.mark.parametrize("transport", ["pty", "socket"])
+def test_a_restart_whose_hello_is_lost_is_a_restart_and_costs_nothing(honest, tmp_path,
+                                                                       transport):
+    """A reset tears the line being sent, and the #HELLO after it is glued to the torn
+    line: the host sees junk, then silence; its probe's #OK looks like that of an answer
+    whose #OK was lost. The next answer's seq, started again, tells: the board is told its
+    stretch and weights again (before: a violation counted as an answer, and the board,
+    which had forgotten them, was asked for the missing places as it was)."""
+    params, clean = honest
+    report, plan = acquire_from(HostileBoard(misbehaviour="restart_unheard", at=50),
+                                tmp_path, params, transport)
+    assert (report.acquired, report.resets, report.reconnects) == (404, 1, 0), \
+        report.summary()
+    frame = ingest_log(tmp_path / "acquisition.log", plan).frame
+    pd.testing.assert_frame_equal(frame[CONTENT], clean[CONTENT])
+
+
 def test_a_board_that_restarts_on_every_request_ends_after_max_interruptions(honest,
                                                                             tmp_path):
     """A board that restarts in every answer from the 50th request on: one line naming the
