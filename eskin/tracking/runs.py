@@ -495,9 +495,13 @@ def _log_trained(client, experiment_id, files, record, variant, common) -> str:
                    if k not in ("eskin.kind", "eskin.trained")}
         headline = _headline_text(s)
         for target, model in models.items():
+            # No input_example: with one, MLflow reloads the saved model and predicts the
+            # example to validate it for serving (measured about 1 s a model); the
+            # environment is pinned (pip_requirements), the signature names the inputs,
+            # and the export stage checks the stack's predictions against the models'.
+            # What is lost: the example shown on the model's page.
             info = mlflow.sklearn.log_model(
                 model, name=files.task if target == files.task else f"{files.task}-{target}",
-                input_example=example,
                 signature=infer_signature(example, model.predict(example)),
                 pip_requirements=_requirements(), serialization_format="cloudpickle")
             # Registered with the run's lineage: `eskin reproduce` finds the dataset
