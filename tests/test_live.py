@@ -722,3 +722,48 @@ def test_press_requests_become_the_simulated_boards_commands():
         (400, "force_n"), (400, "force_n"), (400, "x"), (400, "y"), (400, "not")]
     assert refused.status == 502 and "#ERR SIM refused 'SIM PRESS 1 1 2.0 100'" in str(refused)
     assert tried == ["SIM CLEAR", "SIM PRESS 1 1 2.0 100"] and pressed == []  # cleared
+
+
+ONE_THREAD_PROBE = """
+import json
+import eskin.deploy.stack as stack_module  # first, as `eskin live` imports it
+import numpy as np
+from threadpoolctl import threadpool_info
+from sklearn.ensemble import HistGradientBoostingRegressor  # the models' OpenMP, loaded now
+from eskin.skin import PAPER_SKIN
+
+class Identity:
+    def transform(self, X):
+        return X
+
+class Spy:
+    threads = []
+    def predict(self, X):
+        Spy.threads.append([p["num_threads"] for p in threadpool_info()
+                            if p["user_api"] == "openmp"])
+        return np.zeros(len(X))
+
+spy = Spy()
+stack = stack_module.SkinStack("s", "single_force", PAPER_SKIN, Identity(),
+                               {"stretch": {"stretch": spy}})
+stack.predict(np.zeros((1, 20)))
+stack.predict(np.zeros((stack_module.ONE_THREAD_ROWS + 1, 20)))
+print(json.dumps(Spy.threads))
+"""
+
+
+def test_a_few_frames_are_predicted_on_one_openmp_thread_without_omp_num_threads():
+    """Issue 57, finding 4: the one-thread guard's ThreadpoolController was made at import,
+    before scikit-learn's OpenMP library loaded, and limited nothing: at load 15, 267 ms a
+    frame (79 ms with it). The tests set OMP_NUM_THREADS=1 under xdist, which hid it: here
+    a process without it, on a machine with two cores or more (else nothing to limit)."""
+    import os
+
+    if (os.cpu_count() or 1) < 2:
+        pytest.skip("one core: OpenMP has one thread anyway")
+    env = {k: v for k, v in os.environ.items() if k != "OMP_NUM_THREADS"}
+    out = subprocess.run([sys.executable, "-c", ONE_THREAD_PROBE], env=env, cwd=ROOT,
+                         capture_output=True, text=True, timeout=120, check=True).stdout
+    few, many = json.loads(out.splitlines()[-1])
+    assert few and all(n == 1 for n in few), few  # a frame: one thread
+    assert many and all(n > 1 for n in many), many  # a large batch: OpenMP's own

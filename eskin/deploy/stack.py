@@ -20,6 +20,7 @@ training recording gave only that (the kind's total-force variant).
 
 from __future__ import annotations
 
+import functools
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -42,7 +43,15 @@ from eskin.skin import AnySkin, skin_from_dict
 # (harness/live_latency.py, single force with a bench running: per-frame p99 149 ms on
 # two threads, 18 ms on one). Batches up to this many rows are predicted on one thread.
 ONE_THREAD_ROWS = 64
-_THREADS = ThreadpoolController()
+
+
+@functools.cache
+def _threads() -> ThreadpoolController:
+    """The thread pools of the libraries loaded when a stack first predicts: made then,
+    after its models loaded scikit-learn's OpenMP library. One made at import held no
+    OpenMP library, and its one-thread limit did nothing (issue 57: at load 15, 267 ms
+    a frame against 79 ms with it)."""
+    return ThreadpoolController()
 
 
 class StackError(EskinError, ValueError):
@@ -113,7 +122,7 @@ class SkinStack:
         x1..xR then y1..yC on a row/column skin — in the units the stack was trained on)."""
         values = frame_values(counts, self.scene, self.skin)
         if len(values) <= ONE_THREAD_ROWS:
-            with _THREADS.limit(limits=1, user_api="openmp"):
+            with _threads().limit(limits=1, user_api="openmp"):
                 return self._predict(values)
         return self._predict(values)
 
