@@ -16,7 +16,7 @@ export DO_NOT_TRACK := 1
 # Material for MkDocs prints an end-of-life banner at every build; not a warning.
 export NO_MKDOCS_2_WARNING := 1
 
-.PHONY: setup plots-page browser avr firmware postgres sshd lab-server repro bench stress test docs lint clean FORCE
+.PHONY: setup plots-page browser avr firmware postgres sshd lab-server repro bench stress check test docs lint clean FORCE
 
 # `dvc plots show|diff` pages that draw offline (DVC's own page loads vega from a CDN):
 # vega, vega-lite and vega-embed, pinned, from npm's registry, checked against the
@@ -148,6 +148,12 @@ stress: setup
 	$(DVC_REPRO)
 	cd stress && $(DVC_REPRO)
 	@cat reports/stress/*.md
+
+# The fast tier: the tests that start no pipeline, server, emulator or browser (marked
+# `starts`: under ESKIN_CHECK=1 a test that starts one anyway fails and names it) and do
+# no heavy training (marked `heavy`: over about 9 s each on this machine, under load).
+check: setup
+	ESKIN_CHECK=1 pytest -q -n 2 -m "not starts and not heavy and not alone" --durations=10
 
 # Two workers, a test file each (its module fixtures, servers and scratch projects stay
 # in one process): most of a pipeline test is starting Python processes on one core.

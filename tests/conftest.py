@@ -1,6 +1,7 @@
 import contextlib
 import copy
 import os
+import shlex
 import shutil
 import signal
 import subprocess
@@ -37,6 +38,51 @@ def pytest_collection_modifyitems(items):
 
 
 ROOT = Path(__file__).resolve().parents[1]
+
+# `make check`: the tests that start no pipeline, server, emulator or browser (the others
+# are marked `starts`: a module's `pytestmark`, or the test's own mark). Under it
+# (ESKIN_CHECK=1), a test that starts one anyway fails and names what it started, so
+# the mark cannot silently go missing.
+CHECK_ENV = "ESKIN_CHECK"
+STARTS = (("dvc", "repro"), ("dvc", "exp"), ("mlflow", "server"), ("mlflow", "ui"),
+          ("simavr",), ("chromium",), ("postgres",),
+          ("pg_ctl",), ("initdb",), ("sshd",), ("make",), ("eskin.device.emulated",))
+
+
+def starts_what(args) -> str | None:
+    """What a process started with ``args`` is, if a check-tier test may not start it."""
+    argv = shlex.split(args) if isinstance(args, str) else [str(a) for a in args]
+    words = {os.path.basename(word) for word in argv}
+    emulator = any(word.startswith("eskin_emulator") for word in words)
+    browser = bool(argv) and "playwright" in argv[0]  # its driver, which starts chromium
+    if emulator or browser or any(set(pattern) <= words for pattern in STARTS):
+        return " ".join(argv)[:120]
+    return None
+
+
+_running_test = [""]
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    _running_test[0] = item.nodeid  # its fixtures' setup included, of every scope
+    yield
+    _running_test[0] = ""
+
+
+def pytest_configure(config):
+    if os.environ.get(CHECK_ENV) != "1":
+        return
+    real = subprocess.Popen.__init__
+
+    def guarded(self, args, *rest, **kwargs):
+        started = starts_what(args)
+        if started is not None:
+            raise AssertionError(f"{_running_test[0]} started {started!r}: mark it `starts` "
+                                 "(pytest.mark.starts); `make check` leaves those out")
+        real(self, args, *rest, **kwargs)
+
+    subprocess.Popen.__init__ = guarded
 
 # Pages (the report, the live view, DVC's plots, MLflow's UI) are tested in Debian's
 # chromium, headless; `make test` installs it where missing.

@@ -102,6 +102,7 @@ def test_a_faulty_link_gives_the_clean_rows_within_5_attempts_per_condition(
     pd.testing.assert_frame_equal(frame[CONTENT + ["session"]], clean[CONTENT + ["session"]])
 
 
+@pytest.mark.heavy
 def test_sigkill_midway_then_resume_gives_every_planned_row_once(clean_run, tmp_path):
     params, _, clean = clean_run
     process, log = acquire_until(params, tmp_path, complete=150)
@@ -184,6 +185,7 @@ def test_serial_source_prompts_the_operator_only_when_the_weights_change(small_p
     assert contents.sessions[0]["source"] == "serial" and "started_utc" in contents.sessions[0]
 
 
+@pytest.mark.heavy
 def test_soak_every_fault_kind_and_two_sigkills_lose_and_duplicate_nothing(clean_run, tmp_path,
                                                                           repo_bench_params):
     """make test's soak: the small scene; `make bench` runs the whole one (bench/dvc.yaml)."""
@@ -219,6 +221,7 @@ def test_soak_over_a_socket_with_stray_oks_counts_requests(clean_run, tmp_path,
     assert "socket://127.0.0.1:" in result.runs[-1]
 
 
+@pytest.mark.heavy
 def test_ctrl_c_stops_cleanly_with_everything_received_on_disk(clean_run, tmp_path):
     params, _, clean = clean_run
     process, log = acquire_until(params, tmp_path, complete=100)

@@ -159,6 +159,7 @@ def run_pipeline(root, scene: str, frame: pd.DataFrame, skin, spec, params) -> d
 @pytest.mark.parametrize("rows, columns, nodes_x, nodes_y",
                          [(8, 8, [1, 3, 6, 8], [1, 4, 8]), (16, 12, [1, 6, 11, 16], [1, 6, 12])],
                          ids=["8x8", "16x12"])
+@pytest.mark.heavy
 def test_a_row_column_skin_of_any_size_goes_from_features_to_the_stack(
         rows, columns, nodes_x, nodes_y, params, tmp_path):
     skin = Skin(rows, columns)
@@ -188,6 +189,7 @@ def test_a_row_column_skin_of_any_size_goes_from_features_to_the_stack(
     assert (tmp_path / "reports/figures/lab/localisation_confusion_conditions.png").exists()
 
 
+@pytest.mark.heavy
 def test_a_magnetic_channel_array_trains_generic_models_and_scores_in_mm(params, tmp_path):
     """15 magnetometer channels on a 3 × 3 grid in mm, continuous force, node 0 untouched:
     featurize → every single-force task → report → export."""

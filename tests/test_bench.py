@@ -111,6 +111,7 @@ def small_dataset(tmp_path_factory, repo_params):
     return params, read_dataset(prepared_scene(params, "single_force", root))
 
 
+@pytest.mark.heavy
 def test_oracle_is_near_perfect_where_the_physics_is_unambiguous(small_dataset):
     params, frame = small_dataset
     scene = params["scenes"]["single_force"]
@@ -125,6 +126,7 @@ def test_oracle_is_near_perfect_where_the_physics_is_unambiguous(small_dataset):
     assert r2_score(labels["stretch"], answers["stretch"]) > 0.99
 
 
+@pytest.mark.heavy
 def test_oracle_bound_drops_when_the_simulator_is_noisier(small_dataset):
     """A bound that does not move with the noise would be typed in, not computed."""
     params, frame = small_dataset
@@ -160,6 +162,7 @@ def test_a_variant_is_scored_on_the_given_folds_only(small_dataset):
     assert result["peak_memory_mb"] is None or result["peak_memory_mb"] > 0
 
 
+@pytest.mark.heavy
 def test_shared_hyperparameters_are_fitted_once(small_dataset, monkeypatch):
     from eskin.learning import gp
 
@@ -214,6 +217,7 @@ def light_and_heavy(repo_params):
     return sim, frame, get_task("single_force", "force").target_values(frame)["force"]
 
 
+@pytest.mark.heavy
 def test_doubling_the_grid_catches_a_bound_that_has_not_converged(light_and_heavy):
     """The bound stage doubles its grids on a sample and reports what moved: Gauss–Hermite's
     7 load points left the old bound 0.09 in R² from its 21-point value (the audit of issue
@@ -228,6 +232,7 @@ def test_doubling_the_grid_catches_a_bound_that_has_not_converged(light_and_heav
                            "y_accuracy"}
 
 
+@pytest.mark.heavy
 def test_the_strongest_force_model_does_not_beat_the_bound_on_held_out_trials(light_and_heavy):
     """The benchmark's best force models under conditions CV (gradient boosting on the
     channels, and on the physics features), against the oracle on the same held-out
@@ -286,6 +291,7 @@ def test_the_pair_oracle_reads_the_skin_as_the_simulator_does(two_contacts):
         np.testing.assert_allclose(means[k], model.capacitance(1.0, pressed), rtol=1e-12)
 
 
+@pytest.mark.heavy
 def test_the_pair_bound_converges_and_no_strong_model_beats_it(two_contacts):
     """Half the importance sample moves no score by 0.001 from all of it, while 32 points a
     condition are caught; and the strongest two-contact models (the pressed terminals, then

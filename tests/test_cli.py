@@ -6,6 +6,8 @@ import shlex
 import subprocess
 import sys
 
+import pytest
+
 from eskin.cli import build_parser
 
 
@@ -70,6 +72,7 @@ MLFLOW_CHATTER = ("INFO", "Creating initial", "Updating database tables", "Conte
                   "Will assume")
 
 
+@pytest.mark.starts
 def test_a_fresh_mlflow_store_says_nothing_of_its_tables(tmp_path):
     """The first command against a new SQLite store makes its tables: MLflow's and
     alembic's INFO lines about it are not the command's output, nor the tracking

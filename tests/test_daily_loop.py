@@ -26,6 +26,9 @@ READ_KEYS = ("sim_board.faults.stall_s", "train.stretch.model", "train.force.mod
              "scenes.single_force.stretches")
 SHOW_PARAMS = """\
 import json, yaml
+
+# Each test here starts a pipeline or a server: `make check` leaves them out.
+pytestmark = pytest.mark.starts
 params = yaml.safe_load(open("params.yaml"))
 def get(key):
     node = params

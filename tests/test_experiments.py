@@ -155,6 +155,7 @@ def test_the_table_fits_the_terminal_and_keeps_every_column(runs, monkeypatch):
     assert "0.6" in text
 
 
+@pytest.mark.starts
 def test_an_empty_store_is_a_clear_error():
     with pytest.raises(compare.NoRunsError, match="dvc repro"):
         compare.variant_table(pd.DataFrame())

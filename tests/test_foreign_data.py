@@ -33,6 +33,9 @@ from conftest import run_checked as run
 from hostile_board import HostileBoard, Served
 from test_stage_deps import params_mismatches
 
+# Each test here starts a pipeline or a server: `make check` leaves them out.
+pytestmark = pytest.mark.starts
+
 NODES = (1, 5, 10)
 SAMPLES = 4
 

@@ -1,5 +1,7 @@
 """A small sample of the fuzzers `make bench` runs at 100,000 inputs each (harness/fuzz.py)."""
 
+import pytest
+
 from harness import fuzz
 
 
@@ -8,6 +10,7 @@ def test_frame_parser_survives_damaged_streams():
     assert result["inputs"] == 300 and result["intact frames"] > 300
 
 
+@pytest.mark.heavy
 def test_import_reader_errors_name_the_file_or_account_for_every_row():
     result = fuzz.fuzz_import(200)
     assert result["inputs"] == 200

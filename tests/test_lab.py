@@ -60,6 +60,7 @@ def cv_on(backend: str, frame: pd.DataFrame, n_jobs: int = 2,
                               n_jobs=n_jobs)
 
 
+@pytest.mark.heavy
 def test_dask_gives_the_predictions_of_loky_and_ships_the_features_once(cluster, dataset,
                                                                          monkeypatch):
     from harness.dask_scaling import clear, shipped
@@ -128,6 +129,7 @@ class socket_closed:
 # ---------------------------------------------------------------- the tracking server
 
 
+@pytest.mark.starts
 def test_a_ctrl_c_as_the_lab_server_says_how_to_stop_it_is_a_clean_stop(monkeypatch, tmp_path):
     """Ctrl-C at the moment `make lab-server` prints "Ctrl-C stops them." (as a user, or the
     test below, answers that line): exit 0 and every server stopped, not "interrupted" (130).
@@ -170,6 +172,7 @@ def test_a_ctrl_c_as_the_lab_server_says_how_to_stop_it_is_a_clean_stop(monkeypa
     assert stopped == ["remote", tmp_path]
 
 
+@pytest.mark.heavy
 def test_make_lab_server_names_the_training_view_of_its_experiment():
     """`make lab-server` (python -m eskin.tracking.lab serve) prints the link to the experiment's
     runs in MLflow's training view, the experiment made already; Ctrl-C stops it."""

@@ -206,6 +206,7 @@ def test_out_of_fold_predictions_cover_each_row_once(project, capsys):
     assert result.summary["x"]["accuracy"] == pytest.approx(accuracy, abs=0.02)
 
 
+@pytest.mark.heavy
 def test_same_params_and_seed_give_identical_scores_files(project, tmp_path):
     # force: the seeded default (gradient boosting's random_state); localise's default,
     # logistic regression, draws nothing
@@ -238,6 +239,7 @@ def test_scores_carry_every_score_under_both_schemes_and_metrics_the_headline(pr
                      for axis in ("x", "y")}}}
 
 
+@pytest.mark.heavy
 def test_detection_keeps_a_score_per_sample_for_roc_curves(project, tmp_path):
     train(project, "single_force", "detect", tmp_path)
     oof = pd.read_parquet(tmp_path / "oof.parquet")
@@ -248,6 +250,7 @@ def test_detection_keeps_a_score_per_sample_for_roc_curves(project, tmp_path):
     assert metrics["dataset_rows"] == len(oof) // 2
 
 
+@pytest.mark.heavy
 def test_two_force_tasks_train(project, tmp_path):
     summary = train(project, "two_force", "localise", tmp_path / "loc")
     scores = json.loads((tmp_path / "loc" / "scores.json").read_text())

@@ -59,6 +59,7 @@ def curves(project):
                                              log=lambda _: None)
 
 
+@pytest.mark.heavy
 def test_the_curve_holds_out_the_datasets_own_trials_and_trains_on_new_ones(project, curves):
     root, _, _ = project
     dataset = pd.read_parquet(root / "data" / "processed" / f"{SCENE}.parquet")

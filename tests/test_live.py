@@ -398,6 +398,7 @@ def test_the_json_lines_reach_a_client_on_loopback_and_a_stalled_one_is_dropped(
 
 
 @needs_chromium
+@pytest.mark.starts
 def test_the_live_view_shows_a_press_where_and_as_hard_as_it_is(stack, tmp_path):
     """The page in headless Chromium, read as a person reads it, while the live loop runs
     on the simulated board's stream and a weight is pressed on node (5, 5)."""
@@ -551,6 +552,7 @@ def wait_for_estimate(port: int, wanted, seconds: float = 30.0) -> dict:
 
 
 @needs_chromium
+@pytest.mark.starts
 def test_a_click_on_the_view_presses_the_simulated_skin_there_with_the_weight_set(
         live_view, tmp_path):
     """A newcomer's case: set a weight on the page, click node (6, 4), see the contact
@@ -638,6 +640,7 @@ def test_eskin_press_with_no_view_running_says_so_in_one_line():
 
 
 @needs_chromium
+@pytest.mark.starts
 def test_a_view_of_a_real_board_offers_no_pressing_and_says_why():
     """No pressing on a real board: the page says why, and POST /press is refused."""
     with LiveView(scene="single_force", kind="single_force", device="lab2-skin1",

@@ -76,6 +76,7 @@ def contact_share(records) -> float:
     return float(np.mean([r["contact"] for r in records if "seq" in r]))
 
 
+@pytest.mark.heavy
 def test_ten_untouched_minutes_give_no_more_than_a_tenth_of_a_percent_contact(params, onnx):
     """The new user's case: nothing pressed for 10 minutes. On HEAD before issue 39 (an
     unbounded drift, one tare at start, nothing followed) the ONNX stack saw contact on
@@ -129,6 +130,7 @@ def test_a_re_tare_on_a_stretched_skin_takes_off_drift_not_the_stretch(params, o
     assert {(r["x"], r["y"]) for r in pressed} == {(5, 5)}
 
 
+@pytest.mark.heavy
 def test_a_two_minute_press_is_still_seen_at_its_end(params, onnx):
     untouched, pressed = 1000, 10_000  # 12 s, then 2 minutes
     records = run(onnx, params, untouched + pressed, batch=8, with_change=True,
@@ -215,6 +217,7 @@ def test_a_typo_in_the_live_knobs_is_one_line_naming_the_key():
 
 
 @needs_chromium
+@pytest.mark.starts
 def test_the_view_during_a_sustained_press_and_its_re_tare_button(params, onnx, tmp_path):
     """Two minutes of a 3.3 N press on node (5, 5), read off the page in headless
     Chromium at its end (and photographed); then the weight is lifted and the page's

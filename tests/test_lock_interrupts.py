@@ -71,6 +71,7 @@ def root(tmp_path_factory):
     return root
 
 
+@pytest.mark.starts
 def test_the_stub_has_the_pipelines_stages_and_writes_what_the_next_ones_read(root, tmp_path):
     found = stub_project(tmp_path / "stub", root=root)
     stub = tmp_path / "stub"
@@ -103,6 +104,7 @@ def test_the_stub_has_the_pipelines_stages_and_writes_what_the_next_ones_read(ro
     assert outcome(lock_file, reference)["outcome"] == "unreadable"
 
 
+@pytest.mark.starts
 def test_both_arms_on_the_same_seeded_ctrl_cs(root):
     result = measure(trials=2, seed=1, cuts=40, root=root, log=lambda line: None)
     for arm in ARMS:
@@ -133,6 +135,7 @@ def committed(tmp_path):
     return tmp_path
 
 
+@pytest.mark.heavy
 def test_every_cut_of_dvcs_own_write_but_one_kind_is_told(committed):
     """Cuts of DVC's own write of the project's lock, at 100 of its 15,000 write
     boundaries: each is told, but for a cut at a line's end inside the last stage's

@@ -178,6 +178,7 @@ def gone(pid: int, timeout: float = 10) -> bool:
     return not psutil.pid_exists(pid) or psutil.Process(pid).status() == psutil.STATUS_ZOMBIE
 
 
+@pytest.mark.starts
 def test_ctrl_c_under_make_stops_the_stage_and_dvc_records_the_stages_before(pipeline):
     """`make repro`'s way, Ctrl-C as a terminal sends it: SIGINT to the foreground process
     group (make and the wrapper; DVC runs in a session of its own)."""

@@ -266,6 +266,7 @@ def test_audit_prints_every_run_id_whole_at_80_columns(fmt, monkeypatch, capsys)
 
 # ------------------------------------------------------------------ registered model names
 
+@pytest.mark.heavy
 def test_a_mistyped_registered_model_is_one_line_with_the_closest(tmp_path):
     """`eskin reproduce singel_force.force`: the registry's closest name, and all of them,
     in one line, exit 1 (a store of registered names is enough: no pipeline)."""
@@ -320,6 +321,7 @@ def test_each_stage_says_what_a_ctrl_c_kept_of_it(stage, monkeypatch):
     assert told.get("interrupted", STAGE_NOT_KEPT) == PIPELINE_STAGES[stage]
 
 
+@pytest.mark.heavy
 def test_an_interrupted_training_stage_says_it_kept_nothing(small_params, tmp_path):
     """The train stage, on a small scene, stopped by SIGINT while it cross-validates:
     exit 130, one line saying that nothing of it is kept (and nothing was written), not

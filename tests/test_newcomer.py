@@ -7,9 +7,13 @@ from __future__ import annotations
 import shutil
 
 import mlflow
+import pytest
 from conftest import copy_small_pipeline, run_checked
 
 from eskin.catalog import TRACKED
+
+# Each test here starts a pipeline or a server: `make check` leaves them out.
+pytestmark = pytest.mark.starts
 
 
 def _runs(uri: str) -> list:

@@ -98,6 +98,7 @@ def test_reading_noise_matches_its_parameter():
     assert np.allclose(noise.std(axis=0), 0.05, rtol=0.05)
 
 
+@pytest.mark.heavy
 def test_drift_is_bounded_mean_reverting_and_as_slow_as_a_real_skins():
     """Issue 39: a stationary OU process in board time, not a walk per sample."""
     sigma, tau = 0.05, 300.0

@@ -31,6 +31,9 @@ from eskin.data.schema import md5_file
 from eskin.learning.choice import model_settings
 from eskin.skin import PAPER_SKIN
 
+# Each test here starts a pipeline or a server: `make check` leaves them out.
+pytestmark = pytest.mark.starts
+
 
 def run(args, cwd, env):
     return run_checked(args, cwd, env).stdout

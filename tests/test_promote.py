@@ -51,6 +51,7 @@ def logged_pipeline(client, experiment: str, name: str, scores: dict[str, float]
     client.set_terminated(pipeline.info.run_id)
 
 
+@pytest.mark.heavy
 def test_promoting_a_worse_stack_says_so_in_one_line_and_proceeds(tmp_path, monkeypatch,
                                                                     capsys):
     """The issue's case: champion went to a force model of 0.859 over one of 0.940 without

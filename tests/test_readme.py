@@ -12,6 +12,7 @@ import subprocess
 import time
 from pathlib import Path
 
+import pytest
 from conftest import ROOT, headless_chromium, needs_chromium
 
 SECTION = re.compile(r"^## After `make repro`\n(.*?)^## ", re.S | re.M)
@@ -53,6 +54,7 @@ def _bash(command: str) -> list[str]:
 
 
 @needs_chromium
+@pytest.mark.starts
 def test_a_fresh_clone_runs_the_readme_after_make_repro(tmp_path):
     clone = tmp_path / "eskin"
     subprocess.run(["git", "clone", "-q", str(ROOT), str(clone)], check=True, timeout=120)

@@ -10,6 +10,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 from conftest import ROOT, run_checked
 
 # A pipeline's logging, as the tracking stage does it: a pipeline run and an artifact on
@@ -51,6 +52,7 @@ def figures_in(directory: Path) -> dict[str, bytes]:
             if name.endswith("force.svg")}
 
 
+@pytest.mark.heavy
 def test_a_copied_project_and_a_second_clone_log_into_their_own_mlruns(tmp_path):
     original = tmp_path / "original"
     original.mkdir()
@@ -79,6 +81,7 @@ def test_a_copied_project_and_a_second_clone_log_into_their_own_mlruns(tmp_path)
     assert "renamed" not in said[1]
 
 
+@pytest.mark.heavy
 def test_a_queued_experiment_logs_into_the_projects_mlruns_not_its_temporary_copy(tmp_path):
     """`dvc exp run --queue` runs a stage in a copy of the project (.dvc/tmp/exps/...) with
     DVC_ROOT naming the project: the experiment made then keeps its artifacts in the
@@ -111,6 +114,7 @@ def make_dry_run(directory: Path) -> subprocess.CompletedProcess:
                           capture_output=True, timeout=60)
 
 
+@pytest.mark.starts
 def test_make_setup_rebuilds_a_venv_made_for_another_directory(tmp_path):
     copied = tmp_path / "copied"
     makefile_project(copied, tmp_path / "original" / ".venv")
@@ -122,6 +126,7 @@ def test_make_setup_rebuilds_a_venv_made_for_another_directory(tmp_path):
     assert "-m venv .venv" in planned.stdout
 
 
+@pytest.mark.starts
 def test_make_setup_keeps_a_venv_made_here():
     # (the real directory: make's CURDIR is the physical path, as venv's is)
     import tempfile

@@ -63,6 +63,7 @@ def test_repeats_record_the_whole_plan_again_as_new_trials(recorded):
     assert np.corrcoef(rise_1.ravel(), rise_2.ravel())[0, 1] > 0.9
 
 
+@pytest.mark.heavy
 def test_repeats_resume_after_a_kill_and_give_the_uninterrupted_dataset(recorded, tmp_path,
                                                                         repo_params):
     _, _, (_, twice) = recorded

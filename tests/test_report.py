@@ -118,6 +118,7 @@ def built(tmp_path_factory):
     return root, result.summary
 
 
+@pytest.mark.heavy
 def test_every_figure_is_written_as_png_and_svg_per_scheme(built):
     root, summary = built
     names = {p.relative_to(root / "figures").with_suffix("").as_posix()
@@ -202,6 +203,7 @@ def test_a_scene_scored_under_trials_gets_its_column_and_others_do_not():
 
 
 @needs_chromium
+@pytest.mark.starts
 def test_the_page_loads_every_image_in_headless_chromium(built):
     root, _ = built
     with headless_chromium() as browser:
@@ -278,6 +280,7 @@ def test_every_figure_file_says_its_scene_task_scheme_n_and_score(built):
     assert checked == 12
 
 
+@pytest.mark.heavy
 def test_the_report_names_the_experiment_and_is_the_same_on_a_rerun(built, tmp_path):
     """An experiment's page names it and its baseline commit; a rerun gives the same
     bytes; a plain run's page names no commit, so it is the same at every commit."""
@@ -304,6 +307,7 @@ def test_provenance_is_what_dvc_exp_run_gives_and_nothing_under_a_plain_repro(tm
 
 
 @needs_chromium
+@pytest.mark.starts
 def test_the_page_has_contents_schemes_side_by_side_and_its_commit_in_the_title(built):
     root, _ = built
     with headless_chromium() as browser:
@@ -367,6 +371,7 @@ def test_each_models_md5_links_to_the_mlflow_runs_that_carry_it(built):
 
 
 @needs_chromium
+@pytest.mark.starts
 def test_a_models_link_opens_the_mlflow_ui_on_its_runs_alone(built, mlflow_server,
                                                               monkeypatch, tmp_path):
     """On a real `mlflow server`, the experiment found as the report stage finds it, runs
@@ -426,6 +431,7 @@ def smallest_text_pt(figure) -> float:
 
 
 @needs_chromium
+@pytest.mark.starts
 def test_every_text_of_every_figure_is_at_least_10_px_on_the_page_at_1400_px(built):
     """The smallest text of each figure, as shown on the page in a 1,400 px window: its
     size in points (from the figure drawn again from the same predictions) times the

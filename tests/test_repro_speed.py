@@ -71,6 +71,7 @@ def project(tmp_path):
     return root, baseline
 
 
+@pytest.mark.starts
 def test_the_working_tree_is_timed_against_the_baseline_commit_stage_by_stage(project):
     root, baseline = project
     result = measure(baseline, knob="knob=2", stage=["python", "-c", "pass"], root=root,
@@ -120,6 +121,7 @@ def test_a_revision_that_is_not_a_commit_is_one_clear_error(project):
         measure("deadbeef", root=root, log=lambda line: None)
 
 
+@pytest.mark.starts
 def test_a_stage_that_hangs_is_killed_at_the_deadline(project, tmp_path):
     root, _ = project
     copy = tmp_path / "hang"
@@ -131,6 +133,7 @@ def test_a_stage_that_hangs_is_killed_at_the_deadline(project, tmp_path):
     assert time.perf_counter() - started < 30
 
 
+@pytest.mark.starts
 def test_a_failing_pipeline_says_so_with_dvc_s_last_lines(project, tmp_path):
     root, _ = project
     copy = tmp_path / "fails"

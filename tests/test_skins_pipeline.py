@@ -26,6 +26,9 @@ from foreign_tactile import CHANNELS, GRID_MM, write_recording
 from sklearn.ensemble import HistGradientBoostingRegressor
 from sklearn.metrics import r2_score
 
+# Each test here starts a pipeline or a server: `make check` leaves them out.
+pytestmark = pytest.mark.starts
+
 FROM_NAME = r"x(?P<x_mm>[-\d.]+)_y(?P<y_mm>[-\d.]+)\.csv"
 
 

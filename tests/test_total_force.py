@@ -118,6 +118,7 @@ def pipeline(tmp_path_factory, repo_params):
             "paired": paired, "exported": exported, "scores": scores}
 
 
+@pytest.mark.heavy
 def test_the_dataset_and_its_features_are_of_the_total_force_kind(pipeline):
     root = pipeline["root"]
     assert scene_kind(pipeline["params"].scenes["two"]) is TWO_CONTACTS_TOTAL_FORCE
@@ -270,6 +271,7 @@ def test_pairs_without_per_contact_forces_score_the_positions_only():
 
 
 @needs_chromium
+@pytest.mark.starts
 def test_the_live_view_shows_the_total_force_and_both_places():
     skin = skin_from_dict(SKIN)
     estimate = {"seq": 7, "t_ms": 70, "stretch": 1.0, "x1": 1, "y1": 1, "x2": 3, "y2": 3,

@@ -74,6 +74,7 @@ def test_the_readme_gives_the_exp_show_tested_here():
         in readme
 
 
+@pytest.mark.starts
 def test_exp_show_names_the_experiment_its_changed_param_and_score_in_120_columns(experiment):
     root, env = experiment
     table = shown(EXP_SHOW, root, env)
@@ -85,6 +86,7 @@ def test_exp_show_names_the_experiment_its_changed_param_and_score_in_120_column
     assert "/" not in table and "Created" not in table, table  # no dependency's hash
 
 
+@pytest.mark.starts
 def test_metrics_show_is_a_row_a_scene_that_fits_120_columns(experiment):
     """A file a scene, a row each: one number a question, named by its target (a
     two-contact scene's as a set), none for a task the scene skips; the table fits 120

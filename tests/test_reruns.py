@@ -1,0 +1,76 @@
+"""A one-line edit reruns only what it changes: in a copy of the small pipeline, one file
+gets one more comment line, and `dvc status` names the stages whose deps changed.
+
+The edits are a developer's daily ones: a headline label or a figure (the report's
+presentation), a model's code, a params section's schema. Each stage's deps are its
+import closure (tests/test_stage_deps.py), so what a stage runs decides what reruns it.
+"""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from tests.conftest import copy_small_pipeline, run_checked
+
+# (file edited, what the edit is, the stages it may mark: by name, without the
+# foreach key, so ``train`` stands for every train@<scene>-<task>)
+EDITS = [
+    ("eskin/reporting/presentation.py", "a headline label or a figure's caption",
+     {"report", "track"}),
+    ("eskin/reporting/figures.py", "how a figure is drawn", {"report"}),
+    # export and track load the saved models, and unpickling runs their classes' code
+    ("eskin/learning/gp.py", "a model's code", {"train", "export", "track"}),
+    ("eskin/config/train.py", "the train section's schema", {"settings", "train", "track"}),
+    ("eskin/config/live.py", "the live section's schema (no stage reads it)", {"track"}),
+]
+ACQUIRE = "acquire"
+
+
+def stale_stages(root, env) -> set[str]:
+    """The stages whose deps `dvc status` finds changed, by name (``train@a-b`` → train)."""
+    status = json.loads(run_checked(["dvc", "status", "--json"], root, env).stdout or "{}")
+    return {address.split("@")[0] for address in status}
+
+
+@pytest.fixture(scope="module")
+def pipeline_copy(tmp_path_factory, small_pipeline):
+    root = tmp_path_factory.mktemp("reruns") / "project"
+    env = copy_small_pipeline(small_pipeline, root, f"sqlite:///{root.parent / 'mlflow.db'}",
+                              track=False)
+    assert stale_stages(root, env) == set(), "the copy starts up to date"
+    return root, env
+
+
+@pytest.mark.parametrize("path, what, allowed", EDITS, ids=[e[0] for e in EDITS])
+@pytest.mark.starts
+def test_a_one_line_edit_marks_only_the_stages_that_run_it(pipeline_copy, path, what,
+                                                          allowed):
+    root, env = pipeline_copy
+    edited = root / path
+    before = edited.read_bytes()
+    try:
+        edited.write_bytes(before + b"# one more line\n")
+        stale = stale_stages(root, env)
+    finally:
+        edited.write_bytes(before)
+    assert stale, f"an edit of {path} marks no stage: is it still a dep of any?"
+    assert stale <= allowed, (f"an edit of {path} ({what}) marks {sorted(stale - allowed)} "
+                              f"too (allowed: {sorted(allowed)})")
+    assert ACQUIRE not in stale
+
+
+def test_nothing_of_learning_or_reporting_reruns_an_acquisition():
+    """An acquisition costs a lab hours at the bench: no edit downstream of it (learning,
+    evaluation, reporting, tracking, deployment) may mark it stale."""
+    from tests.test_stage_deps import ROOT, STAGES, declared_code
+
+    downstream = [ROOT / "eskin" / name for name in
+                  ("learning", "evaluation", "reporting", "tracking", "deploy")]
+    for address, _, deps in STAGES:
+        if address.split(":")[1].split("@")[0] != ACQUIRE:
+            continue
+        reached = sorted(str(p.relative_to(ROOT)) for p in declared_code(deps)
+                         if any(p.is_relative_to(d) for d in downstream))
+        assert not reached, f"{address} depends on {reached}"
