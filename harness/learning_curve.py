@@ -1,11 +1,14 @@
 """make bench's learning curves (issue 41): a task's error against trials per condition,
 beside the Bayes bound; and the planner that reads them (`eskin plan`).
 
-Held out, always: the first trial of every condition. Trained on: the next ``r`` trials of
-every condition, for each ``r`` of ``learning_curve.repeats``. So every held-out condition
-was seen ``r`` times in training, in other trials: the question the ``trials`` CV scheme
-asks, at ``r`` repetitions. The model is the pipeline's (``train.<task>``), its features the
-pipeline's method fitted on the training rows.
+Each point is measured on ``learning_curve.draws`` held-out draws: draw h holds out
+repetition h of every condition (draw 0: the first trial, the dataset's own rows, which the
+Bayes bound answers) and trains on the ``r`` repetitions after it, cyclically over those
+recorded, for each ``r`` of ``learning_curve.repeats``. So every held-out condition was
+seen ``r`` times in training, in other trials: the question the ``trials`` CV scheme asks,
+at ``r`` repetitions; and the spread over draws is the spread over new recordings (another
+held-out trial, another training set). The model is the pipeline's (``train.<task>``), its
+features the pipeline's method fitted on the training rows.
 
 Where the trials come from:
 
@@ -16,9 +19,11 @@ Where the trials come from:
 * any other scene recorded twice or more (``repeats`` ≥ 2, or an import whose conditions
   have several trials): its own trials, in the order recorded, up to what it has.
 
-The curve, error = floor + a · r^(−b), is fitted by least squares (scipy's curve_fit) to
-the measured points; the planner reads the repetitions a target needs from it, and refuses
-a target beyond the fitted floor or beyond the bound.
+The curve, error = floor + a · r^(−b), its floor at or above the bound's error, is fitted
+by least squares (scipy's curve_fit) twice: to the draws' mean and to their lower end (the
+score ``learning_curve.reliability`` of new recordings reach). The planner reads the
+repetitions a target needs from the lower end's, and refuses a target beyond the fitted
+floor or beyond the bound.
 """
 
 from __future__ import annotations
@@ -56,6 +61,7 @@ from eskin.tracking.planning import (
     curve_error,
     fit_curve,
     flattens_at,
+    lower_end,
     plan_table,
     repeats_for,
 )
@@ -68,6 +74,16 @@ def repetition(frame: pd.DataFrame, kind: str) -> np.ndarray:
     rank = pd.Series(first.groupby("condition").cumcount().to_numpy(),
                      index=first["trial"].to_numpy())
     return rank[frame["trial"].to_numpy()].to_numpy()
+
+
+def draw_repetitions(recorded: int, r: int, draws: int) -> list[tuple[int, list[int]]]:
+    """(held-out repetition, repetitions trained on) of each draw: repetition h of every
+    condition held out, the ``r`` after it trained on, cyclically over the ``recorded``."""
+    if r >= recorded:
+        raise ValueError(f"{r} repetitions to train on need {r + 1} recorded, one held out; "
+                         f"there are {recorded}")
+    return [(h, [(h + k) % recorded for k in range(1, r + 1)])
+            for h in range(min(draws, recorded))]
 
 
 def record_repetitions(scene: str, params: Params, more: int, scratch: Path,
@@ -177,7 +193,7 @@ def gap_check(frame: pd.DataFrame, rep: np.ndarray, params: Params, document: di
         entry = document["tasks"].get(task_name, {})
         task = get_task(kind, task_name)
         bound = entry.get("bound", {}).get("headline")
-        if entry.get("fit") is None or bound is None:
+        if entry.get("fit") is None or entry.get("low_fit") is None or bound is None:
             out["tasks"][task_name] = {"skipped": "no fitted curve or no bound"}
             continue
         paper_name, paper_hyper = _model(task, params, "paper", the_kind, skin)
@@ -185,10 +201,13 @@ def gap_check(frame: pd.DataFrame, rep: np.ndarray, params: Params, document: di
             task, held_out_features, on_dataset,
             build_model(task.role, paper_name, paper_hyper, skin), "conditions", skin).summary)
         target_error = paper_error - share * (paper_error - (1.0 - bound))
-        r = repeats_for(entry["fit"], target_error, entry["points"])
+        # the planner's count: the draws' lower end reaches it
+        r = repeats_for(entry["low_fit"], target_error, entry["points"], key="low")
         check: dict[str, Any] = {"paper_model": paper_name, "paper_conditions": 1 - paper_error,
                                  "bound": bound, "target": 1.0 - target_error,
-                                 "recommended_repeats": r}
+                                 "recommended_repeats": r,
+                                 "mean_repeats": repeats_for(entry["fit"], target_error,
+                                                             entry["points"])}
         log(f"{document['scene']}/{task_name}: paper's model under conditions CV "
             f"{1 - paper_error:.4f}, bound {bound:.4f}: {share:.0%} of the gap is "
             f"{task.headline_metric} {1 - target_error:.4f} → "
@@ -236,7 +255,7 @@ def _featurized(frame: pd.DataFrame, params: Params, kind: str, skin) -> pd.Data
 def learning_curve(scene: str, params: Params, repeats: list[int], *,
                    bound_path: Path | None, tasks: tuple[str, ...] = TASK_NAMES,
                    gap_share: float | None = None, gap_tasks: tuple[str, ...] = (),
-                   scratch: Path | None = None,
+                   draws: int = 1, reliability: float = 0.9, scratch: Path | None = None,
                    log: Callable[[str], None] = print) -> dict[str, Any]:
     """Every task's curve for ``scene``: the document the stage writes and `eskin plan` reads."""
     settings = params.scenes[scene]
@@ -252,6 +271,7 @@ def learning_curve(scene: str, params: Params, repeats: list[int], *,
     kind = the_kind.name
     rep = repetition(frame, kind)
     have = int(pd.Series(rep).groupby(conditions(frame, kind)).max().min())
+    recorded = have + 1  # repetitions every condition has
     usable = [r for r in repeats if r <= have]
     if not usable:
         raise ValueError(f"scenes.{scene}: every condition needs two trials or more for a "
@@ -268,6 +288,7 @@ def learning_curve(scene: str, params: Params, repeats: list[int], *,
         "conditions": n_conditions, "placed_conditions": placed,
         "samples": int(len(held_out) // n_conditions),
         "held_out_rows": len(held_out), "repeats": usable, "curve": CURVE,
+        "draws": min(draws, recorded), "reliability": reliability,
         "flat_gain": FLAT_GAIN, "dataset_rows": int(meta.get("dataset", {}).get("rows", 0))
         or len(frame), "tasks": {}}
     for task_name in tasks:
@@ -280,23 +301,39 @@ def learning_curve(scene: str, params: Params, repeats: list[int], *,
         model_name, hyper = _model(task, params, params.train.configuration, the_kind, skin)
         points = []
         for r in usable:
-            train = frame[(rep >= 1) & (rep <= r)].reset_index(drop=True)
-            measured = point(task, train, held_out, build_model(task.role, model_name, hyper,
-                                                                 skin),
-                             params.featurize.method, kind, skin)
-            points.append({"repeats": r, "train_rows": len(train), **measured})
+            scored = []
+            for held, trained in draw_repetitions(recorded, r, draws):
+                scored.append(point(
+                    task, frame[np.isin(rep, trained)].reset_index(drop=True),
+                    frame[rep == held].reset_index(drop=True),
+                    build_model(task.role, model_name, hyper, skin),
+                    params.featurize.method, kind, skin))
+            headlines = [s["headline"] for s in scored]
+            points.append({
+                "repeats": r, "train_rows": int(np.isin(rep, range(1, r + 1)).sum()),
+                "headline": float(np.mean(headlines)), "draws": headlines,
+                "low": lower_end(headlines, reliability),
+                # draw 0's: the dataset's own rows, which the bound answers
+                "first_trials": headlines[0], "scores": scored[0]["scores"],
+                "seconds": round(sum(s["seconds"] for s in scored), 2)})
             log(f"{scene}/{task_name} [{model_name}]: {r} trial(s) per condition → "
-                f"{task.headline_metric} {measured['headline']:.4f} ({measured['seconds']} s)")
-        errors = [1.0 - p["headline"] for p in points]
-        fit = fit_curve(usable, errors)
+                f"{task.headline_metric} {points[-1]['headline']:.4f} over {len(scored)} "
+                f"draw(s) ({min(headlines):.4f}–{max(headlines):.4f}, lower end "
+                f"{points[-1]['low']:.4f}; {points[-1]['seconds']} s)")
         entry: dict[str, Any] = {"model": model_name, "metric": task.headline_metric,
-                                 "targets": list(task.targets), "points": points, "fit": fit}
-        if fit is not None:
-            entry["floor_score"] = 1.0 - fit["floor"]
-            entry["flattens_at"] = flattens_at(fit)
+                                 "targets": list(task.targets), "points": points}
         bound = bound_point(task, held_out, bound_path) if simulated else None
         if bound is not None:
             entry["bound"] = bound
+        # the floor never above the bound: a fitted asymptote promises no more than it allows
+        least = 1.0 - bound["headline"] if bound and "headline" in bound else 0.0
+        entry["fit"] = fit_curve(usable, [1.0 - p["headline"] for p in points], least)
+        entry["low_fit"] = fit_curve(usable, [1.0 - p["low"] for p in points], least)
+        if entry["fit"] is not None:
+            entry["floor_score"] = 1.0 - entry["fit"]["floor"]
+            entry["flattens_at"] = flattens_at(entry["fit"])
+        if entry["low_fit"] is not None:
+            entry["low_floor_score"] = 1.0 - entry["low_fit"]["floor"]
         document["tasks"][task_name] = entry
     if gap_share is not None and simulated and gap_tasks:
         document["gap_check"] = gap_check(frame, rep, params, document, tasks=gap_tasks,
@@ -308,10 +345,15 @@ def learning_curve(scene: str, params: Params, repeats: list[int], *,
 def render(document: Mapping[str, Any], settings: Any) -> str:
     """The learning curves as markdown: a table per task, and each target's repetitions."""
     scene = document["scene"]
+    draws = document["draws"]
     lines = [f"# Learning curves: {scene}", "",
-             f"Held out: the first trial of each of {document['conditions']:,} conditions "
-             f"({document['held_out_rows']:,} rows); trained on the next r trials of every "
-             f"condition ({document['trials']}). Fitted: {CURVE}; flat where one more "
+             f"Held out, in each of {draws} draw(s): one repetition of each of "
+             f"{document['conditions']:,} conditions ({document['held_out_rows']:,} rows; "
+             f"draw 0 the first trials, the dataset's own); trained on the r repetitions "
+             f"after it ({document['trials']}). The lower end is the score "
+             f"{document['reliability']:.0%} of new recordings reach (one-sided normal "
+             f"prediction bound over the draws). Fitted, to the mean and to the lower end, "
+             f"the floor at or above the bound's error: {CURVE}; flat where one more "
              f"repetition gains less than {FLAT_GAIN}.", ""]
     for task_name, entry in document["tasks"].items():
         if "skipped" in entry:
@@ -319,22 +361,26 @@ def render(document: Mapping[str, Any], settings: Any) -> str:
             continue
         metric = entry["metric"]
         lines += [f"## {task_name} [{entry['model']}]", "",
-                  f"| trials per condition | training rows | {metric} | fitted | seconds |",
-                  "|---|---|---|---|---|"]
+                  f"| trials per condition | training rows | {metric}, mean | draws | "
+                  f"lower end | fitted, mean | fitted, lower end | seconds |",
+                  "|---|---|---|---|---|---|---|---|"]
         for p in entry["points"]:
-            fitted = (f"{1.0 - curve_error(entry['fit'], p['repeats']):.4f}"
-                      if entry["fit"] else "—")
+            fitted = [f"{1.0 - curve_error(fit, p['repeats']):.4f}" if fit else "—"
+                      for fit in (entry["fit"], entry["low_fit"])]
             lines.append(f"| {p['repeats']} | {p['train_rows']:,} | {p['headline']:.4f} | "
-                         f"{fitted} | {p['seconds']:.1f} |")
+                         f"{min(p['draws']):.4f}–{max(p['draws']):.4f} | {p['low']:.4f} | "
+                         f"{fitted[0]} | {fitted[1]} | {p['seconds']:.1f} |")
         bound = entry.get("bound")
         if bound and "headline" in bound:
-            lines.append(f"| Bayes bound | — | {bound['headline']:.4f} | — | — |")
+            lines.append(f"| Bayes bound (draw 0) | — | {bound['headline']:.4f} | — | — | — "
+                         f"| — | — |")
         lines.append("")
         if entry["fit"]:
-            fit = entry["fit"]
-            lines.append(f"Fit: floor {fit['floor']:.4f} (a {metric} of "
-                         f"{entry['floor_score']:.4f}), a {fit['a']:.4f}, b {fit['b']:.2f}; "
-                         f"flat from {entry['flattens_at']} trial(s) per condition.")
+            lines += [f"Fit, {label}: floor {fit['floor']:.4f} (a {metric} of "
+                      f"{1.0 - fit['floor']:.4f}), a {fit['a']:.4f}, b {fit['b']:.2f}."
+                      for label, fit in (("mean", entry["fit"]),
+                                         ("lower end", entry["low_fit"])) if fit]
+            lines.append(f"Flat from {entry['flattens_at']} trial(s) per condition.")
         else:
             lines.append("Too few points to fit a curve.")
         if bound and "unavailable" in bound:
@@ -396,11 +442,20 @@ def figure(document: Mapping[str, Any]):
                               squeeze=False, layout="constrained")
     for ax, (name, entry) in zip(axes[0], tasks.items(), strict=False):
         r = [p["repeats"] for p in entry["points"]]
-        ax.plot(r, [1 - p["headline"] for p in entry["points"]], "o", label="measured")
+        ax.vlines(r, [1 - max(p["draws"]) for p in entry["points"]],
+                  [1 - min(p["draws"]) for p in entry["points"]], color="C0", lw=1,
+                  label="draws' range")
+        ax.plot(r, [1 - p["headline"] for p in entry["points"]], "o", color="C0",
+                label="mean")
+        ax.plot(r, [1 - p["low"] for p in entry["points"]], "v", color="C1",
+                label="lower end")
+        dense = np.geomspace(1, max(r) * 3, 100)
+        for fit, color, label in ((entry["fit"], "C0", "fitted, mean"),
+                                  (entry.get("low_fit"), "C1", "fitted, lower end")):
+            if fit:
+                ax.plot(dense, [curve_error(fit, x) for x in dense], "-", color=color, lw=1,
+                        label=label)
         if entry["fit"]:
-            dense = np.geomspace(1, max(r) * 3, 100)
-            ax.plot(dense, [curve_error(entry["fit"], x) for x in dense], "-", lw=1,
-                    label="fitted")
             ax.axhline(entry["fit"]["floor"], color="grey", ls=":", lw=1, label="floor")
         bound = entry.get("bound", {}).get("headline")
         if bound is not None and 1 - bound > 0:
@@ -416,8 +471,8 @@ def figure(document: Mapping[str, Any]):
             labelled.setdefault(label, handle)
     plot.legend(labelled.values(), labelled.keys(), loc="outside lower center",
                 ncols=len(labelled), fontsize=8)
-    plot.suptitle(f"{document['scene']}: held out, the first trial of every condition",
-                  fontsize=9)
+    plot.suptitle(f"{document['scene']}: held out, one trial of every condition, "
+                  f"{document['draws']} draw(s)", fontsize=9)
     return plot
 
 

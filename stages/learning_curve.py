@@ -19,6 +19,7 @@ def main(scene: str) -> str:
     document = learning_curve.learning_curve(
         scene, params, list(settings.repeats), bound_path=bayes_bound_path(scene),
         gap_share=settings.gap_share, gap_tasks=tuple(settings.gap_tasks),
+        draws=settings.draws, reliability=settings.reliability,
         log=lambda line: print(line, file=sys.stderr, flush=True))
     text = learning_curve.render(document, settings)
     learning_curve.write(document, text, learning_curve_path(scene).parent)

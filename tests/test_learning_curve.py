@@ -19,7 +19,7 @@ from eskin.tracking import planning
 from harness import benchmark, learning_curve
 
 ROOT = Path(__file__).resolve().parents[1]
-COSTS = SimpleNamespace(placement_s=30.0, frames_per_s=56.8)
+COSTS = SimpleNamespace(placement_s=30.0, frames_per_s=56.8, reliability=0.9)
 SCENE = "single_force"
 
 
@@ -56,7 +56,7 @@ def curves(project):
         return learning_curve.learning_curve(SCENE, typed(params), [1, 2, 4], bound_path=bound,
                                              tasks=("force", "detect", "stretch"),
                                              gap_share=0.5, gap_tasks=("force",),
-                                             log=lambda _: None)
+                                             draws=3, log=lambda _: None)
 
 
 @pytest.mark.heavy
@@ -70,6 +70,16 @@ def test_the_curve_holds_out_the_datasets_own_trials_and_trains_on_new_ones(proj
     assert [p["repeats"] for p in force["points"]] == [1, 2, 4]
     assert [p["train_rows"] for p in force["points"]] == [909, 1818, 3636]
     assert force["fit"] is not None and 0.0 <= force["fit"]["floor"] <= 1.0
+    # three held-out draws a point: the first trials (the dataset's rows), then the next
+    assert curves["draws"] == 3
+    for p in force["points"]:
+        assert len(p["draws"]) == 3 and p["first_trials"] == p["draws"][0]
+        assert p["headline"] == pytest.approx(np.mean(p["draws"]))
+        assert p["low"] < min(p["draws"])  # three draws: the 90 % bound lies below them all
+    # the floors never promise more than the bound
+    bound = force["bound"]["headline"]
+    assert force["fit"]["floor"] >= 1 - bound - 1e-12
+    assert force["low_fit"]["floor"] >= 1 - bound - 1e-12
     # The scratch recording was the scene's own log, copied: the pipeline's is untouched.
     log = (root / "data" / "raw" / SCENE / "acquisition.log").read_text()
     assert '"repeat"' not in log
@@ -87,8 +97,10 @@ def test_no_point_of_the_curve_beats_the_bayes_bound(curves):
 def test_the_gap_check_scores_the_recommended_scene_under_trials_cv(curves):
     check = curves["gap_check"]["tasks"]["force"]
     r = check["recommended_repeats"]
-    assert r == planning.repeats_for(curves["tasks"]["force"]["fit"], 1 - check["target"],
-                                    curves["tasks"]["force"]["points"])
+    # the planner's count: the lower end of the draws reaches the target
+    assert r == planning.repeats_for(curves["tasks"]["force"]["low_fit"], 1 - check["target"],
+                                    curves["tasks"]["force"]["points"], key="low")
+    assert check["mean_repeats"] <= r
     # the target: half the way from the paper's model to the bound
     assert check["target"] == pytest.approx(
         check["paper_conditions"] + 0.5 * (check["bound"] - check["paper_conditions"]))
@@ -125,14 +137,29 @@ def test_the_planner_says_impossible_where_the_bound_forbids_it(curves):
         f"impossible, the bound is {bound:.4f}: no model of these readings scores more.")
 
 
-def synthetic(floor=0.04, a=0.02, b=0.8, bound=0.975) -> dict:
-    """A curve document as the bench writes one, with a known curve."""
-    points = [{"repeats": r, "headline": 1 - (floor + a * r ** -b), "train_rows": 0,
-               "seconds": 0.0} for r in (1, 2, 3, 5, 10)]
-    fit = planning.fit_curve([p["repeats"] for p in points], [1 - p["headline"] for p in points])
+def synthetic(floor=0.04, a=0.02, b=0.8, bound=0.975, spread=0.0, low=None) -> dict:
+    """A curve document as the bench writes one, with a known curve: five draws a point,
+    the mean's error floor + a · r^(−b), the draws ``spread`` either side of it (or the
+    lower end's errors given as ``low``: floor, a, b)."""
+    offsets = np.array([-2.0, -1.0, 0.0, 1.0, 2.0]) * spread / 2
+    points = []
+    for r in (1, 2, 3, 5, 10):
+        mean = 1 - (floor + a * r ** -b)
+        draws = list(mean + offsets)
+        lower = (planning.lower_end(draws, 0.9) if low is None
+                 else 1 - (low[0] + low[1] * r ** -low[2]))
+        points.append({"repeats": r, "headline": mean, "draws": draws, "low": lower,
+                       "train_rows": 0, "seconds": 0.0})
+    least = 1 - bound
+    fit = planning.fit_curve([p["repeats"] for p in points],
+                             [1 - p["headline"] for p in points], least)
+    low_fit = planning.fit_curve([p["repeats"] for p in points],
+                                 [1 - p["low"] for p in points], least)
     return {"scene": "s", "conditions": 1212, "placed_conditions": 1200, "samples": 20,
+            "draws": 5, "reliability": 0.9,
             "tasks": {"force": {"model": "m", "metric": "r2", "points": points, "fit": fit,
-                                "floor_score": 1 - fit["floor"],
+                                "low_fit": low_fit, "floor_score": 1 - fit["floor"],
+                                "low_floor_score": 1 - low_fit["floor"],
                                 "bound": {"headline": bound}}}}
 
 
@@ -143,14 +170,16 @@ def test_the_fit_recovers_a_known_curve_and_the_planner_reads_it():
     assert fit["b"] == pytest.approx(0.8, abs=1e-3)
     answer = planning.plan(document, "force_r2", 0.948, COSTS)
     # 1 − (0.04 + 0.02 r^−0.8) ≥ 0.948 ⇔ r^−0.8 ≤ 0.6 ⇔ r ≥ 1.89: two trials per condition
-    assert answer["verdict"] == "possible" and answer["repeats"] == 2
+    # (no spread over draws: the lower end is the mean)
+    assert answer["verdict"] == "reliable" and answer["repeats"] == 2
     assert answer["trials"] == 2 * 1212 and answer["frames"] == 2 * 1212 * 20
     assert answer["placements"] == 2 * 1200
     assert answer["sampling_s"] == pytest.approx(2 * 1212 * 20 / 56.8)
     assert answer["bench_h"] == pytest.approx((2 * 1212 * 20 / 56.8 + 2400 * 30) / 3600)
     assert not answer["extrapolated"]
     far = planning.plan(document, "force_r2", 0.9595, COSTS)
-    assert far["extrapolated"] and far["repeats"] > 10
+    assert far["verdict"] == "extrapolated" and far["repeats"] > 10
+    assert "no promise" in planning.describe(far, COSTS)
     near = planning.plan(document, "force_r2", 0.95999, COSTS)  # r ≈ 13,000 by the curve
     assert near["verdict"] == "out of reach" and "more than 1000 trials" in near["why"]
     floor = planning.plan(document, "force_r2", 0.965, COSTS)
@@ -167,11 +196,97 @@ def test_a_measured_point_that_misses_the_target_outranks_the_fit():
     document = synthetic()
     force = document["tasks"]["force"]
     assert planning.plan(document, "force_r2", 0.948, COSTS)["repeats"] == 2
-    force["points"][1]["headline"] = 0.947  # measured at 2: short of 0.948
+    force["points"][1]["headline"] = force["points"][1]["low"] = 0.947  # at 2: short
     answer = planning.plan(document, "force_r2", 0.948, COSTS)
-    assert answer["verdict"] == "possible" and answer["repeats"] == 3
-    force["points"][2]["headline"] = 0.947  # and at 3: past it, the fit's next count
+    assert answer["verdict"] == "reliable" and answer["repeats"] == 3
+    force["points"][2]["headline"] = force["points"][2]["low"] = 0.947  # and at 3
     assert planning.plan(document, "force_r2", 0.948, COSTS)["repeats"] == 4
+
+
+def test_a_fitted_floor_never_promises_more_than_the_bound():
+    """Two-contact force before issue 58: five points that still fall, fitted as a bare
+    power law (floor 0, an R² of 1.0) against a bound of 0.9176. Capped, the floor is the
+    bound's error at least, and the curve never crosses the bound however far it is read."""
+    repeats = [1, 2, 3, 5, 10]
+    errors = [1 - s for s in (0.7996, 0.8166, 0.8334, 0.8587, 0.8758)]
+    free = planning.fit_curve(repeats, errors)
+    assert free["floor"] < 0.01  # the old fit: no floor at all
+    capped = planning.fit_curve(repeats, errors, least_floor=1 - 0.9176)
+    assert capped["floor"] >= 1 - 0.9176
+    assert all(planning.curve_error(capped, r) >= 1 - 0.9176 for r in (10, 100, 10**6))
+    # and it still follows the points it was given (the cap costs 0.008 at worst here)
+    assert max(abs(planning.curve_error(capped, r) - e)
+               for r, e in zip(repeats, errors, strict=True)) < 0.01
+
+
+def test_the_lower_end_is_what_nine_new_recordings_in_ten_reach():
+    """Five draws of a normal score: the lower end lies below the sixth, new draw in 90 %
+    of trials (a bare mean − 1.28 sd, ignoring how little five draws say, would be reached
+    by far fewer)."""
+    rng = np.random.default_rng(58)
+    scores = rng.normal(0.95, 0.006, size=(20000, 6))
+    lows = np.array([planning.lower_end(row[:5], 0.9) for row in scores])
+    reached = float(np.mean(scores[:, 5] >= lows))
+    assert reached == pytest.approx(0.90, abs=0.01)
+    naive = scores[:, :5].mean(1) - 1.2816 * scores[:, :5].std(1, ddof=1)
+    assert float(np.mean(scores[:, 5] >= naive)) < 0.875
+    assert planning.lower_end([0.9], 0.9) == 0.9  # one draw: no spread to read
+
+
+def test_the_plan_is_the_count_at_which_the_lower_end_reaches_the_target():
+    """The mean reaches 0.948 at two trials; draws spread 0.004 wide do so at two only on
+    average: the plan is the count at which their lower end does."""
+    document = synthetic(spread=0.004)
+    answer = planning.plan(document, "force_r2", 0.948, COSTS)
+    assert answer["mean_repeats"] == 2
+    force = document["tasks"]["force"]
+    low_r = answer["repeats"]
+    assert answer["verdict"] == "reliable" and low_r > 2
+    assert planning.curve_error(force["low_fit"], low_r) <= 1 - 0.948
+    assert planning.curve_error(force["low_fit"], low_r - 1) > 1 - 0.948
+    said = planning.describe(answer, COSTS)
+    assert f"repeats: {low_r} — {low_r} trial(s) per condition to train on" in said
+    assert "; on average 2." in said
+    assert f"record `repeats: {low_r + 1}` (each fold holds one trial of every condition " \
+           f"out and trains on the other {low_r})" in said
+
+
+def test_a_target_the_mean_reaches_but_not_the_lower_end_is_said_to_be_unreliable():
+    """The mean levels off at 0.96, the lower end at 0.945: 0.95 is reachable on average,
+    never by 9 recordings in 10."""
+    document = synthetic(low=(0.055, 0.02, 0.8))
+    answer = planning.plan(document, "force_r2", 0.95, COSTS)
+    assert answer["verdict"] == "not reliably"
+    assert answer["mean_repeats"] == 3
+    assert "repeats" not in answer
+    assert planning.describe(answer, COSTS) == (
+        "s: force_r2 ≥ 0.95 [m]: reachable on average (3 trial(s) per condition) but not "
+        "reliably: the lower end of the spread over 5 held-out draws (90% of new "
+        "recordings) levels off at 0.9450.")
+    table = planning.plan_table(document, COSTS)
+    assert "| not reliably |" in table
+
+
+def test_the_draws_hold_out_a_repetition_never_trained_on():
+    draws = learning_curve.draw_repetitions(11, 10, 5)
+    assert [held for held, _ in draws] == [0, 1, 2, 3, 4]
+    assert draws[0][1] == list(range(1, 11))
+    assert draws[3][1] == [4, 5, 6, 7, 8, 9, 10, 0, 1, 2]
+    for held, trained in draws:
+        assert held not in trained and len(set(trained)) == 10
+    assert learning_curve.draw_repetitions(3, 1, 5) == [(0, [1]), (1, [2]), (2, [0])]
+    with pytest.raises(ValueError, match="11 repetitions to train on need 12 recorded"):
+        learning_curve.draw_repetitions(11, 11, 5)
+
+
+def test_the_planner_refuses_curves_of_one_draw(tmp_path):
+    old = synthetic()
+    del old["tasks"]["force"]["low_fit"]
+    path = tmp_path / "s.json"
+    path.write_text(json.dumps(old))
+    with pytest.raises(ValueError, match="curves of one held-out draw.*dvc repro "
+                                         "learning_curve@s"):
+        planning.read_curves(path, "s")
 
 
 def test_eskin_plan_answers_from_the_benchs_curves_and_refuses_bad_targets(project, curves):
@@ -186,10 +301,14 @@ def test_eskin_plan_answers_from_the_benchs_curves_and_refuses_bad_targets(proje
     said = eskin(["plan", SCENE, "--target", f"force_r2={bound + 0.005}"], root)
     assert said.returncode == 0, said.stderr
     assert f"impossible, the bound is {bound:.4f}" in said.stdout
-    first = curves["tasks"]["force"]["points"][0]["headline"]
+    first = curves["tasks"]["force"]["points"][0]["low"]
     said = eskin(["plan", SCENE, "--target", f"force_r2={first - 0.01:.4f}"], root)
     assert said.returncode == 0, said.stderr
-    assert "repeats: 1 — 1 trial(s) per condition; 303 trials, 909 frames" in said.stdout
+    assert "repeats: 1 — 1 trial(s) per condition to train on: the lower end of the spread " \
+           "over 3 held-out draws (90% of new recordings) reaches it. Record `repeats: 1` " \
+           "and train on all of it; to score it under `trials` CV record `repeats: 2`" \
+           in said.stdout
+    assert "303 trials, 909 frames" in said.stdout
     bad = eskin(["plan", SCENE, "--target", "force_r2"], root)
     assert bad.returncode == 1
     assert bad.stderr.strip().splitlines()[-1].endswith(
@@ -228,4 +347,5 @@ def test_a_recorded_scene_of_two_trials_a_condition_is_subsampled_not_recorded(t
     force = document["tasks"]["force"]
     assert force["fit"] is None and "bound" not in force
     assert np.isfinite(force["points"][0]["headline"])
+
 

@@ -18,6 +18,11 @@ class LearningCurve(Section):
     frames_per_s: Positive      # the board's frame rate (the firmware's, measured)
     gap_share: Annotated[float, Field(gt=0, lt=1)] = 0.8  # of the paper→bound gap, to close
     gap_tasks: list[TaskName] = []   # the tasks whose recommended repeats are checked
+    # Held-out draws per point: repetition h of every condition held out, the model trained
+    # on the r after it (cyclically); the planner reads the spread over them.
+    draws: Count = 5
+    # The share of new recordings a plan promises reach its target (the draws' lower end).
+    reliability: Annotated[float, Field(gt=0.5, lt=1)] = 0.9
 
     @field_validator("repeats")
     @classmethod
