@@ -67,6 +67,7 @@ PLOTS_DIR = Path("reports/plots")
 BENCH_DIR = Path("reports/benchmark")
 BOUND_DIR = Path("bench/bound")  # in bench/'s own DVC project, so in DVC's cache (not git)
 LEARNING_CURVE_DIR = Path("reports/learning_curve")
+PLAN_CHECK_DIR = Path("reports/plan_check")
 SOAK_DIR = Path("reports/soak")
 STRESS_DIR = Path("reports/stress")
 EXPORT_DIR = Path("reports/export")
@@ -139,6 +140,12 @@ def learning_curve_path(scene: str) -> Path:
     """`make bench`'s learning curves of one scene (JSON; the markdown beside it), which
     `eskin plan` reads."""
     return LEARNING_CURVE_DIR / f"{scene}.json"
+
+
+def plan_check_path(scene: str) -> Path:
+    """`make bench`'s check of the planner's answers by recording (JSON; the markdown
+    beside it)."""
+    return PLAN_CHECK_DIR / f"{scene}.json"
 
 
 def settings_path(scene: str, task: str) -> Path:

@@ -349,3 +349,49 @@ def test_a_recorded_scene_of_two_trials_a_condition_is_subsampled_not_recorded(t
     assert np.isfinite(force["points"][0]["headline"])
 
 
+
+def test_the_plan_check_records_fresh_repetitions_and_fails_a_plan_that_misses(project, curves):
+    """Two targets on the small scene: one the curves promise at one trial, which new
+    recordings reach; one whose curves were doctored to promise it at one trial, which they
+    miss. Both are recorded on repetitions the curves never used, the model trained once."""
+    from harness import plan_check
+
+    root, params, _ = project
+    force = curves["tasks"]["force"]
+    easy = round(force["points"][0]["low"] - 0.05, 4)
+    doctored = json.loads(json.dumps(curves))
+    doctored_force = doctored["tasks"]["force"]
+    for p in doctored_force["points"]:
+        p["headline"] = p["low"] = 0.999
+    doctored_force["fit"] = doctored_force["low_fit"] = {"floor": 0.0005, "a": 0.0005, "b": 1.0}
+    del doctored_force["bound"]  # else the bound refuses 0.998
+    targets = [SimpleNamespace(scene=SCENE, target="force_r2", value=easy)]
+    with pytest.MonkeyPatch.context() as patch:
+        patch.chdir(root)
+        kept = plan_check.check_plans(SCENE, typed(params), curves, targets, COSTS,
+                                      recordings=3, log=lambda _: None)
+        missed = plan_check.check_plans(
+            SCENE, typed(params), doctored,
+            [SimpleNamespace(scene=SCENE, target="force_r2", value=0.998)], COSTS,
+            recordings=3, log=lambda _: None)
+    fresh = max(curves["repeats"]) + 1
+    assert kept["trained_on"] == f"repetitions {fresh} … {fresh} (the first r)"
+    assert kept["scored_on"] == f"repetitions {fresh + 1} … {fresh + 3}, each alone"
+    check = kept["checks"][0]
+    assert check["repeats"] == 1 and len(check["scores"]) == 3 and kept["need"] == 3
+    assert check["reached"] == 3 and check["kept"] and plan_check.missed(kept) == []
+    # the three recordings are distinct trials: their scores differ
+    assert len(set(check["scores"])) == 3
+    gone = missed["checks"][0]
+    assert gone["repeats"] == 1 and gone["reached"] < 3 and gone["kept"] is False
+    assert plan_check.missed(missed) == [
+        f"force_r2 ≥ 0.998 at 1 trial(s) per condition: {gone['reached']} of 3 new "
+        "recordings reach it, 3 needed"]
+    assert "**missed**" in plan_check.render(missed)
+    # a target the planner promises nothing for is not recorded
+    refused = plan_check.check_plans(
+        SCENE, typed(params), curves,
+        [SimpleNamespace(scene=SCENE, target="force_r2", value=0.9999)], COSTS,
+        recordings=3, log=lambda _: None)
+    assert refused["checks"][0]["verdict"] == "impossible"
+    assert "trained_on" not in refused and "scores" not in refused["checks"][0]

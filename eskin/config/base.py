@@ -51,6 +51,11 @@ SECTION_FILES: dict[str, Path] = {
 }
 
 
+# A scene name becomes a DVC stage name (acquire@<scene>, train@<scene>-<task>), a
+# directory and an MLflow tag: letters, digits and underscores, starting with a letter.
+SCENE_NAME = r"^[A-Za-z][A-Za-z0-9_]*$"
+
+
 class ParamsError(EskinError, ValueError):
     """params.yaml cannot be used as written; the message names the key."""
 

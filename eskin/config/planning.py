@@ -7,7 +7,15 @@ from typing import Annotated
 
 from pydantic import Field, field_validator
 
-from eskin.config.base import Count, NonNegative, Positive, Section, TaskName
+from eskin.config.base import SCENE_NAME, Count, NonNegative, Positive, Section, TaskName
+
+
+class PlanTarget(Section):
+    """A target whose plan make bench records and scores (harness/plan_check.py)."""
+
+    scene: Annotated[str, Field(pattern=SCENE_NAME)]
+    target: str                 # <task>_<metric>, as `eskin plan --target` takes it
+    value: float
 
 
 class LearningCurve(Section):
@@ -23,6 +31,10 @@ class LearningCurve(Section):
     draws: Count = 5
     # The share of new recordings a plan promises reach its target (the draws' lower end).
     reliability: Annotated[float, Field(gt=0.5, lt=1)] = 0.9
+    # make bench's plan check: the planner's answer for each target recorded on fresh
+    # repetitions of the simulated skin, scored on `check_recordings` more never trained on.
+    checks: list[PlanTarget] = []
+    check_recordings: Annotated[int, Field(ge=2)] = 10
 
     @field_validator("repeats")
     @classmethod

@@ -14,6 +14,7 @@ from pydantic import ConfigDict, Discriminator, Field, Tag, create_model, model_
 from eskin.catalog import SOURCES
 from eskin.config.base import (
     DEFAULT_PARAMS,
+    SCENE_NAME,
     Count,
     NonNegative,
     ParamsError,
@@ -72,9 +73,6 @@ SkinSpec = Annotated[
 
 
 Source = Literal[SOURCES]  # type: ignore[valid-type]
-# A scene name becomes a DVC stage name (acquire@<scene>, train@<scene>-<task>), a
-# directory and an MLflow tag: letters, digits and underscores, starting with a letter.
-SCENE_NAME = r"^[A-Za-z][A-Za-z0-9_]*$"
 # The plan: what an acquired scene records; an import's labels come from its files.
 PLAN_KEYS = ("stretches", "forces", "samples", "repeats", "nodes_x", "nodes_y")
 
