@@ -51,7 +51,7 @@ STAGES = {
     "folds": (TYPO,), "pairs": (TYPO,), "export": (TYPO,), "bench": ("summary", TYPO),
     "soak": (TYPO,),
     "stress": (TYPO,), "live_latency": (TYPO,), "dask_scaling": (TYPO,),
-    "learning_curve": (TYPO,),
+    "learning_curve": (TYPO,), "plan_check": (TYPO,),
 }
 
 
