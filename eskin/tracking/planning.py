@@ -191,8 +191,8 @@ def plan(document: Mapping[str, Any], target: str, value: float, settings: Any) 
     on_average = (f"; on average {mean_r}" if mean_r is not None and mean_r != r else "")
     why = (f"{r} trial(s) per condition to train on: {spread} reaches it{on_average}"
            if not extrapolated else
-           f"at least {r} trial(s) per condition to train on, read from {spread}'s fitted "
-           f"curve beyond the {measured} measured: no promise; measure further "
+           f"at least {r} trial(s) per condition to train on, read beyond the {measured} "
+           f"measured from the fitted curve of {spread}: no promise, measure further "
            f"(learning_curve.repeats){on_average}")
     return {**answer, "verdict": "extrapolated" if extrapolated else "reliable",
             "repeats": r, "trials": trials, "placements": placements, "frames": frames,
