@@ -402,8 +402,9 @@ def render_gap_check(document: Mapping[str, Any], settings: Any) -> list[str]:
     lines = [f"## {check['share']:.0%} of the paper→bound gap, under trials CV", "",
              f"The paper's model under conditions CV on the dataset (one trial per condition, "
              f"the paper's protocol) and the bound set the gap; the planner gives the trials "
-             f"per condition to train on that close {check['share']:.0%} of it (the fitted "
-             f"curve's count, past any measured point that falls short). The "
+             f"per condition to train on that close {check['share']:.0%} of it (where the "
+             f"fitted curve of the draws' lower end reaches it, past any measured point whose "
+             f"lower end falls short). The "
              f"scene recorded that many times plus once (the held-out first trials) is then "
              f"scored under trials CV, {check['folds']} folds, on its first trials (the rows "
              f"the bound answers), the paper's model on the same folds beside it.", "",
