@@ -176,6 +176,7 @@ class SerialLink:
         self.timeout_s = timeout_s
         self.protocol = HostProtocol(terminals=terminals)
         self._pending: deque[HostEvent] = deque()
+        self._bytes_at = 0.0  # when the board last sent a byte (time.monotonic)
         # Stream events that arrive while a command is answered, for stream() to yield;
         # bounded: the oldest go first, counted, and stream() reports them (StreamOverflow).
         self._backlog: deque[HostEvent] = deque(maxlen=STREAM_BACKLOG)
@@ -274,6 +275,7 @@ class SerialLink:
         except (serial.SerialException, OSError, ValueError) as err:
             raise LinkError(f"reading from {self.port} failed: {err}") from err
         if data:
+            self._bytes_at = time.monotonic()
             self._pending.extend(self.protocol.receive(data))
 
     def _wait_readable(self, wait_s: float) -> bool:
@@ -334,8 +336,10 @@ class SerialLink:
         deadline = progressed + timeout
         junk = _JunkSeen()
         while True:
+            # Silence is no byte at all: a long line still arriving (junk being dropped
+            # whole) is the board talking, not an #OK lost.
             if (probe and self.protocol.answer_begun
-                    and time.monotonic() - progressed > gap):
+                    and time.monotonic() - max(progressed, self._bytes_at) > gap):
                 probe = False
                 self._write(self.protocol.send_probe(), "STREAM OFF")
             if not self._pending:
