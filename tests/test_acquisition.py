@@ -202,6 +202,7 @@ def test_soak_every_fault_kind_and_two_sigkills_lose_and_duplicate_nothing(clean
     assert re.search(r", [1-9][0-9]* board restart\(s\), [1-9][0-9]* reconnect", result.runs[-1])
 
 
+@pytest.mark.heavy
 def test_soak_over_a_socket_with_stray_oks_counts_requests(clean_run, tmp_path,
                                                            repo_bench_params):
     """Issue 56's acceptance soak, on the small scene: 10 % of frame lines damaged, 2 % of

@@ -21,14 +21,15 @@ import pandas as pd
 import pytest
 from conftest import ROOT, copy_small_pipeline, run_checked
 
+# Each test here starts a pipeline: `make check` leaves them out.
+pytestmark = pytest.mark.starts
+
 # Each key a stage of the scratch project reads (a list item: its list).
 READ_KEYS = ("sim_board.faults.stall_s", "train.stretch.model", "train.force.model",
              "scenes.single_force.stretches")
 SHOW_PARAMS = """\
 import json, yaml
 
-# Each test here starts a pipeline or a server: `make check` leaves them out.
-pytestmark = pytest.mark.starts
 params = yaml.safe_load(open("params.yaml"))
 def get(key):
     node = params

@@ -37,6 +37,10 @@ from eskin.device.physics import SkinModel, SkinParams
 from eskin.device.protocol import Frame, parse_line
 from eskin.skin import PAPER_SKIN, Skin
 
+# Each test here runs the firmware under simavr (often through `eskin`, a process the
+# guard does not see): `make check` leaves them out.
+pytestmark = pytest.mark.starts
+
 REST_MM = 101.0
 EIGHT = Skin(8, 8)  # skins of other sizes, their firmware built by emulated_board
 WIDE = Skin(20, 18)  # its x17..x20 and y17, y18 on the third and fourth multiplexers
@@ -89,7 +93,6 @@ def test_the_harness_voltage_is_the_models_before_its_adc(sim):
     assert np.array_equal(counts, model.to_counts(capacitance))
 
 
-@pytest.mark.starts
 def test_the_firmware_answers_bad_commands_as_the_python_board(board, sim):
     link, _ = board
     python = SimulatedBoard(sim)
@@ -101,7 +104,6 @@ def test_the_firmware_answers_bad_commands_as_the_python_board(board, sim):
     assert ask(link, b"SIM PRESS 1 1 1").startswith(b"#ERR SIM ")
 
 
-@pytest.mark.starts
 def test_streaming_goes_on_while_commands_are_answered(board):
     link, _ = board
     link.write(b"STREAM ON\n")
@@ -149,7 +151,6 @@ def emulated_and_python_frames(link, rig, sim, conditions, samples):
 
 @pytest.mark.parametrize("board", [PAPER_SKIN, EIGHT, WIDE], ids=["10x10", "8x8", "20x18"],
                          indirect=True)
-@pytest.mark.starts
 def test_the_firmware_reads_what_the_python_board_sends_for_the_same_trials(board, sim):
     """On the paper's skin and on others, each firmware built for its own skin: the
     presses on the last row and column reach the terminals of the third and fourth
@@ -172,7 +173,6 @@ def test_the_firmware_reads_what_the_python_board_sends_for_the_same_trials(boar
     assert differ.mean() < 0.03, differ.mean()
 
 
-@pytest.mark.starts
 def test_a_scene_acquired_from_the_firmware_matches_the_python_boards(sim, tmp_path):
     """The unchanged host code (run_session) on both boards, a small two-force plan
     recorded twice (``repeats``: each repetition a new trial, on both boards alike)."""
@@ -207,7 +207,6 @@ def test_a_scene_acquired_from_the_firmware_matches_the_python_boards(sim, tmp_p
         assert (a != b).any(), f"repetition 2 of {first.describe()} read as its first"
 
 
-@pytest.mark.starts
 def test_link_faults_mid_request_cost_nothing(sim, tmp_path):
     """The firmware resets as scans 3 and 30 begin (the host opening the Uno's port does
     that too); then, in another run, the USB link vanishes there for 0.3 s and comes back
@@ -239,7 +238,6 @@ def test_link_faults_mid_request_cost_nothing(sim, tmp_path):
     assert frames["vanish"] == frames["clean"]
 
 
-@pytest.mark.starts
 def test_a_failing_rig_is_named_in_the_hosts_error(sim, tmp_path, monkeypatch):
     """If the Python side of the harness fails, the host loses the board; its one-line
     error says why, and the conditions already recorded are kept. The second condition's
@@ -306,7 +304,6 @@ def test_a_scene_of_params_yaml_is_acquired_from_the_firmware(small_params, tmp_
     assert device["terminals"] == rows + columns and device["firmware"].startswith("fw-")
 
 
-@pytest.mark.starts
 def test_a_board_without_an_id_is_given_one_once_and_refused_before(sim, tmp_path):
     """A new board says id=unset, which any other new board shares: acquisition from a
     port refuses it, saying how to give it one; `eskin device set-id` does, once."""
@@ -346,7 +343,6 @@ def test_the_firmware_header_maps_each_terminal_to_its_multiplexer():
         skin_header(ChannelArray(("a", "b"), 2, 2))
 
 
-@pytest.mark.starts
 def test_a_firmware_beyond_32_rows_is_refused_in_one_line():
     done = subprocess.run(["make", "-s", "-C", str(ROOT / "firmware/eskin"), "ROWS=40",
                            "COLUMNS=8", f"PYTHON={sys.executable}"], capture_output=True,

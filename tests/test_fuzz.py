@@ -5,6 +5,7 @@ import pytest
 from harness import fuzz
 
 
+@pytest.mark.heavy
 def test_frame_parser_survives_damaged_streams():
     result = fuzz.fuzz_parser(300)
     assert result["inputs"] == 300 and result["intact frames"] > 300

@@ -329,6 +329,7 @@ def run_cli_against(board, root, params, transport="pty"):
 
 
 @pytest.mark.parametrize("misbehaviour", ["trickle", "flood"])
+@pytest.mark.heavy
 def test_a_board_that_never_answers_ends_within_the_budget_in_bounded_memory(
         honest, tmp_path, misbehaviour):
     params, _ = honest
@@ -497,6 +498,7 @@ def test_a_1_mib_junk_line_costs_no_retry_and_no_reconnect(honest, tmp_path, tra
     pd.testing.assert_frame_equal(frame[CONTENT], clean[CONTENT])
 
 
+@pytest.mark.heavy
 def test_a_board_whose_lines_end_in_cr_only_is_given_up_on_with_the_hint(honest, tmp_path):
     """Finding 6: it ended as "lost the board" with no hint of why."""
     params, _ = honest
@@ -510,6 +512,7 @@ def test_a_board_whose_lines_end_in_cr_only_is_given_up_on_with_the_hint(honest,
 
 # ---------------------------------------------------------------- findings 4-6
 
+@pytest.mark.heavy
 def test_a_kill_at_the_first_prompt_leaves_a_log_the_next_run_continues(tmp_path,
                                                                        repo_params):
     params = hostile_params(repo_params)

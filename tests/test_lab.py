@@ -106,6 +106,7 @@ def test_a_worker_killed_mid_sweep_and_the_sweep_completes_on_the_other(cluster,
                                   cv_on("loky", dataset, model="random_forest").predictions)
 
 
+@pytest.mark.heavy
 def test_an_unreachable_scheduler_is_one_line_naming_it(monkeypatch):
     monkeypatch.setattr("eskin.evaluation.crossval.DASK_CONNECT_S", 2)
     with socket_closed() as address:

@@ -20,9 +20,11 @@ from conftest import ROOT, run_checked
 
 from eskin.tracking.lab import SSHD, free_port
 
-pytestmark = pytest.mark.skipif(not os.access(SSHD, os.X_OK),
-                                reason="Debian's openssh-server is missing: `make test` "
-                                "installs it")
+# Each test here starts sshd and a pipeline: `make check` leaves them out.
+pytestmark = [pytest.mark.starts,
+              pytest.mark.skipif(not os.access(SSHD, os.X_OK),
+                                 reason="Debian's openssh-server is missing: `make test` "
+                                 "installs it")]
 
 
 @pytest.fixture(scope="module")
@@ -86,8 +88,6 @@ TRAIN = """\
 import json, sys
 from pathlib import Path
 
-# Each test here starts a pipeline or a server: `make check` leaves them out.
-pytestmark = pytest.mark.starts
 rows = Path("data/readings.csv").read_text().splitlines()
 Path("models").mkdir(exist_ok=True)
 Path("models/model.txt").write_text(f"mean of {len(rows)} rows\\n")

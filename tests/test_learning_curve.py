@@ -18,6 +18,9 @@ from eskin.skin import PAPER_SKIN
 from eskin.tracking import planning
 from harness import benchmark, learning_curve
 
+# Each test here runs learning curves trained over many draws: `make check` leaves them out.
+pytestmark = pytest.mark.heavy
+
 ROOT = Path(__file__).resolve().parents[1]
 COSTS = SimpleNamespace(placement_s=30.0, frames_per_s=56.8, reliability=0.9)
 SCENE = "single_force"
@@ -59,7 +62,6 @@ def curves(project):
                                              draws=3, log=lambda _: None)
 
 
-@pytest.mark.heavy
 def test_the_curve_holds_out_the_datasets_own_trials_and_trains_on_new_ones(project, curves):
     root, _, _ = project
     dataset = pd.read_parquet(root / "data" / "processed" / f"{SCENE}.parquet")

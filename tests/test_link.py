@@ -115,6 +115,7 @@ def test_a_board_that_stays_silent_ends_reconnecting_with_an_error_naming_the_po
 
 
 @pytest.mark.parametrize("socket_port", [None, 0], ids=["pty", "socket"])
+@pytest.mark.heavy
 def test_a_vanishing_link_is_reopened_and_a_reset_board_is_noticed(socket_port):
     faults = LinkFaults(vanish=0.03, reset=0.03, vanish_s=0.1, seed=3)
     said, resets, reopened, whole = [], 0, 0, 0

@@ -143,6 +143,7 @@ def live_against_batch(events, records, reference: SkinStack, estimates_wanted: 
     return live
 
 
+@pytest.mark.heavy
 def test_the_exported_stack_live_gives_the_scikit_learn_stacks_batch_estimates(stack,
                                                                                 tmp_path):
     params, skin = stack
@@ -157,6 +158,7 @@ def test_the_exported_stack_live_gives_the_scikit_learn_stacks_batch_estimates(s
     assert live.iloc[40:60]["contact"].mean() <= 0.1
 
 
+@pytest.mark.heavy
 def test_live_estimates_equal_the_batch_predictions_of_the_same_frames(stack):
     params, skin = stack
     events, records = run_live(params, skin)
@@ -172,6 +174,7 @@ def test_live_estimates_equal_the_batch_predictions_of_the_same_frames(stack):
     assert untouched["stretch"].mean() < 1.02 < live.iloc[300:]["stretch"].mean()
 
 
+@pytest.mark.heavy
 def test_record_keeps_the_stream_in_the_raw_log_apart_from_the_training_data(stack, tmp_path):
     """`--record`: every streamed frame, damaged lines and gaps included, goes into the
     scene's raw log as a live session; ingest gives the same training data as before and
@@ -205,6 +208,7 @@ def test_record_keeps_the_stream_in_the_raw_log_apart_from_the_training_data(sta
     assert (raw / "acquisition.log").stat().st_size == size
 
 
+@pytest.mark.heavy
 def test_the_stream_goes_on_across_board_restarts_and_a_vanishing_port(stack, tmp_path):
     """As acquisition does: a board that restarts streams again, a port that vanishes is
     reopened; the estimates go on, each from a frame that arrived."""
@@ -263,6 +267,7 @@ def live_on_hostile(skin, board: HostileBoard, wanted: int, record_to=None, *,
     return records, error
 
 
+@pytest.mark.heavy
 def test_live_on_an_independent_board_predicts_exactly_the_frames_it_sent(stack):
     """A board that shares none of eskin's protocol code: every frame it streamed is
     parsed to its own counts and predicted once, in order, as the batch stack would."""
@@ -280,6 +285,7 @@ def test_live_on_an_independent_board_predicts_exactly_the_frames_it_sent(stack)
     assert (pd.DataFrame(estimates)["contact"] == batch["contact"]).all()
 
 
+@pytest.mark.heavy
 def test_another_board_mid_stream_ends_live_and_none_of_its_frames_is_kept(stack, tmp_path):
     """The wave's bug, live: another board's #HELLO mid-stream, then its frames from seq 0.
     eskin live stops with one line naming both ids; nothing of the other board is
@@ -307,6 +313,7 @@ def test_another_board_mid_stream_ends_live_and_none_of_its_frames_is_kept(stack
     ("stream_junk", "no valid frame"),
     ("stream_cr_only", "lines end in CR only"),
 ])
+@pytest.mark.heavy
 def test_live_gives_up_on_a_board_that_streams_only_junk(stack, misbehaviour, says):
     """Issue 40, finding 5: junk counted as progress, so a board that streamed a junk line
     every few seconds, or lines ending in CR only, had live print {"rejected": ...}
@@ -326,6 +333,7 @@ def test_live_gives_up_on_a_board_that_streams_only_junk(stack, misbehaviour, sa
     assert sum("seq" in r for r in records) == 80 - 1 - TARE  # all it streamed, predicted
 
 
+@pytest.mark.heavy
 def test_a_streamed_frame_whose_board_time_fell_is_reported_never_predicted(stack):
     """Issue 40, finding 3, live: a frame whose t_ms fell (its CRC-8 matched by chance)."""
     _, skin = stack
@@ -337,6 +345,7 @@ def test_a_streamed_frame_whose_board_time_fell_is_reported_never_predicted(stac
     assert any("board time went backwards" in r.get("rejected", "") for r in records)
 
 
+@pytest.mark.heavy
 def test_a_damaged_line_and_a_lost_frame_are_reported_and_never_predicted(stack):
     params, skin = stack
     events, records = run_live(params, skin, corrupt_fraction=0.05, estimates_wanted=150)
@@ -605,6 +614,7 @@ def test_a_click_on_the_view_presses_the_simulated_skin_there_with_the_weight_se
     assert after == "nothing pressed" and view_state(port)["pressed"] == []
 
 
+@pytest.mark.heavy
 def test_eskin_press_presses_the_running_view_and_releases(live_view):
     port, _ = live_view
     done = eskin("press", "2", "8", "3.2536", "--view", str(port))

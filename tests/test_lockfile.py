@@ -89,6 +89,7 @@ def test_commands_on_the_pipeline_refuse_a_damaged_lock_the_device_tools_do_not(
     assert "dvc.lock" not in capsys.readouterr().err
 
 
+@pytest.mark.starts
 def test_a_lock_dvc_is_writing_waits_for_dvc(committed):
     """While a DVC command holds the project's lock (as from a stage's end until it is
     recorded), a lock cut short may be half written: read again once DVC is done; told
@@ -221,6 +222,7 @@ def test_a_ctrl_c_before_any_stage_stops_the_first_one_dvc_starts(pipeline):
     assert not (pipeline / "dvc.lock").exists()  # nothing finished, nothing recorded
 
 
+@pytest.mark.starts
 def test_ctrl_z_stops_dvc_and_its_stage_and_a_kill_reaches_them(pipeline):
     # a process group in the test's session, as a shell's job is in the terminal's
     with subprocess.Popen([sys.executable, "-m", "eskin.lockfile", "repro"], cwd=pipeline,
@@ -239,6 +241,7 @@ def test_ctrl_z_stops_dvc_and_its_stage_and_a_kill_reaches_them(pipeline):
     assert gone(stage) and gone(dvc)
 
 
+@pytest.mark.starts
 def test_a_second_ctrl_c_reaches_dvc_and_its_stage_as_a_plain_one_would(pipeline):
     """A stage that holds out against the first Ctrl-C (the wrapper's, to the stage
     alone): the second is sent to DVC's whole process group, and the stage gives in."""

@@ -134,6 +134,7 @@ def test_every_figure_is_written_as_png_and_svg_per_scheme(built):
             for p in (root / "figures").rglob("*.svg")} == expected
 
 
+@pytest.mark.heavy
 def test_dvc_metrics_are_a_file_a_scene_one_number_a_target_without_skipped_tasks(built):
     root, _ = built
     # the fixture's two-contact scene has no pairs scores: its own targets stand

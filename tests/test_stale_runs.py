@@ -3,9 +3,12 @@
 import subprocess
 import sys
 
+import pytest
+
 from eskin.tracking import compare, connection, runs
 
 
+@pytest.mark.heavy
 def test_a_run_whose_process_died_is_marked_failed_and_audit_says_so(tmp_path, monkeypatch):
     monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp_path / 'mlflow.db'}")
     monkeypatch.chdir(tmp_path)

@@ -18,6 +18,10 @@ from eskin.learning.estimators import build_model
 from eskin.skin import PAPER_SKIN
 from harness import stress
 
+# Each test here trains the default models under numerical stress: `make check` leaves
+# them out.
+pytestmark = pytest.mark.heavy
+
 
 def acquire_features(params, root):
     acquire_step(params, "single_force", root / "raw", progress=False)
@@ -48,7 +52,6 @@ def suite(small):
     return stress.run_suite(frames, typed(params), PAPER_SKIN, folds=3, log=lambda _: None)
 
 
-@pytest.mark.heavy
 def test_every_case_passes_or_ends_in_a_clear_error(suite):
     failed = [(r["case"], r["task"], r["model"], r["outcome"], r.get("error"))
               for r in suite if r["outcome"].startswith("FAIL")]
@@ -97,7 +100,6 @@ def test_the_verdict_fails_what_it_should():
     assert stress.judge(case, reference, reference, FORCE)["outcome"] == "pass"
 
 
-@pytest.mark.heavy
 def test_the_exact_gp_factorises_a_large_matrix_of_repeated_samples(small):
     _, frames = small
     tripled = pd.concat([frames["default"]] * 3, ignore_index=True)  # singular without jitter
@@ -127,7 +129,6 @@ def default_fits(small):
 @settings(max_examples=12, deadline=None,
           suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(exponents=st.lists(st.floats(-12, 12), min_size=20, max_size=20))
-@pytest.mark.heavy
 def test_any_positive_rescaling_leaves_the_default_models_predictions(default_fits, exponents):
     scale = 10.0 ** np.asarray(exponents)
     for task_name, name, hyper, X, target, before in default_fits:

@@ -130,6 +130,7 @@ def test_the_dataset_and_its_features_are_of_the_total_force_kind(pipeline):
     assert "force1" not in features and list(features.columns[15:21]) == TOTAL_LABELS
 
 
+@pytest.mark.heavy
 def test_the_total_force_is_trained_and_scored_as_a_regression(pipeline):
     force = pipeline["scores"]["force"]
     assert force["status"] == "trained" and force["kind"] == "two_force_total"
@@ -171,6 +172,7 @@ def test_pairs_score_the_positions_and_skip_the_per_contact_forces_with_the_reas
     assert set(metrics["two"]["pairs"]) == {"pair_accuracy", "ghost_share"}
 
 
+@pytest.mark.heavy
 def test_the_report_gives_the_total_force_and_says_once_why_there_is_no_per_contact_force(
         pipeline):
     root = pipeline["root"]
