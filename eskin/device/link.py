@@ -337,9 +337,11 @@ class SerialLink:
         junk = _JunkSeen()
         while True:
             # Silence is no byte at all: a long line still arriving (junk being dropped
-            # whole) is the board talking, not an #OK lost.
-            if (probe and self.protocol.answer_begun
-                    and time.monotonic() - max(progressed, self._bytes_at) > gap):
+            # whole) is the board talking, not an #OK lost; and bytes waiting unread (this
+            # process was not scheduled for a while) are not silence either.
+            if (probe and self.protocol.answer_begun and not self._pending
+                    and time.monotonic() - max(progressed, self._bytes_at) > gap
+                    and not self._wait_readable(0)):
                 probe = False
                 self._write(self.protocol.send_probe(), "STREAM OFF")
             if not self._pending:
