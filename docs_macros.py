@@ -42,12 +42,12 @@ def percent(value: float, digits: int = 0) -> str:
 def plan_said(scene: str, target: str) -> str:
     """What `eskin plan <scene> --target <target>` prints, from the curves in reports/."""
     from eskin.catalog import learning_curve_path
-    from eskin.config.base import load_params
+    from eskin.config.base import BENCH_PARAMS, load_params, sections
+    from eskin.config.planning import LearningCurve
     from eskin.tracking import planning
-    from harness.params import BenchParams
 
     name, _, value = target.partition("=")
-    settings = load_params(BenchParams).learning_curve
+    settings = load_params(sections(BENCH_PARAMS, learning_curve=LearningCurve)).learning_curve
     curves = planning.read_curves(learning_curve_path(scene), scene)
     return planning.describe(planning.plan(curves, name, float(value), settings), settings)
 
