@@ -86,7 +86,7 @@ def test_a_fresh_mlflow_store_says_nothing_of_its_tables(tmp_path):
     assert done.stderr.startswith("eskin: error: no MLflow experiment 'eskin'"), done.stderr
     assert done.stderr.count("\n") == 1, done.stderr
     env["MLFLOW_TRACKING_URI"] = f"sqlite:///{tmp_path / 'track.db'}"
-    done = subprocess.run([sys.executable, "-c", "from eskin.tracking import runs; "
+    done = subprocess.run([sys.executable, "-c", "from eskin.tracking import connection; "
                            "print(connection.ensure_experiment())"], cwd=tmp_path, env=env,
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 0 and done.stdout.strip().isdigit(), done

@@ -137,8 +137,8 @@ def test_a_ctrl_c_as_the_lab_server_says_how_to_stop_it_is_a_clean_stop(monkeypa
     The fresh-clone CI of 799af58 caught that window, once, under load."""
     from types import SimpleNamespace
 
+    import eskin.tracking.connection
     import eskin.tracking.lab
-    import eskin.tracking.runs
 
     stopped = []
 
@@ -165,7 +165,7 @@ def test_a_ctrl_c_as_the_lab_server_says_how_to_stop_it_is_a_clean_stop(monkeypa
 
     monkeypatch.setattr(eskin.tracking.lab, "lab_server", servers)
     monkeypatch.setattr(eskin.tracking.lab, "data_remote", remote)
-    monkeypatch.setattr(eskin.tracking.runs, "ensure_experiment", lambda: "1")
+    monkeypatch.setattr(eskin.tracking.connection, "ensure_experiment", lambda: "1")
     monkeypatch.setattr(eskin.tracking.lab, "print", ctrl_c_on_the_line_that_names_it,
                         raising=False)
     monkeypatch.setenv("MLFLOW_TRACKING_URI", "")

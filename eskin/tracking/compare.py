@@ -48,10 +48,10 @@ def _seconds(runs: pd.DataFrame) -> pd.Series:
 def split_runs(runs: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
     """(pipeline runs, task and scoring runs) of an ``mlflow.search_runs`` frame."""
     if runs.empty:
-        from eskin.tracking import runs as tracking
+        from eskin.tracking.connection import log_pipeline_command
 
         raise NoRunsError("no runs in the tracking store: run "
-                          f"{tracking.log_pipeline_command()} (or `dvc exp run`)")
+                          f"{log_pipeline_command()} (or `dvc exp run`)")
     kind = _tag(runs, "eskin.kind")
     return runs[kind == "pipeline"], runs[kind.isin(TASK_KINDS)]
 
