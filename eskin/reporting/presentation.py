@@ -67,6 +67,24 @@ TWO_CONTACTS_LOCALISATION = Figure(
     (("x1", "accuracy"), ("y1", "accuracy"), ("x2", "accuracy"), ("y2", "accuracy")),
     ("x1", "y1", "x2", "y2"), ("x1", "y1", "x2", "y2"), "localisation, two contacts")
 
+def _two_contact_rows(prefix: str, paper: str = "—") -> tuple[Headline, ...]:
+    """The rows a two-contact scene has whatever its force labels: each contact's place
+    (``paper``: the paper's word on it), and the pair scored as a set."""
+    return (
+        *(Headline(f"{prefix}: {t} accuracy", "localise", t, "accuracy", paper)
+          for t in ("x1", "y1", "x2", "y2")),
+        *(Headline(f"{prefix}: contact {i} localisation error (mm)", "localise",
+                   f"position{i}", "error_mm", optional=True) for i in (1, 2)),
+        Headline(f"{prefix}: pair accuracy, order-free", "pairs", None, "pair_accuracy"),
+        Headline(f"{prefix}: pair accuracy, in label order", "pairs", None,
+                 "pair_accuracy_ordered"),
+        Headline(f"{prefix}: contact accuracy, order-free", "pairs", None,
+                 "contact_accuracy"),
+        Headline(f"{prefix}: ghost pairs (the other pairing of the same rows and columns)",
+                 "pairs", None, "ghost_share"),
+    )
+
+
 HEADLINES: dict[str, tuple[Headline, ...]] = {
     ONE_CONTACT.name: (
         Headline("stretch R²", "stretch", "stretch", "r2", "0.996"),
@@ -87,17 +105,7 @@ HEADLINES: dict[str, tuple[Headline, ...]] = {
         Headline("two forces: stretch R²", "stretch", "stretch", "r2"),
         Headline("two forces: force 1 R²", "force", "force1", "r2", "0.695"),
         Headline("two forces: force 2 R²", "force", "force2", "r2", "0.771"),
-        *(Headline(f"two forces: {t} accuracy", "localise", t, "accuracy", "“high” (Fig. 8)")
-          for t in ("x1", "y1", "x2", "y2")),
-        *(Headline(f"two forces: contact {i} localisation error (mm)", "localise",
-                   f"position{i}", "error_mm", optional=True) for i in (1, 2)),
-        Headline("two forces: pair accuracy, order-free", "pairs", None, "pair_accuracy"),
-        Headline("two forces: pair accuracy, in label order", "pairs", None,
-                 "pair_accuracy_ordered"),
-        Headline("two forces: contact accuracy, order-free", "pairs", None,
-                 "contact_accuracy"),
-        Headline("two forces: ghost pairs (the other pairing of the same rows and columns)",
-                 "pairs", None, "ghost_share"),
+        *_two_contact_rows("two forces", "“high” (Fig. 8)"),
         Headline("two forces: force R², order-free", "pairs", None, "force_r2"),
     ),
     # No paper column: the paper weighed each contact.
@@ -105,17 +113,7 @@ HEADLINES: dict[str, tuple[Headline, ...]] = {
         Headline("two contacts: stretch R²", "stretch", "stretch", "r2"),
         Headline("two contacts: total force R²", "force", "force", "r2"),
         Headline("two contacts: total force RMSE (N)", "force", "force", "rmse"),
-        *(Headline(f"two contacts: {t} accuracy", "localise", t, "accuracy")
-          for t in ("x1", "y1", "x2", "y2")),
-        *(Headline(f"two contacts: contact {i} localisation error (mm)", "localise",
-                   f"position{i}", "error_mm", optional=True) for i in (1, 2)),
-        Headline("two contacts: pair accuracy, order-free", "pairs", None, "pair_accuracy"),
-        Headline("two contacts: pair accuracy, in label order", "pairs", None,
-                 "pair_accuracy_ordered"),
-        Headline("two contacts: contact accuracy, order-free", "pairs", None,
-                 "contact_accuracy"),
-        Headline("two contacts: ghost pairs (the other pairing of the same rows and "
-                 "columns)", "pairs", None, "ghost_share"),
+        *_two_contact_rows("two contacts"),
     ),
 }
 
