@@ -25,7 +25,7 @@ SCHEME_NOTES = {"stratified": "the paper's: stratified on the node",
 # Where a scene's readings come from: the Python board, the firmware under simavr, a
 # board on a port, or a file another lab wrote.
 SOURCES: tuple[str, ...] = ("simulated", "emulated", "serial", "import")
-# The pairs stage scores a two-force scene's localise and force predictions together.
+# The report scores a two-force scene's localise and force predictions together, as sets.
 PAIRS = "pairs"
 SCORED_TASKS: tuple[str, ...] = (*TASK_NAMES, PAIRS)
 
@@ -34,7 +34,7 @@ HEADLINE_METRIC = {"regression": "r2", "detection": "accuracy", "localisation": 
 # The scheme DVC's metrics file holds (the one `make bench` chooses models by); every
 # scheme's scores, with spreads and confusion counts, are in the scores files.
 HEADLINE_SCHEME = "conditions"
-# A two-force scene's contacts scored as sets: the pairs stage's headline scores.
+# A two-force scene's contacts scored as sets: the pairs' headline scores.
 PAIRS_HEADLINE = ("pair_accuracy", "ghost_share", "force_r2")
 
 RAW_DIR = Path("data/raw")
@@ -58,12 +58,18 @@ RUNS_DIR = Path("reports/runs")
 TRACKED = RUNS_DIR / "tracked.json"
 SCORES_DIR = Path("reports/scores")
 PREDICTIONS_DIR = Path("reports/predictions")
+# A two-contact scene's contacts scored as sets, a file a scene (the report writes them:
+# scoring them is a view of the predictions, not a stage of its own)
+PAIRS_DIR = Path("reports/pairs")
 LINEAGE_DIR = Path("reports/lineage")
 # Which model and hyperparameters each scene's task trains (the settings stage resolves
 # params.yaml's train section once, so that each training stage depends on its own).
 SETTINGS_DIR = Path("reports/settings")
 FIGURES_DIR = Path("reports/figures")
 PLOTS_DIR = Path("reports/plots")
+# Figures already drawn, by a key of their data and drawing code (the report stage's
+# cache: not a DVC output, ignored by git; removing it costs only the drawing)
+FIGURE_CACHE = Path(".cache/figures")
 BENCH_DIR = Path("reports/benchmark")
 BOUND_DIR = Path("bench/bound")  # in bench/'s own DVC project, so in DVC's cache (not git)
 LEARNING_CURVE_DIR = Path("reports/learning_curve")
@@ -104,7 +110,9 @@ def run_record_path(scene: str, task: str) -> Path:
 
 def scores_path(scene: str, task: str) -> Path:
     """A task's whole evaluation: every scheme, metric and spread, the confusion counts,
-    and what was trained on what."""
+    and what was trained on what. (``pairs``: the scene's contacts scored as sets.)"""
+    if task == PAIRS:
+        return PAIRS_DIR / f"{scene}.json"
     return SCORES_DIR / scene / f"{task}.json"
 
 

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from eskin.catalog import stack_path
+from eskin.catalog import PAIRS, SCORES_DIR, scores_path, stack_path
 from eskin.config.base import load_params
 from eskin.config.params import Params
 from eskin.config.scenes import get_scene
@@ -276,10 +276,13 @@ def _share(values) -> float | None:
     return round(float(values.mean()), 5) if len(values) else None
 
 
-def batch_cv_scores(scene: str, scores_dir: Path = Path("reports/scores")) -> dict[str, Any]:
-    """The trained stack's conditions-CV scores (mean ± fold sd), to set the live ones beside."""
+def batch_cv_scores(scene: str, scores_dir: Path = SCORES_DIR,
+                    pairs: Path | None = None) -> dict[str, Any]:
+    """The trained stack's conditions-CV scores (mean ± fold sd), to set the live ones
+    beside; ``pairs``: the scene's contacts scored as sets (default: where the report
+    writes them)."""
     out: dict[str, Any] = {}
-    pairs = scores_dir / scene / "pairs.json"
+    pairs = scores_path(scene, PAIRS) if pairs is None else pairs
     if pairs.exists():
         held_out = json.loads(pairs.read_text()).get("conditions", {})
         for name in ("pair_accuracy", "force_mae"):

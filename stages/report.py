@@ -1,14 +1,16 @@
-"""DVC stage: predictions + scores → figures, plot data, reports/index.html,
-reports/results.md, the headline scores (reports/metrics.json) and DVC's metrics, a file
-a scene (reports/metrics/)."""
+"""DVC stage: predictions + scores → a two-contact scene's contacts scored as sets
+(reports/pairs/), figures, plot data, reports/index.html, reports/results.md, the headline
+scores (reports/metrics.json) and DVC's metrics, a file a scene (reports/metrics/)."""
 
 import functools
 import sys
 
 from eskin.catalog import (
+    FIGURE_CACHE,
     FIGURES_DIR,
     METRICS,
     PAGE,
+    PAIRS_DIR,
     PLOTS_DIR,
     PREDICTIONS_DIR,
     SCENE_METRICS_DIR,
@@ -37,7 +39,8 @@ def main() -> str:
         predictions_dir=PREDICTIONS_DIR, figures_dir=FIGURES_DIR, plots_dir=PLOTS_DIR,
         page_path=PAGE, results_path="reports/results.md", metrics_path=METRICS,
         scene_metrics_dir=SCENE_METRICS_DIR, run=report.provenance(),
-        model_runs=model_runs).summary
+        model_runs=model_runs, figure_cache=FIGURE_CACHE,
+        pairs_dir=PAIRS_DIR).summary
 
 
 if __name__ == "__main__":

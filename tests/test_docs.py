@@ -84,7 +84,7 @@ def test_site_builds_strict(tmp_path):
 # at the places typed is a quoted output typed by hand: it must be read at build time
 # ({{ output(...) }}, docs_macros.py), or sit in a paragraph, list item or
 # section marked "History, at <commit>" (below), or be listed here as no measurement.
-QUOTED_OUTPUTS = ("reports/scores/*/*.json", "reports/metrics/*.json",
+QUOTED_OUTPUTS = ("reports/scores/*/*.json", "reports/pairs/*.json", "reports/metrics/*.json",
                   "reports/learning_curve/*.json", "reports/plan_check/*.json")
 # Every history marker in docs/, by page and commit: figures no output holds, typed from
 # the run of that commit. A new one is added here, so that each is seen.

@@ -137,22 +137,31 @@ def test_every_figure_is_written_as_png_and_svg_per_scheme(built):
 @pytest.mark.heavy
 def test_dvc_metrics_are_a_file_a_scene_one_number_a_target_without_skipped_tasks(built):
     root, _ = built
-    # the fixture's two-contact scene has no pairs scores: its own targets stand
     assert json.loads((root / "metrics" / "single_force.json").read_text()) == {
         "stretch": 0.8, "force": 0.8, "contact": 0.93, "x": 0.93, "y": 0.93}
+    # the report scores a two-contact scene's contacts as a set (from its predictions, the
+    # file written beside its scores in a direct run), and the set stands for each
+    # contact's own targets; a one-contact scene has no pairs file
+    pairs = json.loads((root / "scores" / "two_force" / "pairs.json").read_text())
+    assert pairs["status"] == "scored"
     assert json.loads((root / "metrics" / "two_force.json").read_text()) == {
-        "force1": 0.8, "force2": 0.8, **{t: 0.93 for t in ("x1", "y1", "x2", "y2")}}
+        "pairs": pairs["conditions"]["pair_accuracy"],
+        "pair_force": pairs["conditions"]["force_r2"]}
+    assert not (root / "scores" / "single_force" / "pairs.json").exists()
 
 
 def test_the_headline_is_one_table_named_by_scene_and_task_without_skipped_tasks(built):
     root, _ = built
     metrics = json.loads((root / "metrics.json").read_text())
+    pairs = json.loads((root / "scores" / "two_force" / "pairs.json").read_text())["conditions"]
     assert metrics == {
         "single_force": {"stretch": {"r2": 0.8}, "force": {"r2": 0.8},
                          "detect": {"contact": {"accuracy": 0.93}},
                          "localise": {"x": {"accuracy": 0.93}, "y": {"accuracy": 0.93}}},
         "two_force": {"force": {"force1": {"r2": 0.8}, "force2": {"r2": 0.8}},
-                      "localise": {t: {"accuracy": 0.93} for t in ("x1", "y1", "x2", "y2")}}}
+                      "localise": {t: {"accuracy": 0.93} for t in ("x1", "y1", "x2", "y2")},
+                      "pairs": {name: pairs[name]
+                                for name in ("pair_accuracy", "ghost_share", "force_r2")}}}
 
 
 def test_dvc_plot_data_has_the_columns_dvc_yaml_names(built):
@@ -503,3 +512,49 @@ def test_a_continuous_force_is_summarised_in_a_few_bins():
     # a few levels (the paper's weights) stay levels
     levels = oof.assign(force_true=np.repeat([0.0, 1.2936, 3.2536, 5.2136], 750))
     assert figures.force_parity(levels).axes[1].get_title() == "spread per level"
+
+
+def _cached_figures(cache) -> set:
+    """The figures a cache holds: joblib's Memory keeps each call's output in a folder."""
+    return {path.parent.name for path in cache.rglob("output.pkl")}
+
+
+@pytest.mark.heavy
+def test_the_figure_cache_redraws_only_the_figures_whose_data_changed(tmp_path):
+    """An experiment that changes one model changes its task's predictions only: the
+    report then draws that task's figures and reads the rest from the cache, and every
+    file is byte for byte what drawing them all gives."""
+    root = fake_outputs(tmp_path / "in")
+    cache = tmp_path / "cache"
+
+    def files(out):
+        return {p.relative_to(out).as_posix(): p.read_bytes()
+                for p in sorted(out.rglob("*")) if p.is_file()}
+
+    def run(out, figure_cache):
+        return report.report(
+            report=SETTINGS, scenes=SCENES, scores_dir=root / "scores",
+            predictions_dir=root / "predictions", figures_dir=out / "figures",
+            plots_dir=out / "plots", page_path=out / "index.html",
+            results_path=out / "results.md", metrics_path=out / "metrics.json",
+            run=Provenance(commit=COMMIT), figure_cache=figure_cache)
+
+    drawn = run(tmp_path / "drawn", None)
+    run(tmp_path / "first", cache)
+    assert len(_cached_figures(cache)) == drawn.figures
+    assert files(tmp_path / "first") == files(tmp_path / "drawn")
+    before = _cached_figures(cache)
+    run(tmp_path / "again", cache)  # nothing changed: nothing drawn
+    assert _cached_figures(cache) == before
+    assert files(tmp_path / "again") == files(tmp_path / "drawn")
+
+    # one model's predictions change (the single-force scene's force task)
+    path = root / "predictions" / "single_force" / "force.parquet"
+    changed = pd.read_parquet(path)
+    changed["force_pred"] = changed["force_pred"] + 0.05
+    changed.to_parquet(path)
+    run(tmp_path / "changed", cache)
+    force_figures = sum(spec.task == "force" for spec in
+                        presentation.figures(get_kind("single_force"))) * len(SETTINGS.schemes)
+    assert len(_cached_figures(cache) - before) == force_figures > 0
+    assert files(tmp_path / "changed") == files(run(tmp_path / "redrawn", None).figures_dir.parent)

@@ -18,12 +18,14 @@ from foreign_tactile import CHANNELS, GRID_MM, write_two_touch_recording
 from eskin.catalog import (
     METRICS,
     PAIRS,
+    PAIRS_DIR,
     TASK_NAMES,
     features_path,
     featurizer_path,
     folds_path,
     model_path,
     processed_path,
+    scores_path,
     stack_path,
     task_outputs,
 )
@@ -96,9 +98,6 @@ def pipeline(tmp_path_factory, repo_params):
         features_dir=root / "data/features",
         **{name: root / path for name, path in task_outputs("two", task).items()})
         for task in TASK_NAMES}
-    pairs_outputs = task_outputs("two", PAIRS)
-    paired = score_scene_pairs("two", root / "reports/predictions",
-                               root / pairs_outputs["scores_path"])
     outs = [featurizer_path("two"), *(model_path("two", task) for task in TASK_NAMES)]
     # dvc.lock as DVC records the outputs the stack is loaded from (their md5s)
     (root / "dvc.lock").write_text(yaml.safe_dump({"stages": {"train": {"outs": [
@@ -111,9 +110,10 @@ def pipeline(tmp_path_factory, repo_params):
         predictions_dir=root / "reports/predictions", figures_dir=root / "reports/figures",
         plots_dir=root / "reports/plots", page_path=root / "reports/index.html",
         results_path=root / "reports/results.md",
-        metrics_path=root / METRICS)
-    scores = {task: json.loads((root / task_outputs("two", task)["scores_path"]).read_text())
+        metrics_path=root / METRICS, pairs_dir=root / PAIRS_DIR)
+    scores = {task: json.loads((root / scores_path("two", task)).read_text())
               for task in (*TASK_NAMES, PAIRS)}
+    paired = score_scene_pairs("two", root / "reports/predictions", scores["localise"])
     return {"root": root, "params": params, "ingested": ingested, "trained": trained,
             "paired": paired, "exported": exported, "scores": scores}
 

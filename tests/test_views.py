@@ -22,6 +22,8 @@ import pytest
 import yaml
 from conftest import ROOT, copy_small_pipeline, run_checked
 
+from eskin.catalog import PAIRS, scores_path
+
 METRICS_DIR = "reports/metrics"
 EXP_SHOW = ["dvc", "exp", "show", "--only-changed", "--drop", "Created|models|.*/",
             "--no-pager"]
@@ -103,7 +105,7 @@ def test_metrics_show_is_a_row_a_scene_that_fits_120_columns(experiment):
     assert {k for k, v in one.items() if v != "-"} == {"stretch", "force", "contact", "x", "y"}
     assert {k for k, v in two.items() if v != "-"} == {"pairs", "pair_force"}
     written = json.loads((root / METRICS_DIR / "two_force.json").read_text())
-    pairs = json.loads((root / "reports/scores/two_force/pairs.json").read_text())
+    pairs = json.loads((root / scores_path("two_force", PAIRS)).read_text())
     assert written == {"pairs": pairs["conditions"]["pair_accuracy"],
                        "pair_force": pairs["conditions"]["force_r2"]}
 

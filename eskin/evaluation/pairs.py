@@ -18,8 +18,8 @@ force only is scored on its positions alone.
 
 from __future__ import annotations
 
-import json
-from dataclasses import dataclass, field
+from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -28,7 +28,6 @@ import pandas as pd
 from scipy.optimize import linear_sum_assignment
 
 from eskin.evaluation.metrics import regression, summarise
-from eskin.evaluation.outputs import write_json
 from eskin.kinds import DATASET_KINDS, TOTAL_FORCE_ONLY
 
 TIE_BREAK = 1e-3
@@ -142,34 +141,40 @@ def score_pairs(localise: pd.DataFrame, force: pd.DataFrame | None
 @dataclass(frozen=True)
 class PairsScored:
     """What :func:`score_scene_pairs` did: ``status`` is ``scored`` or ``skipped``
-    (``reason``); ``scores`` per scheme."""
+    (``reason``); ``document`` the scene's pairs scores as the report writes them (every
+    scheme's, or the reason none); ``applies``: whether the scene has two contacts to
+    pair at all (a one-contact scene's pairs have no file)."""
 
     scene: str
     status: str
     summary: str
+    document: dict
+    applies: bool
     reason: str = ""
-    scores: dict = field(default_factory=dict)
 
 
-def score_scene_pairs(scene: str, predictions_dir: Path, scores_path: Path) -> PairsScored:
-    """Score a two-force scene's contacts as sets (order-free), from its tasks' predictions;
-    the scene's kind and dataset come from the localise task's scores (beside ``scores_path``).
-    A recording of the contacts' total force only has its positions scored, and its
-    per-contact force scores skipped with the reason (``skipped_scores``)."""
+def score_scene_pairs(scene: str, predictions_dir: Path,
+                      localise: Mapping[str, Any] | None) -> PairsScored:
+    """Score a two-force scene's contacts as sets (order-free), from its tasks' predictions
+    (under ``predictions_dir``/``scene``); the scene's kind and dataset come from the
+    localise task's scores document (``localise``; None: the scene has none). A recording
+    of the contacts' total force only has its positions scored, and its per-contact force
+    scores skipped with the reason (``skipped_scores``)."""
     directory = Path(predictions_dir) / scene
-    scores_doc: dict[str, Any] = {"scene": scene, "task": "pairs"}
-    localise = json.loads((Path(scores_path).with_name("localise.json")).read_text())
+    document: dict[str, Any] = {"scene": scene, "task": "pairs"}
+    localise = localise or {}
 
-    def skip(reason: str) -> None:
-        write_json({**scores_doc, "status": "skipped", "reason": reason}, scores_path)
+    def skip(reason: str, summary: str, *, applies: bool = True) -> PairsScored:
+        return PairsScored(scene, "skipped", f"{scene}/pairs: skipped — {summary}",
+                           {**document, "status": "skipped", "reason": reason}, applies,
+                           reason)
 
     kind = DATASET_KINDS.get(localise.get("kind", ""))
     if kind is None or kind.contacts < 2:
         reason = f"a {localise.get('kind')} scene has one contact; pairs need two"
-        skip(reason)
-        return PairsScored(scene, "skipped", f"{scene}/pairs: skipped — {reason}", reason)
+        return skip(reason, reason, applies=False)
     if kind.total_force:
-        scores_doc["skipped_scores"] = {"force": TOTAL_FORCE_ONLY}
+        document["skipped_scores"] = {"force": TOTAL_FORCE_ONLY}
     frames = {}
     for task in ("localise",) if kind.total_force else ("localise", "force"):
         path = directory / f"{task}.parquet"
@@ -178,16 +183,14 @@ def score_scene_pairs(scene: str, predictions_dir: Path, scores_path: Path) -> P
         frames[task] = pd.read_parquet(path)
     if any(frame.empty for frame in frames.values()):
         skipped = [task for task, frame in frames.items() if frame.empty]
-        reason = f"no predictions from {', '.join(skipped)} (skipped)"
-        skip(reason)
-        return PairsScored(scene, "skipped", f"{scene}/pairs: skipped — "
-                           f"{', '.join(skipped)} skipped", reason)
+        return skip(f"no predictions from {', '.join(skipped)} (skipped)",
+                    f"{', '.join(skipped)} skipped")
     scores = score_pairs(frames["localise"], frames.get("force"))
-    write_json({**scores_doc, "status": "scored", **scores}, scores_path)
+    document = {**document, "status": "scored", **scores}
     parts = [f"{scheme} pair {s['pair_accuracy']:.3f} (ordered {s['pair_accuracy_ordered']:.3f})"
              + (f", force R² {s['force_r2']:.3f}" if "force_r2" in s else "")
              for scheme, s in scores.items()]
     not_scored = "".join(f"; {what} scores skipped — {reason}"
-                         for what, reason in scores_doc.get("skipped_scores", {}).items())
-    return PairsScored(scene, "scored",
-                       f"{scene}/pairs: {'; '.join(parts)}{not_scored}", scores=scores)
+                         for what, reason in document.get("skipped_scores", {}).items())
+    return PairsScored(scene, "scored", f"{scene}/pairs: {'; '.join(parts)}{not_scored}",
+                       document, True)

@@ -9,6 +9,7 @@ row/column skin's nodes are terminals, a channel array's press positions.
 
 from __future__ import annotations
 
+import hashlib
 import io
 import json
 import multiprocessing
@@ -19,13 +20,18 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import matplotlib
 import matplotlib.pyplot as plt
+import numpy as np
 import pandas as pd
+from joblib import Memory
 
-from eskin.catalog import HEADLINE_SCHEME, PAIRS, PAIRS_HEADLINE, SCHEME_NOTES, SCORED_TASKS
+from eskin.catalog import HEADLINE_SCHEME, PAIRS, PAIRS_HEADLINE, SCHEME_NOTES, TASK_NAMES
 from eskin.config.report import Report
 from eskin.config.scenes import Scene, scene_kind, scene_skin
 from eskin.data.schema import force_columns, node_columns
+from eskin.evaluation.outputs import write_json
+from eskin.evaluation.pairs import score_scene_pairs
 from eskin.kinds import get_kind
 from eskin.reporting import figures as fig
 from eskin.reporting import presentation
@@ -109,58 +115,102 @@ def identity(scene: str, spec: Figure, scheme: str, oof: pd.DataFrame,
                     f"{line1}; {line2}; {line3}. {spec.caption}")
 
 
-def save(figure, path: Path, about: Identity, dpi: int) -> None:
-    """A figure as PNG and SVG at ``path`` (no suffix), its identity in each file's
-    metadata (PNG tEXt/iTXt Title and Description; SVG <title> and dc:description) and
-    nothing that changes from one run to the next (no date, no software version)."""
+def save(figure, about: Identity, dpi: int) -> tuple[bytes, bytes]:
+    """A figure's PNG and SVG bytes, its identity in each file's metadata (PNG tEXt/iTXt
+    Title and Description; SVG <title> and dc:description) and nothing that changes from
+    one run to the next (no date, no software version)."""
     meta = {"Title": about.title, "Description": about.description}
-    figure.savefig(path.with_suffix(".png"), dpi=dpi, metadata={**meta, "Software": None})
+    png, svg = io.BytesIO(), io.BytesIO()
+    figure.savefig(png, format="png", dpi=dpi, metadata={**meta, "Software": None})
     # The constrained layout, found while drawing the PNG, is kept for the other files:
     # finding it again was a third of the report stage's time.
     figure.set_layout_engine("none")
-    figure.savefig(path.with_suffix(".svg"), metadata={**meta, "Date": None})
+    figure.savefig(svg, format="svg", metadata={**meta, "Date": None})
+    return png.getvalue(), svg.getvalue()
 
 
 @dataclass(frozen=True)
 class FigureJob:
-    """One figure file to draw: ``spec`` from ``oof`` on ``skin``, saved at ``path`` (no
-    suffix) at ``dpi``, and rendered at ``page_dpi`` for the page."""
+    """One figure to draw: ``spec`` from ``oof`` on ``skin``, its files at ``dpi``, and
+    rendered at ``page_dpi`` for the page. All that decides its pixels, and nothing else
+    (not where it is saved): the figure cache's key."""
 
     spec: Figure
     oof: pd.DataFrame
     skin: AnySkin
     about: Identity
-    path: Path
     dpi: int
     page_dpi: int
 
 
-def draw_figure(job: FigureJob) -> Rendering:
-    """Draw and save one figure (PNG and SVG); its PNG for the page, with its width and
-    smallest text (how wide the page shows it)."""
+@dataclass(frozen=True)
+class FigureFiles:
+    """What drawing one figure gives: its PNG and SVG files' bytes, and its rendering for
+    the page."""
+
+    png: bytes
+    svg: bytes
+    shown: Rendering
+
+
+def draw_figure(job: FigureJob, code: str = "") -> FigureFiles:
+    """Draw one figure: its PNG and SVG bytes, and its PNG for the page, with its width
+    and smallest text (how wide the page shows it). ``code``: the version of the drawing
+    code (:func:`drawing_code`), which only the figure cache reads."""
     figure = draw(job.spec, job.oof, job.skin)
     fig.identify(figure, job.about.heading)
-    save(figure, job.path, job.about, job.dpi)
+    png, svg = save(figure, job.about, job.dpi)
     buffer = io.BytesIO()
     figure.savefig(buffer, format="png", dpi=job.page_dpi,
                    metadata={"Title": job.about.title, "Software": None})
     shown = Rendering(buffer.getvalue(), figure.get_figwidth(), fig.smallest_text(figure))
     plt.close(figure)
-    return shown
+    return FigureFiles(png, svg, shown)
 
 
-def _draw_all(jobs: list[FigureJob]) -> list[Rendering]:
+def drawing_code() -> str:
+    """The version of everything that draws a figure, for the figure cache's keys: this
+    package's sources and the versions of matplotlib and numpy. (The figure's data, its
+    spec and its skin are the cached call's arguments, so they are in the key already.)"""
+    digest = hashlib.md5(f"{matplotlib.__version__} {np.__version__}".encode())
+    for source in sorted(Path(__file__).parent.glob("*.py")):
+        digest.update(source.read_bytes())
+    return digest.hexdigest()
+
+
+# A cache holds the figures of this many reports' worth of jobs (about 8 MB a report on
+# the default scenes), the most recently used kept.
+FIGURE_CACHE_REPORTS = 8
+
+
+def _draw_all(jobs: list[FigureJob], cache: Path | None = None) -> list[FigureFiles]:
     """Every figure, on as many cores as this process may use (at most two figures at a
     time): each figure is drawn on its own, so the files are the same in any order.
-    Drawing was most of the report stage (12 figures × 3 files: about 9 of its 12 s)."""
+    Drawing was most of the report stage (12 figures × 3 files: about 9 of its 12 s).
+
+    ``cache``: a directory where each figure's files are kept under a key of its data,
+    spec, skin, identity and drawing code (joblib's Memory): a figure whose key is there
+    is read, not drawn again. An experiment that changes one model redraws only that
+    model's figures."""
+    draw_one: Callable[..., FigureFiles] = draw_figure
+    memory = None
+    if cache is not None:
+        memory = Memory(cache, verbose=0)
+        draw_one = memory.cache(draw_figure)
+    code = drawing_code() if memory is not None else ""
     workers = min(2, len(os.sched_getaffinity(0)), len(jobs))
     if workers < 2:
-        return [draw_figure(job) for job in jobs]
-    # fork: the workers start with matplotlib and the data already imported. The parent
-    # has read Parquet; Arrow's thread pool and allocator register at-fork handlers
-    # (a forked child of a threaded process is otherwise unsafe).
-    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) as pool:
-        return list(pool.map(draw_figure, jobs))
+        drawn = [draw_one(job, code) for job in jobs]
+    else:
+        # fork: the workers start with matplotlib and the data already imported. The
+        # parent has read Parquet; Arrow's thread pool and allocator register at-fork
+        # handlers (a forked child of a threaded process is otherwise unsafe).
+        with ProcessPoolExecutor(workers,
+                                 mp_context=multiprocessing.get_context("fork")) as pool:
+            drawn = list(pool.map(draw_one, jobs, [code] * len(jobs)))
+    if memory is not None:
+        memory.reduce_size(items_limit=FIGURE_CACHE_REPORTS * max(len(jobs), 1))
+    return drawn
 
 
 def provenance(environ: Mapping[str, str] | None = None) -> Provenance:
@@ -178,9 +228,28 @@ def provenance(environ: Mapping[str, str] | None = None) -> Provenance:
                       experiment=environ.get("DVC_EXP_NAME", ""))
 
 
+def _score_pairs(scores: dict[str, dict[str, Any]], predictions_dir: Path,
+                 pairs_dir: Path | None, scores_dir: Path) -> None:
+    """Each scene's contacts scored as sets, added to its scores (last, as ``pairs``) and
+    written where the scene has two contacts (a one-contact scene's says why it has none,
+    on the page, and has no file). A file left by a scene since removed is deleted."""
+    if pairs_dir is not None:
+        for stale in pairs_dir.glob("*.json"):
+            if stale.stem not in scores:
+                stale.unlink()
+    for scene, by_task in scores.items():
+        if "localise" not in by_task:  # nothing trained to pair
+            continue
+        paired = score_scene_pairs(scene, predictions_dir, by_task["localise"])
+        by_task[PAIRS] = paired.document
+        if paired.applies:
+            write_json(paired.document, (pairs_dir / f"{scene}.json" if pairs_dir is not None
+                                         else scores_dir / scene / f"{PAIRS}.json"))
+
+
 def _task_files(directory: Path, scene: str, suffix: str, reader) -> dict[str, Any]:
     found = {}
-    for task in SCORED_TASKS:
+    for task in TASK_NAMES:
         path = Path(directory) / scene / f"{task}{suffix}"
         if path.exists():
             found[task] = reader(path)
@@ -254,18 +323,25 @@ def report(*, report: Report, scenes: Mapping[str, Scene], scores_dir: Path,
            predictions_dir: Path, figures_dir: Path, plots_dir: Path, page_path: Path,
            results_path: Path, metrics_path: Path, scene_metrics_dir: Path | None = None,
            run: Provenance | None = None,
-           model_runs: Callable[[str], str] | None = None) -> Reported:
+           model_runs: Callable[[str], str] | None = None,
+           figure_cache: Path | None = None, pairs_dir: Path | None = None) -> Reported:
     """Figures, plot data, the page, the results and DVC's metrics of every scene in
     ``scenes`` (the ``scenes`` section: which, and their kinds), with the ``report``
     section; ``run``: which commit and experiment the page says it shows
     (:func:`provenance`); ``scene_metrics_dir``: where DVC's metrics go, a file a scene
     (:func:`scene_metrics`); ``model_runs``: a model md5 → the MLflow UI's page of its
-    runs, the page's link."""
+    runs, the page's link; ``figure_cache``: where drawn figures are kept, so that an
+    unchanged figure is not drawn again (:func:`_draw_all`; None: every figure drawn);
+    ``pairs_dir``: where a two-contact scene's contacts scored as sets are written, a file
+    a scene (:func:`~eskin.evaluation.pairs.score_scene_pairs`; None: ``scores_dir``/
+    ``<scene>``/pairs.json, a direct run's layout)."""
     settings = report
     kinds = {name: scene_kind(scene).name for name, scene in scenes.items()}
     skins = {name: scene_skin(scene) for name, scene in scenes.items()}
     scores = {scene: _task_files(scores_dir, scene, ".json", lambda p: json.loads(p.read_text()))
               for scene in kinds}
+    _score_pairs(scores, predictions_dir, Path(pairs_dir) if pairs_dir is not None else None,
+                 Path(scores_dir))
     if not any(scores.values()):
         raise FileNotFoundError(f"{scores_dir}: no scores for any scene of params.yaml "
                                 f"({', '.join(kinds)}); run the training stages first")
@@ -278,7 +354,7 @@ def report(*, report: Report, scenes: Mapping[str, Scene], scores_dir: Path,
     for stale in [*figures_dir.glob("*/*.png"), *figures_dir.glob("*/*.svg")]:
         stale.unlink()
     page_figures: dict[str, list[FigureRow]] = {scene: [] for scene in kinds}
-    jobs: list[tuple[FigureRow, str, FigureJob]] = []
+    jobs: list[tuple[FigureRow, str, Path, FigureJob]] = []
     for scene, kind in kinds.items():
         # each figure under every scheme, side by side on the page
         for spec in presentation.figures(get_kind(kind)):
@@ -294,17 +370,19 @@ def report(*, report: Report, scenes: Mapping[str, Scene], scores_dir: Path,
                     continue
                 about = identity(scene, spec, scheme, oof, scores[scene].get(spec.task))
                 (figures_dir / scene).mkdir(parents=True, exist_ok=True)
-                jobs.append((row, scheme, FigureJob(
-                    spec, oof, skins[scene], about, figures_dir / scene / f"{spec.id}_{scheme}",
-                    int(settings.dpi), int(settings.page_dpi))))
+                jobs.append((row, scheme, figures_dir / scene / f"{spec.id}_{scheme}",
+                             FigureJob(spec, oof, skins[scene], about, int(settings.dpi),
+                                       int(settings.page_dpi))))
         chosen = {task: frame[frame["scheme"] == settings.plots_scheme]
                   for task, frame in predictions[scene].items() if not frame.empty}
         for template, stem, frame in plot_data(scene, kind, skins[scene], chosen):
             (plots_dir / template).mkdir(parents=True, exist_ok=True)
             frame.to_csv(plots_dir / template / f"{scene}_{stem}.csv", index=False)
-    for (row, scheme, job), shown in zip(jobs, _draw_all([job for *_, job in jobs]),
-                                         strict=True):
-        row.schemes.append((scheme, job.about.heading.replace("\n", "; "), shown))
+    for (row, scheme, path, job), files in zip(jobs, _draw_all([job for *_, job in jobs],
+                                                               figure_cache), strict=True):
+        path.with_suffix(".png").write_bytes(files.png)
+        path.with_suffix(".svg").write_bytes(files.svg)
+        row.schemes.append((scheme, job.about.heading.replace("\n", "; "), files.shown))
 
     scenes = [(scene, kinds[scene], skins[scene], scores[scene]) for scene in kinds]
     href = Path(os.path.relpath(figures_dir, Path(page_path).parent)).as_posix()
