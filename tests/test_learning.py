@@ -351,6 +351,28 @@ def test_folds_give_the_same_predictions_on_every_joblib_backend(backend, projec
     assert result.per_fold == reference.per_fold
 
 
+def test_the_first_fold_decides_whether_the_rest_go_to_the_pool(project, monkeypatch):
+    """Folds go to the workers when the time they save on the remaining folds exceeds the
+    pool's start; the predictions are the same either way."""
+    from eskin.evaluation import crossval
+
+    # 20 folds of 0.7 s (the force model's) save more than the pool costs; of 0.02 s not
+    assert crossval.pool_pays(0.7, 19, 2) and not crossval.pool_pays(0.02, 19, 2)
+    assert not crossval.pool_pays(10.0, 0, 2)  # nothing left to share
+    frame, kind = features(project), "single_force"
+    task_ = get_task(kind, "force")
+    folds = assign_folds(frame, kind, "conditions", 4, 0, skin=PAPER_SKIN)
+    estimator = build_model("force", "hist_gradient_boosting",
+                            {"max_iter": 20, "learning_rate": 0.1, "seed": 0})
+    runs = {}
+    for starts_s in (1e6, 0.0):  # a pool that never pays, one that always does
+        monkeypatch.setattr(crossval, "POOL_STARTS_S", starts_s)
+        runs[starts_s] = cross_validate(task_, frame, folds, estimator, "conditions",
+                                        PAPER_SKIN, n_jobs=2, probe=True)
+    assert not runs[1e6].pooled and runs[0.0].pooled
+    pd.testing.assert_frame_equal(runs[1e6].predictions, runs[0.0].predictions)
+
+
 def test_ray_is_no_backend_and_params_say_which_are(repo_params):
     """Ray was dropped for Dask (docs/lab.md): params.yaml naming it is one line
     listing the backends there are."""

@@ -40,16 +40,25 @@ class CVResult:
     fit_seconds: float = 0.0               # summed over folds
     predict_seconds: float = 0.0
     notes: dict[str, int] = field(default_factory=dict)  # fit remark → folds that made it
-    pooled: bool = False  # whether folds went to the n_jobs workers (:data:`POOL_PAYS_S`)
+    pooled: bool = False  # whether folds went to the n_jobs workers (:func:`pool_pays`)
 
 
 LOKY_IDLE_S = 10
 # Starting a process pool costs a stage one to three seconds on this machine (each worker
-# imports scikit-learn). A fold faster than this runs the rest here; a slower one sends
-# the rest to the workers. A fold run here gets the BLAS and OpenMP threads a worker
-# would (joblib gives each cpu_count // n_jobs), as the thread count moves a model's
-# last digits: where a fold runs changes no result.
-POOL_PAYS_S = 1.0
+# imports scikit-learn). The first fold runs here and times the rest: they go to the
+# workers where that saves more than the pool costs (:func:`pool_pays`), and run here
+# otherwise. A fold run here gets the BLAS and OpenMP threads a worker would (joblib gives
+# each cpu_count // n_jobs), as the thread count moves a model's last digits: where a
+# fold runs changes no result.
+POOL_STARTS_S = 2.0
+
+
+def pool_pays(fold_s: float, remaining: int, n_jobs: int) -> bool:
+    """Whether ``remaining`` folds of ``fold_s`` seconds each finish sooner on ``n_jobs``
+    workers, once the pool's start (:data:`POOL_STARTS_S`) is paid. (Until issue 55 a fold
+    had to take a second or more, so that 20 folds of 0.7 s, the force model's, ran on one
+    core of two.)"""
+    return fold_s * remaining * (1 - 1 / n_jobs) > POOL_STARTS_S
 
 
 DASK_CONNECT_S = 30        # a lab cluster that does not answer in this long is an error
@@ -159,8 +168,8 @@ def cross_validate(task: Task, frame: pd.DataFrame, folds: np.ndarray, estimator
     readings of ``skin``; where the skin places its nodes in mm, each contact's position
     error in mm too.
 
-    ``n_jobs``: folds in parallel; with ``probe``, only if the first fold, run here, took
-    :data:`POOL_PAYS_S` or longer (``CVResult.pooled`` says which).
+    ``n_jobs``: folds in parallel; with ``probe``, only if the first fold, run here, says
+    that a pool pays (:func:`pool_pays`; ``CVResult.pooled`` says which).
     ``progress``: a label, and a progress bar of the folds on stderr (as they finish)."""
     rows = task.rows(frame)
     data = frame[rows].reset_index(drop=True)
@@ -185,7 +194,8 @@ def cross_validate(task: Task, frame: pd.DataFrame, folds: np.ndarray, estimator
                 outcomes.append(_fit_predict_fold(estimator, X, channels, target_frame,
                                                   splitter, 0, binary))
                 bar.update()
-                if time.perf_counter() - started < POOL_PAYS_S:
+                if not pool_pays(time.perf_counter() - started, len(splits) - 1,
+                                 cpu_count() if n_jobs < 0 else n_jobs):
                     for k in range(1, len(splits)):
                         outcomes.append(_fit_predict_fold(estimator, X, channels,
                                                           target_frame, splitter, k, binary))

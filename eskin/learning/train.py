@@ -105,7 +105,7 @@ def train(scene: str, task_name: str, *, task_params: TaskModels, configuration:
     n_jobs = int(cv.n_jobs)
     with parallel_backend(cv.backend):
         for scheme, folds in read_scene_folds(folds_path, frame).items():
-            # the first scheme's first fold decides whether a pool pays (crossval.POOL_PAYS_S)
+            # the first scheme's first fold decides whether a pool pays (crossval.pool_pays)
             results.append(cross_validate(
                 task, frame, folds, estimator, scheme, skin, probe=not results,
                 n_jobs=n_jobs if not results or results[0].pooled else 1,
