@@ -348,6 +348,7 @@ def locked_md5s(root: Path) -> dict[str, str]:
     lock = root / "dvc.lock"
     if not lock.exists():
         raise StackError(f"{lock} is missing: run `dvc repro` to train the stack")
-    stages = (yaml.safe_load(lock.read_text()) or {}).get("stages", {})
+    # libyaml's loader: the pure-Python one took 0.4 s a read of a 2,800-line lock
+    stages = (yaml.load(lock.read_text(), Loader=yaml.CSafeLoader) or {}).get("stages", {})
     return {out["path"]: out["md5"] for stage in stages.values()
             for out in stage.get("outs", []) if "md5" in out}
