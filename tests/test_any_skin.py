@@ -269,6 +269,36 @@ def test_the_physics_models_are_scikit_learn_estimators_built_for_the_skin():
     assert copy[-1].monotonic_cst == model[-1].monotonic_cst
 
 
+def test_the_force_models_quiet_terminals_follow_the_skin_unless_set(repo_params):
+    """The repo's params set no quiet terminals: each skin gets those a press leaves alone,
+    and the paper's 10 × 10 keeps the 3 it had (its model unchanged)."""
+    hyper = repo_params["train"]["force"]["physics_profile"]
+    assert "quiet" not in hyper
+    quiet = {size: build_model("force", "physics_profile", hyper, Skin(*size))
+             .get_params()["forceprofile__quiet"] for size in
+             [(2, 2), (2, 9), (6, 6), (7, 12), (10, 10), (32, 32)]}
+    assert quiet == {(2, 2): 1, (2, 9): 1, (6, 6): 1, (7, 12): 2, (10, 10): 3, (32, 32): 3}
+    assert build_model("force", "physics_profile", {**hyper, "quiet": 2}, Skin(10, 10)
+                       ).get_params()["forceprofile__quiet"] == 2
+
+
+@pytest.mark.heavy
+def test_a_2x2_skin_trains_every_task_with_the_default_params(params, tmp_path):
+    """Issue 59: the shared quiet: 3 refused a 2 × 2 skin. A press covers its every
+    terminal, so none is quiet and the stretch estimate carries the press too: its scores
+    here (conditions CV: force R² 0.70, x/y accuracy 0.71 of 2 nodes) are below the
+    larger skins', above chance."""
+    skin = Skin(2, 2)
+    done = run_pipeline(tmp_path, "lab", row_column_dataset(skin, [1, 2], [1, 2]), skin,
+                        RowColumnSkin(rows=2, columns=2), params)
+    scores = done["scores"]
+    assert all(scores[task]["status"] == "trained" for task in TASK_NAMES)
+    assert scores["force"]["model"] == "physics_profile"
+    assert scores["force"]["conditions"]["force"]["r2"] > 0.6
+    assert min(scores["localise"]["conditions"][t]["accuracy"] for t in ("x", "y")) > 0.6
+    assert ExportedStack.from_file(tmp_path / stack_path("lab")).skin == skin
+
+
 def test_a_model_that_reads_terminals_refuses_what_has_none():
     array = skin_from_dict(MAGNETIC)
     X = np.random.default_rng(2).normal(size=(40, 15))

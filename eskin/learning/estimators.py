@@ -172,6 +172,10 @@ class ActiveTerminals(TransformerMixin, BaseEstimator):
         return np.hstack(columns)
 
 
+# The terminals per axis a press reaches: the one under it and two each way.
+PRESS_SPAN = 5
+
+
 class ForceProfile(TransformerMixin, BaseEstimator):
     """What the physics says a force reading is made of.
 
@@ -191,6 +195,13 @@ class ForceProfile(TransformerMixin, BaseEstimator):
 
     def __init__(self, quiet: int = 3) -> None:
         self.quiet = quiet
+
+    @staticmethod
+    def default_quiet(skin: Skin) -> int:
+        """The quiet terminals per axis where params set none: those a press leaves alone
+        on the shorter axis (it reaches :data:`PRESS_SPAN` terminals), at most 3 (the
+        paper's 10 × 10 skin's value) and at least 1 (on a skin a press covers)."""
+        return int(np.clip(min(skin.rows, skin.columns) - PRESS_SPAN, 1, 3))
 
     @staticmethod
     def monotone(skin: Skin) -> list[int]:
@@ -259,9 +270,13 @@ def _on_active_terminals(booster: BaseEstimator) -> Pipeline:
 
 
 def _physics_profile(skin: Skin, max_iter: int = 200, learning_rate: float = 0.1,
-                     quiet: int = 3, monotone: bool = True, seed: int = 0) -> Pipeline:
-    """ForceProfile, then gradient boosting monotone in the press: one constraint per
-    feature, so built for the skin's terminals."""
+                     quiet: int | None = None, monotone: bool = True, seed: int = 0
+                     ) -> Pipeline:
+    """ForceProfile (``quiet`` unset: :meth:`ForceProfile.default_quiet` of the skin),
+    then gradient boosting monotone in the press: one constraint per feature, so built for
+    the skin's terminals."""
+    if quiet is None:
+        quiet = ForceProfile.default_quiet(skin)
     return make_pipeline(ForceProfile(quiet), HistGradientBoostingRegressor(
         max_iter=max_iter, learning_rate=learning_rate, random_state=seed,
         monotonic_cst=ForceProfile.monotone(skin) if monotone else None))
