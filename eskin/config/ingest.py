@@ -8,4 +8,4 @@ from eskin.config.base import Section
 
 
 class Ingest(Section):
-    bad_rows: Literal["error", "quarantine"]
+    bad_rows: Literal["error", "quarantine"]  # a scene's own bad_rows (scenes.<s>) overrides

@@ -89,10 +89,49 @@ ImportColumns = create_model(
     "ImportColumns", __base__=Section,
     __doc__="Which column of the files gives what (by the header's names): ``channels`` "
             "(a list, matched in order to the skin's channels, or a glob over the header; "
-            "default the skin's channel names), the labels, ``time`` (s) and ``trial``.",
+            "default the skin's channel names), the labels, ``time`` (s), ``trial`` and "
+            "``rest`` (the sensor's rest force per row, under ``rest.rule: column``).",
     channels=(Name | Annotated[list[Name], Field(min_length=1)] | None, None),
     **{key: (Name | None, None) for key in (*FORCE_KEYS, *POSITION_KEYS, "stretch", "time",
-                                             "trial")})
+                                             "trial", "rest")})
+BAD_ROWS = ("error", "quarantine")
+# How an import finds what its force sensor reads untouched (eskin.data.importer).
+REST_RULES = ("low_tail", "first", "column", "rolling")
+# Each rule's own keys, besides below_n.
+REST_KEYS = {"low_tail": (), "first": ("rows", "seconds"), "column": (),
+             "rolling": ("window_rows", "window_s")}
+
+
+class Rest(Section):
+    """How each file's rest force (what the sensor reads untouched) is found; a contact
+    is a force above it by more than ``contact_n`` (docs/data.md#the-rest-force).
+
+    ``low_tail`` (the default): one rest per file, from its low tail; ``first``: one per
+    file, the median of its first ``rows`` rows or ``seconds`` seconds (a tare: the file
+    starts untouched); ``column``: per row, the column ``columns.rest`` (the force's unit
+    and sign); ``rolling``: per row, followed within the file (the low tail over
+    ``window_rows`` rows or ``window_s`` seconds before it, and after it; the larger)."""
+
+    rule: Literal[REST_RULES] = "low_tail"  # type: ignore[valid-type]
+    rows: Count | None = None
+    seconds: Positive | None = None
+    window_rows: Annotated[int, Field(ge=2)] | None = None
+    window_s: Positive | None = None
+    # A force this far below the rest (N) is no contact, not a bad row (default contact_n).
+    below_n: NonNegative | None = None
+
+    @model_validator(mode="after")
+    def _rule_keys(self) -> Rest:
+        own = REST_KEYS[self.rule]
+        for key in (k for keys in REST_KEYS.values() for k in keys):
+            if key not in own and getattr(self, key) is not None:
+                rule = next(r for r, keys in REST_KEYS.items() if key in keys)
+                raise ValueError(f"{key} belongs to rule: {rule}, not rule: {self.rule}")
+        given = [key for key in own if getattr(self, key) is not None]
+        if own and len(given) != 1:
+            raise ValueError(f"rule: {self.rule} needs one of {' or '.join(own)}"
+                             + (", not both" if given else ""))
+        return self
 
 
 class Import(Section):
@@ -110,6 +149,7 @@ class Import(Section):
     force_sign: Literal[1, -1] = 1  # -1: the sensor reads compression as negative
     # A contact is a force above this (N) after each file's rest offset is removed.
     contact_n: Positive | None = None
+    rest: Rest | None = None  # how the rest is found; default rule: low_tail
     # labels: a run of rows with the same labels; file: one per file; time: blocks of
     # trial_s seconds (columns.time). A trial column is columns.trial.
     trials: Literal[TRIALS] = "labels"  # type: ignore[valid-type]
@@ -148,7 +188,23 @@ class Import(Section):
                              "columns.time: set both")
         if self.trial_s is not None and self.trials != "time":
             raise ValueError("trial_s is the length of a trial under trials: time")
+        self._check_rest()
         return self
+
+    def _check_rest(self) -> None:
+        rest, columns = self.rest, self.columns
+        if rest is not None and self.contact_n is None:
+            raise ValueError("rest says how the rest force is found, for the contact rule: "
+                             "set import.contact_n (N) too")
+        rule = rest.rule if rest is not None else "low_tail"
+        if (rule == "column") != (columns.rest is not None):
+            raise ValueError("columns.rest is the rest force under rest.rule: column; set "
+                             "both or neither")
+        timed = [key for key in ("seconds", "window_s")
+                 if rest is not None and getattr(rest, key) is not None]
+        if timed and columns.time is None:
+            raise ValueError(f"rest.{timed[0]} counts seconds of columns.time: set it, or "
+                             f"count rows ({'rows' if timed[0] == 'seconds' else 'window_rows'})")
 
     def position_sources(self) -> dict[str, str]:
         """{position key (x, x_mm, …): where it comes from ("column" or "name")}."""
@@ -171,6 +227,9 @@ class Scene(Section):
     # The skin the scene is on: {rows, columns} or {channels, grid | x_mm + y_mm}; none is
     # the paper's 10 × 10 (eskin.skin).
     skin: SkinSpec | None = None
+    # What ingest does with this scene's bad rows: error | quarantine (default
+    # ingest.bad_rows, every scene's).
+    bad_rows: Literal[BAD_ROWS] | None = None  # type: ignore[valid-type]
 
 
 class AcquiredScene(Scene):

@@ -35,8 +35,10 @@ def ingest(name: str, scene: Scene, raw_dir: Path, processed_dir: Path, *,
            ingest: Ingest) -> Ingested:
     """Raw data of scene ``name`` (its params section ``scene``) →
     ``<processed_dir>/<name>.parquet``, its quarantine CSV and the frames recorded live
-    (``<name>.live.parquet``), with the ``ingest`` section."""
-    bad_rows = ingest.bad_rows
+    (``<name>.live.parquet``), with the ``ingest`` section (its ``bad_rows`` unless the
+    scene sets its own)."""
+    every_scene = ingest.bad_rows
+    bad_rows = scene.bad_rows or every_scene
     out = Path(processed_dir) / f"{name}.parquet"
     if scene.source == "import":
         quarantine, metadata = _import(name, scene, raw_dir, out, bad_rows)
@@ -94,13 +96,28 @@ def _labels_note(metadata: dict) -> str:
     contact_n = (source.get("force") or {}).get("contact_n")
     if contact_n is not None and get_kind(metadata["kind"]).contacts == 1:
         note += (f"; {source['contact_share']:.0%} contacts (force > {contact_n:g} N over "
-                 "each file's rest offset)")
+                 f"{_rest_words(source['force'].get('rest') or {})})")
     if source.get("rows_at_rest"):
         note += f"; {source['rows_at_rest']} row(s) at rest left out (every row presses)"
     if "force" in metadata.get("labels", []):
         note += ("; total force only: trains the total force and the contacts' positions, "
                  "cannot give per-contact forces")
     return note
+
+
+def _rest_words(rest: dict) -> str:
+    """What the contact rule measured the force from, by ``import.rest``'s rule."""
+    rule = rest.get("rule", "low_tail")
+    if rule == "first":
+        head = f"{rest['rows']} row(s)" if "rows" in rest else f"{rest['seconds']:g} s"
+        return f"each file's first {head}"
+    if rule == "column":
+        return "the rest column"
+    if rule == "rolling":
+        window = (f"{rest['window_rows']} rows" if "window_rows" in rest
+                  else f"{rest['window_s']:g} s")
+        return f"the rest followed over {window}"
+    return "each file's rest offset"
 
 
 def live_path(processed_dir: Path, scene: str) -> Path:

@@ -48,7 +48,14 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from eskin.config.scenes import FORCE_UNITS, Import, ImportedScene, import_kind, scene_skin
+from eskin.config.scenes import (
+    FORCE_UNITS,
+    Import,
+    ImportedScene,
+    Rest,
+    import_kind,
+    scene_skin,
+)
 from eskin.data.ingest import Ingested, check_policy
 from eskin.data.schema import (
     LABELS,
@@ -599,11 +606,124 @@ class _Judged:
     trial: np.ndarray | None  # each row's trial in the file (the trial column's); None:
                               # runs of identical labels, counted over the rows kept
     t_ms: np.ndarray          # float ms (NaN: no time column)
-    rest_offset_n: float | None
+    rest_offset: _RestOffset | None  # None: no contact rule
     hashes: np.ndarray
 
     def text(self, i: int) -> str:
         return ",".join("" if pd.isna(v) else str(v) for v in self.cells.iloc[i].tolist())
+
+
+@dataclass(frozen=True)
+class _RestOffset:
+    """A file's rest as its metadata states it: the median over its usable rows, and the
+    range where the rule follows it row by row."""
+
+    median: float
+    low: float
+    high: float
+    varies: bool
+
+    @classmethod
+    def of(cls, rest: np.ndarray, spec: Import) -> _RestOffset:
+        finite = rest[np.isfinite(rest)]
+        if not len(finite):
+            return cls(float("nan"), float("nan"), float("nan"), False)
+        varies = spec.rest is not None and spec.rest.rule in ("column", "rolling")
+        return cls(float(np.median(finite)), float(finite.min()), float(finite.max()), varies)
+
+    def entry(self) -> dict:
+        """The file's ``rest_offset_n`` (and ``rest_range_n``) in ``eskin.source.files``."""
+        out = {"rest_offset_n": self.median}
+        if self.varies:
+            out["rest_range_n"] = [self.low, self.high]
+        return out
+
+
+def rest_force(force: np.ndarray, spec: Import, numeric: pd.DataFrame, path: Path
+               ) -> np.ndarray:
+    """Per row of one file, what its force sensor reads untouched, by ``import.rest``'s
+    rule (``force``: the total force of the usable rows, NaN elsewhere; ``numeric``: the
+    file's mapped columns, for ``time`` and ``rest``)."""
+    rule = spec.rest or Rest()
+    contact_n = float(spec.contact_n)
+    n = len(force)
+    if rule.rule == "low_tail":
+        return np.full(n, rest_offset(force, contact_n))
+    if rule.rule == "column":
+        return numeric["rest"].to_numpy() * FORCE_UNITS[spec.force_unit] * spec.force_sign
+    if rule.rule == "first":
+        if rule.rows is not None:
+            head, what = np.arange(n) < rule.rows, f"first {rule.rows} row(s)"
+        else:
+            time = numeric["time"].to_numpy()
+            start = np.nanmin(time) if np.isfinite(time).any() else np.nan
+            head, what = (time - start) < float(rule.seconds), f"first {rule.seconds:g} s"
+        tare = force[head & np.isfinite(force)]
+        if not len(tare):
+            raise DatasetError(f"{path}: no usable row in its {what}, which import.rest.rule: "
+                               "first takes as the rest")
+        return np.full(n, float(np.median(tare)))
+    window = rule.window_rows
+    if window is None:
+        steps = np.diff(numeric["time"].to_numpy())
+        steps = steps[np.isfinite(steps) & (steps > 0)]
+        if not len(steps):
+            raise DatasetError(f"{path}: its time column does not advance, so "
+                               "import.rest.window_s counts no rows; set window_rows")
+        window = max(2, round(float(rule.window_s) / float(np.median(steps))))
+    return followed_rest(force, window, contact_n,
+                         contact_n if rule.below_n is None else float(rule.below_n))
+
+
+def followed_rest(force: np.ndarray, window: int, contact_n: float, below_n: float
+                  ) -> np.ndarray:
+    """The rest followed within a file: per row, :func:`rest_offset`'s rule (the median of
+    the rows within ``contact_n / 2`` of the 10th percentile) over the ``window`` rows
+    up to it and over those from it on; of the two, the larger that the row does not lie
+    below by more than ``below_n`` (how far a row at rest may dip). So a press (above
+    both) is measured from the rest around it, a dip after a release from the rest it
+    dips below, and a rest that steps, up or down, is followed from the side it has
+    stepped to. Rows that neither window covers with half its rows take the nearest
+    rows' rest."""
+    force = np.asarray(force, dtype=float)
+    before = _window_rest(force, window, contact_n)
+    after = _window_rest(force[::-1], window, contact_n)[::-1]
+    both = np.column_stack([before, after])
+    with np.errstate(invalid="ignore"):
+        eligible = both <= (force + below_n)[:, None]
+    chosen = np.fmax(*np.where(eligible, both, np.nan).T)
+    rest = np.where(np.isnan(chosen), np.fmax(before, after), chosen)
+    if np.isnan(rest).all():  # a file shorter than half a window
+        return np.full(len(force), rest_offset(force, contact_n))
+    return pd.Series(rest).interpolate(limit_direction="both").to_numpy()
+
+
+def _window_rest(force: np.ndarray, window: int, contact_n: float) -> np.ndarray:
+    """Per row, :func:`rest_offset` of the ``window`` values ending at it (NaN where fewer
+    than half of them are finite), a block of rows at a time: each window sorted, its
+    10th percentile interpolated as numpy's, the band around it a run of the sorted
+    values, and the run's median."""
+    n = len(force)
+    padded = np.r_[np.full(window - 1, np.inf), np.where(np.isfinite(force), force, np.inf)]
+    out = np.full(n, np.nan)
+    block = max(1, 2_000_000 // window)
+    for start in range(0, n, block):
+        ordered = np.sort(np.lib.stride_tricks.sliding_window_view(
+            padded[start:start + block + window - 1], window), axis=1)
+        rows = np.arange(len(ordered))
+        count = np.isfinite(ordered).sum(axis=1)  # the unusable rows sort last, as inf
+        position = 0.1 * np.maximum(count - 1, 0)
+        below, frac = np.floor(position).astype(int), position % 1
+        with np.errstate(invalid="ignore"):  # inf - inf: windows too empty to count
+            step = ordered[rows, np.minimum(below + 1, window - 1)] - ordered[rows, below]
+            low = ordered[rows, below] + np.where(frac > 0, frac * step, 0.0)
+        first = (ordered < (low - contact_n / 2)[:, None]).sum(axis=1)
+        size = (ordered <= (low + contact_n / 2)[:, None]).sum(axis=1) - first
+        middle = (ordered[rows, first + (size - 1) // 2]
+                  + ordered[rows, first + size // 2]) / 2
+        out[start:start + len(ordered)] = np.where(count >= max(1, window // 2), middle,
+                                                   np.nan)
+    return out
 
 
 def rest_offset(force: np.ndarray, contact_n: float) -> float:
@@ -739,7 +859,12 @@ def _judge_file(path: Path, spec: Import, kind: str, skin: AnySkin) -> _Judged:
     hiccups, _ = _hiccups(channels, np.full((1, skin.terminals), np.nan))
     reasons = np.where(hiccups != "", hiccups, reasons).astype(object)
 
-    labels, at_rest, offset, rule = _labels_of(numeric, mapped, spec, kind, skin, reasons)
+    if "rest" in mapped.columns:
+        reasons = np.where((reasons == "") & ~np.isfinite(numeric["rest"].to_numpy()),
+                           f"{mapped.header[mapped.columns['rest']]} (rest) is NaN or empty",
+                           reasons)
+    labels, at_rest, offset, rule = _labels_of(numeric, mapped, spec, kind, skin, reasons,
+                                               path)
     reasons = np.where(reasons == "", rule, reasons)
     checks = labels.assign(**{c: numeric[c] for c in skin.channels})
     more = np.where(at_rest, "", row_problems(checks, import_kind(kind, spec).name,
@@ -762,9 +887,9 @@ def _judge_file(path: Path, spec: Import, kind: str, skin: AnySkin) -> _Judged:
 
 
 def _labels_of(numeric: pd.DataFrame, mapped: _Map, spec: Import, kind: str,
-               skin: AnySkin, reasons: np.ndarray):
-    """(label columns, rows at rest, the file's rest offset, per-row reasons of the
-    contact rule and the grid) for one file."""
+               skin: AnySkin, reasons: np.ndarray, path: Path):
+    """(label columns, rows at rest, the file's rest offset (:class:`_RestOffset`), per-row
+    reasons of the contact rule and the grid) for one file."""
     the_kind = get_kind(kind)
     n = len(numeric)
     scale = FORCE_UNITS[spec.force_unit] * spec.force_sign
@@ -776,14 +901,18 @@ def _labels_of(numeric: pd.DataFrame, mapped: _Map, spec: Import, kind: str,
         contact_n = float(spec.contact_n)
         usable = reasons == ""
         total = sum(forces.values())
-        offset = rest_offset(np.where(usable, total, np.nan), contact_n)
+        rest = rest_force(np.where(usable, total, np.nan), spec, numeric, path)
+        offset = _RestOffset.of(rest[usable], spec)
         share = {f: np.divide(values, total, out=np.zeros(n), where=total != 0)
                  for f, values in forces.items()} if len(forces) > 1 else dict.fromkeys(forces, 1.0)
-        residual = total - offset
-        below = residual < -contact_n
-        problems[below] = [f"force is {-r:.3g} N below the file's rest ({offset:.3g} N) by more "
-                           "than contact_n: is import.force_sign right?"
-                           for r in residual[below]]
+        residual = total - rest
+        rule = spec.rest or Rest()
+        tolerance = contact_n if rule.below_n is None else float(rule.below_n)
+        below = residual < -tolerance
+        problems[below] = [f"force is {-r:.3g} N below the file's rest ({at:.3g} N) by more "
+                           f"than {tolerance:g} N (import.rest.below_n, default contact_n): is "
+                           "import.force_sign right?"
+                           for r, at in zip(residual[below], rest[below], strict=True)]
         pressed = residual > contact_n
         # Per-contact forces keep their shares of the total once the offset is removed.
         forces = {f: np.where(pressed, residual * share[f], 0.0) for f in forces}
@@ -872,7 +1001,9 @@ def import_recording(files: list[Path], spec: Import, kind: str, skin: AnySkin, 
         touching.append(_touching(judged.labels[kept], kind))
         trial_rows += _trial_sizes(judged, kept)
         per_file.append({"name": path.name, "sha256": digests[number], "rows": len(bad),
-                         "rows_kept": int(kept.sum()), "rest_offset_n": judged.rest_offset_n})
+                         "rows_kept": int(kept.sum()),
+                         **(judged.rest_offset.entry() if judged.rest_offset is not None
+                            else {"rest_offset_n": None})})
     copies = _copies_across(hashes, where)
     if copies:
         bad_count += len(copies)
@@ -1000,7 +1131,10 @@ def _recording_metadata(scene: str | None, kind: str, spec: Import, skin: AnySki
             "source": {"kind": "import", "path": str(folder), "sha256": digest,
                        "imported_from": spec.path, "stretch_assumed": columns.stretch is None,
                        "force": {"unit": spec.force_unit, "sign": spec.force_sign,
-                                 "contact_n": spec.contact_n},
+                                 "contact_n": spec.contact_n,
+                                 # the rest rule, where one is set (low_tail: none)
+                                 **({"rest": spec.rest.model_dump(exclude_none=True)}
+                                    if spec.rest is not None else {})},
                        "trials": ("column" if columns.trial is not None else spec.trials),
                        "trial_s": spec.trial_s},
             **labels_metadata(import_kind(kind, spec)), **skin_metadata(skin)}
