@@ -17,14 +17,20 @@ from eskin.catalog import SCHEME_NOTES, SCHEMES
 from eskin.config.report import Report
 from eskin.kinds import get_kind
 from eskin.reporting import presentation, report
-from eskin.reporting.page import Provenance, headline_markdown, headline_rows, render_page
+from eskin.reporting.page import (
+    Provenance,
+    headline_markdown,
+    headline_rows,
+    render_page,
+    results_markdown,
+)
 from eskin.reporting.presentation import (
     DETECTION,
     FORCE_PARITY,
     LOCALISATION_CONFUSION,
     STRETCH_PARITY,
 )
-from eskin.skin import PAPER_SKIN
+from eskin.skin import PAPER_SKIN, Skin, skin_from_dict
 from eskin.tracking import connection
 
 # The commit the fixture's report says it ran on top of (a plain `dvc repro`).
@@ -196,6 +202,31 @@ def test_missing_and_skipped_tasks_say_so_in_the_table():
     by_label = {r[0]: r for r in rows}
     assert by_label["stretch R²"][1:3] == ["skipped", "skipped"]
     assert by_label["force R²"][1:3] == ["missing", "missing"]
+
+
+def test_the_paper_column_is_only_beside_the_papers_kind_on_its_skin():
+    """Issue 59: a magnetic array's force R² sat beside the paper's capacitive 0.827."""
+    force = {"model": "m", "stratified": {"force": {"r2": 0.9, "r2_std": 0.01}},
+             "conditions": {"force": {"r2": 0.8, "r2_std": 0.02}}}
+    array = skin_from_dict({"channels": [f"m{i}" for i in range(15)], "grid": [3, 3]})
+    tables = {name: headline_markdown(kind, {"force": force}, skin).splitlines()
+              for name, kind, skin in [("paper", "single_force", PAPER_SKIN),
+                                       ("two", "two_force", PAPER_SKIN),
+                                       ("array", "single_force", array),
+                                       ("16x16", "single_force", Skin(16, 16)),
+                                       ("total", "two_force_total", PAPER_SKIN)]}
+    assert tables["paper"][0].endswith("| paper |")
+    assert tables["two"][0].endswith("| paper |")
+    assert "| 0.827 |" in next(line for line in tables["paper"] if "force R²" in line)
+    for name in ("array", "16x16", "total"):
+        assert tables[name][0] == ("| metric | stratified CV (the paper's) | conditions CV "
+                                   "(whole conditions out) |"), name
+        assert all(line.count("|") == 4 for line in tables[name]), name
+        assert "0.827" not in "\n".join(tables[name]) and "0.96" not in "\n".join(tables[name])
+    results = results_markdown([("paper", "single_force", PAPER_SKIN, {"force": force}),
+                                ("magnetic", "single_force", array, {"force": force})])
+    paper, magnetic = results.split("## magnetic")
+    assert "| paper |" in paper and "| paper |" not in magnetic and "0.827" not in magnetic
 
 
 def test_a_scene_scored_under_trials_gets_its_column_and_others_do_not():

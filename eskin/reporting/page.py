@@ -12,7 +12,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 from eskin.catalog import SCHEME_NOTES, SCHEMES
-from eskin.kinds import get_kind
+from eskin.kinds import ONE_CONTACT, TWO_CONTACTS, get_kind
 from eskin.reporting.presentation import Headline, headlines
 from eskin.skin import PAPER_SKIN, AnySkin
 
@@ -52,16 +52,34 @@ def scored_schemes(scores: Mapping[str, Mapping]) -> list[str]:
             or any(s in (document or {}) for document in scores.values())]
 
 
-def headline_columns(scores: Mapping[str, Mapping]) -> list[str]:
-    """The headline table's heading: metric, a column per scored scheme, paper."""
-    return ["metric", *(SCHEME_HEADINGS[s] for s in scored_schemes(scores)), "paper"]
+# The kinds the paper measured (its III-D and III-E), on its skin: only their scenes'
+# tables have a "paper" column. Another skin's numbers (a magnetic array's, a 16 × 16's)
+# are not the paper's capacitive skin's to be set beside.
+PAPER_KINDS = (ONE_CONTACT.name, TWO_CONTACTS.name)
 
 
-def headline_rows(kind: str, scores: Mapping[str, Mapping]) -> list[list[str]]:
-    """[metric, each scored scheme (:func:`scored_schemes`), paper] per headline of a
-    ``kind`` scene whose scores documents are ``scores`` (by task), as display strings."""
+def beside_the_paper(kind: str, skin: AnySkin = PAPER_SKIN) -> bool:
+    """Whether a ``kind`` scene on ``skin`` is the paper's setting: its kind on its skin."""
+    return kind in PAPER_KINDS and skin == PAPER_SKIN
+
+
+def headline_columns(scores: Mapping[str, Mapping], kind: str = ONE_CONTACT.name,
+                     skin: AnySkin = PAPER_SKIN) -> list[str]:
+    """The headline table's heading: metric, a column per scored scheme, and paper
+    where the scene is the paper's setting (:func:`beside_the_paper`)."""
+    paper = ["paper"] if beside_the_paper(kind, skin) else []
+    return ["metric", *(SCHEME_HEADINGS[s] for s in scored_schemes(scores)), *paper]
+
+
+def headline_rows(kind: str, scores: Mapping[str, Mapping], skin: AnySkin = PAPER_SKIN
+                  ) -> list[list[str]]:
+    """[metric, each scored scheme (:func:`scored_schemes`), paper (:func:`headline_columns`)]
+    per headline of a ``kind`` scene on ``skin`` whose scores documents are ``scores`` (by
+    task), as display strings."""
     schemes = scored_schemes(scores)
-    return [[_label(scores, row), *(score_text(scores, row, s) for s in schemes), row.paper]
+    paper = beside_the_paper(kind, skin)
+    return [[_label(scores, row), *(score_text(scores, row, s) for s in schemes),
+             *([row.paper] if paper else [])]
             for row in headlines(get_kind(kind)) if not row.optional or _scored(scores, row)]
 
 
@@ -84,10 +102,11 @@ def _label(scores: Mapping[str, Mapping], row: Headline) -> str:
     return f"{row.label} [{model}]" if model else row.label
 
 
-def headline_markdown(kind: str, scores: Mapping[str, Mapping]) -> str:
-    columns = headline_columns(scores)
+def headline_markdown(kind: str, scores: Mapping[str, Mapping], skin: AnySkin = PAPER_SKIN
+                      ) -> str:
+    columns = headline_columns(scores, kind, skin)
     lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
-    lines += ["| " + " | ".join(cells) + " |" for cells in headline_rows(kind, scores)]
+    lines += ["| " + " | ".join(cells) + " |" for cells in headline_rows(kind, scores, skin)]
     return "\n".join(lines)
 
 
@@ -128,7 +147,7 @@ def results_markdown(scenes: Scenes) -> str:
         skips = "".join(f"\n- {scene}/{task} skipped: {reason}"
                         for task, reason in skipped(scores))
         parts.append(f"## {scene} ({get_kind(kind).label})\n\n{about}.\n\n"
-                     f"{headline_markdown(kind, scores)}" + (f"\n{skips}" if skips else ""))
+                     f"{headline_markdown(kind, scores, skin)}" + (f"\n{skips}" if skips else ""))
     return "\n\n".join(parts) + "\n\nMean ± std over folds.\n"
 
 
@@ -254,7 +273,8 @@ def render_page(scenes: Scenes, figures: Mapping[str, list[FigureRow]],
         "name": scene, "kind": get_kind(kind).label, "skin": skin_note(skin),
         "dataset": dict(zip(("md5", "rows", "source"), data, strict=True)) if (
             data := dataset(scores)) else None,
-        "headline": headline_rows(kind, scores), "columns": headline_columns(scores),
+        "headline": headline_rows(kind, scores, skin),
+        "columns": headline_columns(scores, kind, skin),
         "skipped": skipped(scores),
         "figures": [{"id": row.id, "title": row.title, "caption": row.caption,
                      "legible": row.legible_width(),
