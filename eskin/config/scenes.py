@@ -110,7 +110,8 @@ class Rest(Section):
     file, the median of its first ``rows`` rows or ``seconds`` seconds (a tare: the file
     starts untouched); ``column``: per row, the column ``columns.rest`` (the force's unit
     and sign); ``rolling``: per row, followed within the file (the low tail over
-    ``window_rows`` rows or ``window_s`` seconds before it, and after it; the larger)."""
+    ``window_rows`` rows or ``window_s`` seconds up to it, and from it on; the larger
+    that the row does not lie below by more than ``below_n``)."""
 
     rule: Literal[REST_RULES] = "low_tail"  # type: ignore[valid-type]
     rows: Count | None = None
