@@ -31,7 +31,7 @@ import subprocess
 import sys
 import time
 import urllib.request
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -43,6 +43,38 @@ START_S = 60.0   # each server has this long to answer
 
 class LabServerError(EskinError, RuntimeError):
     """The lab server could not be set up or started."""
+
+
+def await_server(process: subprocess.Popen, answers: Callable[[], bool],
+                 exited: Callable[[int], str], silent: str) -> None:
+    """Wait until a server ``process`` just started ``answers`` (an OSError: not yet), for
+    at most :data:`START_S`. A server that exits first fails with ``exited(its code)``; one
+    silent to the end is stopped and fails with ``silent``."""
+    deadline = time.monotonic() + START_S
+    while time.monotonic() < deadline:
+        if process.poll() is not None:
+            raise LabServerError(exited(process.returncode))
+        try:
+            if answers():
+                return
+        except OSError:
+            pass
+        time.sleep(0.25)
+    stop_server(process)
+    raise LabServerError(silent)
+
+
+def stop_server(process: subprocess.Popen | None) -> None:
+    """A server started in a session of its own: SIGTERM to its process group, SIGKILL
+    after 15 s."""
+    if process is not None and process.poll() is None:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(process.pid, signal.SIGTERM)
+        try:
+            process.wait(timeout=15)
+        except subprocess.TimeoutExpired:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.wait(timeout=15)
 
 
 def free_port() -> int:
@@ -143,30 +175,19 @@ class TrackingServer:
                  "--backend-store-uri", self.store_uri, "--serve-artifacts",
                  "--artifacts-destination", str(self.artifacts)],
                 stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True)
-        deadline = time.monotonic() + START_S
-        while time.monotonic() < deadline:
-            if self.process.poll() is not None:
-                raise LabServerError(f"mlflow server exited ({self.process.returncode}); "
-                                     f"its log: {self.log}")
-            try:
-                with urllib.request.urlopen(f"{self.uri}/health", timeout=2) as answer:
-                    if answer.status == 200:
-                        return
-            except OSError:
-                time.sleep(0.25)
-        self.stop()
-        raise LabServerError(f"mlflow server did not answer on {self.uri} within "
-                             f"{START_S:g} s; its log: {self.log}")
+        def healthy() -> bool:
+            with urllib.request.urlopen(f"{self.uri}/health", timeout=2) as answer:
+                return answer.status == 200
+
+        def exited(code: int) -> str:
+            return f"mlflow server exited ({code}); its log: {self.log}"
+
+        await_server(self.process, healthy, exited,
+                     f"mlflow server did not answer on {self.uri} within {START_S:g} s; "
+                     f"its log: {self.log}")
 
     def stop(self) -> None:
-        if self.process is not None and self.process.poll() is None:
-            with contextlib.suppress(ProcessLookupError):
-                os.killpg(self.process.pid, signal.SIGTERM)
-            try:
-                self.process.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                os.killpg(self.process.pid, signal.SIGKILL)
-                self.process.wait(timeout=15)
+        stop_server(self.process)
 
 
 SSHD = "/usr/sbin/sshd"  # Debian's openssh-server; run by absolute path (it re-executes itself)
@@ -272,32 +293,20 @@ class DataRemote:
             self.process = subprocess.Popen([SSHD, "-D", "-e", "-f", str(config)],
                                             stdout=log, stderr=subprocess.STDOUT,
                                             start_new_session=True)
-        deadline = time.monotonic() + START_S
-        while time.monotonic() < deadline:
-            if self.process.poll() is not None:
-                tail = self.log.read_text(errors="replace").strip().splitlines()[-1:]
-                raise LabServerError(f"sshd exited ({self.process.returncode}): "
-                                     f"{tail[0] if tail else '?'} (log: {self.log})")
-            try:  # up when it greets: an SSH server's first line is its version
-                with socket.create_connection(("127.0.0.1", self.port), timeout=2) as peer:
-                    if peer.recv(8).startswith(b"SSH-"):
-                        return
-            except OSError:
-                pass
-            time.sleep(0.25)
-        self.stop()
-        raise LabServerError(f"sshd did not answer on 127.0.0.1:{self.port} within "
-                             f"{START_S:g} s; its log: {self.log}")
+        def greets() -> bool:  # up when it greets: an SSH server's first line is its version
+            with socket.create_connection(("127.0.0.1", self.port), timeout=2) as peer:
+                return peer.recv(8).startswith(b"SSH-")
+
+        def exited(code: int) -> str:
+            tail = self.log.read_text(errors="replace").strip().splitlines()[-1:]
+            return f"sshd exited ({code}): {tail[0] if tail else '?'} (log: {self.log})"
+
+        await_server(self.process, greets, exited,
+                     f"sshd did not answer on 127.0.0.1:{self.port} within {START_S:g} s; "
+                     f"its log: {self.log}")
 
     def stop(self) -> None:
-        if self.process is not None and self.process.poll() is None:
-            with contextlib.suppress(ProcessLookupError):
-                os.killpg(self.process.pid, signal.SIGTERM)
-            try:
-                self.process.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                os.killpg(self.process.pid, signal.SIGKILL)
-                self.process.wait(timeout=15)
+        stop_server(self.process)
 
 
 @contextlib.contextmanager
