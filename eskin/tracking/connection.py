@@ -38,7 +38,7 @@ class TrackingError(EskinError, RuntimeError):
 
 
 @contextlib.contextmanager
-def _naming_the_store(what: str):
+def naming_the_store(what: str):
     """MLflow's (and its HTTP client's) errors as one line that says which store failed."""
     import requests
 
@@ -80,7 +80,7 @@ def connect() -> MlflowClient:
 EXPERIMENT_KIND, MODEL_TRAINING = "mlflow.experimentKind", "custom_model_development"
 
 
-def _experiment_id(client: MlflowClient, name: str) -> str:
+def experiment_id_of(client: MlflowClient, name: str) -> str:
     # Not "MLFLOW_TRACKING_URI unset": mlflow.set_tracking_uri (connect) sets it.
     own_store = tracking_uri() == store.own_uri(project_root())
     experiment = (store.own_experiment(client, name, project_root()) if own_store
@@ -107,8 +107,8 @@ TRAINING_VIEW = "workflowType=machine_learning"
 def ensure_experiment() -> str:
     """The id of the project's experiment on the tracking store, made (as model training)
     if missing."""
-    with _naming_the_store("finding the experiment"):
-        return _experiment_id(connect(), EXPERIMENT)
+    with naming_the_store("finding the experiment"):
+        return experiment_id_of(connect(), EXPERIMENT)
 
 
 def ui_url(experiment_id: str, run_id: str | None = None, artifacts: bool = False,

@@ -259,7 +259,7 @@ def promote(scene: str, alias: str = "champion", *, variant: str | None = None,
     versions the run named by ``eskin.reused_from`` registered."""
     from eskin.tracking import connection
 
-    with connection._naming_the_store(f"promoting {scene}'s models"):
+    with connection.naming_the_store(f"promoting {scene}'s models"):
         client = connection.connect()
         experiment = client.get_experiment_by_name(connection.EXPERIMENT)
         if experiment is None:

@@ -42,9 +42,9 @@ from mlflow.tracking import MlflowClient  # noqa: E402
 from eskin.catalog import SCHEMES  # noqa: E402
 from eskin.tracking.connection import (  # noqa: E402
     EXPERIMENT,
-    _experiment_id,
-    _naming_the_store,
     connect,
+    experiment_id_of,
+    naming_the_store,
     project_root,
     ui_url,
 )
@@ -236,7 +236,7 @@ def track_pipeline(*, params: Mapping[str, Any], scenes: list[str], tasks: list[
     under it a run per task: with its models, figures and out-of-fold predictions where
     this pipeline trained it (the times are the train stage's own, from its record), or,
     where DVC reused the task's outputs, a run that names the run that trained it."""
-    with _naming_the_store("logging the pipeline"), warnings.catch_warnings(), \
+    with naming_the_store("logging the pipeline"), warnings.catch_warnings(), \
             _quiet("mlflow.sklearn"):
         # Both warnings are about choices made here on purpose: the dataset source is
         # a plain local path, and integer node labels never carry missing values.
@@ -247,7 +247,7 @@ def track_pipeline(*, params: Mapping[str, Any], scenes: list[str], tasks: list[
 
 def _track_pipeline(params, scenes, tasks, headline, page, log) -> Tracked:
     client = connect()
-    experiment_id = _experiment_id(client, EXPERIMENT)
+    experiment_id = experiment_id_of(client, EXPERIMENT)
     settle_stale_runs(client, [experiment_id])
     commit = git_commit(project_root())
     key = pipeline_key(params, commit)
