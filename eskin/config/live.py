@@ -16,9 +16,14 @@ class LiveBaseline(Section):
 
     time_constant_s: NonNegative = 0.5   # 0: the tare's offset, never followed
     gate_counts: Positive = 8.0          # a frame updates it only if no channel moved more
-    # in contact: freeze it, or follow the channels the contact leaves within the gate
-    in_contact: Literal["freeze", "quiet_channels"] = "freeze"
-    reach_terminals: Annotated[int, Field(ge=0)] = 2  # quiet_channels: frozen each side of it
+    # in contact: follow all but the contact's channels (contact_channels), freeze it
+    # wholly, or follow the channels the contact leaves within the gate (quiet_channels)
+    in_contact: Literal["contact_channels", "freeze", "quiet_channels"] = "contact_channels"
+    reach_terminals: Annotated[int, Field(ge=0)] = 2  # the contact's: this far each side of it
+    fallen_counts: Positive = 2.0        # contact_channels: a contact's channel this far below
+    # its expected reading is followed back (no press lowers a reading) ...
+    drift_counts_per_sqrt_s: NonNegative = 0.5  # ... and, once its press lifted, what is
+    # left within the drift a freeze of this long may have missed (0: never)
 
 
 class LiveContact(Section):

@@ -57,7 +57,11 @@ class Tare:
     tared: np.ndarray | None = None  # the offset the tare took
     time_constant_s: float = 0.0
     gate_counts: float = np.inf
-    in_contact: str = "freeze"  # or quiet_channels (live.baseline.in_contact)
+    in_contact: str = "freeze"  # quiet_channels, contact_channels (live.baseline.in_contact)
+    fallen_counts: float = np.inf  # contact_channels: a contact's channel this far below
+    drift_bound: float = 0.0       # ... and the drift a freeze may miss, counts per √s
+    _contact_ms: float = 0.0       # board time the present contact has lasted
+    _peak: float = 0.0             # ... and its channels' largest summed rise in it
 
     @classmethod
     def take(cls, frames: np.ndarray, rest: RestTable | None, *,
@@ -71,7 +75,9 @@ class Tare:
             offset = mean - rest.at(rest.stretch_of(mean - drift))
         follow = {} if baseline is None else {
             "time_constant_s": float(baseline.time_constant_s),
-            "gate_counts": float(baseline.gate_counts), "in_contact": baseline.in_contact}
+            "gate_counts": float(baseline.gate_counts), "in_contact": baseline.in_contact,
+            "fallen_counts": float(baseline.fallen_counts),
+            "drift_bound": float(baseline.drift_counts_per_sqrt_s)}
         return cls(offset, rest, None if rest is None else offset.copy(), **follow)
 
     @classmethod
@@ -82,10 +88,17 @@ class Tare:
         return np.asarray(counts, dtype=np.float64) - self.offset
 
     def expected(self, counts: np.ndarray) -> np.ndarray | None:
-        """What this board should read untouched at the stretch ``counts`` are at."""
+        """What this board should read untouched at the stretch ``counts`` are at, within
+        the stretches the stack was trained on: a common rise beyond the largest is not
+        read as more stretch, which the detector never saw, but left as offset for
+        :meth:`track` to follow (temperature moves every terminal alike, and reads as
+        stretch; the stepper cannot take the skin beyond what it was trained on)."""
         if self.rest is None:
             return None
-        return self.rest.at(self.rest.stretch_of(self.apply(counts))) + self.offset
+        stretch = self.rest.stretch_of(self.apply(counts))
+        if stretch is not None:
+            stretch = float(np.clip(stretch, self.rest.stretch[0], self.rest.stretch[-1]))
+        return self.rest.at(stretch) + self.offset
 
     def track(self, counts: np.ndarray, elapsed_ms: float, *,
               under_contact: np.ndarray | None = None) -> bool:
@@ -94,32 +107,58 @@ class Tare:
         Untouched (``under_contact`` None): every channel not raised beyond the gate (a
         channel raised further may be a press not yet declared, or one the detector
         misses, and waits; one fallen below is followed back, as no press lowers a
-        reading: capacitive touch controllers' "anti-touch" recalibration). In contact,
-        with ``in_contact == "quiet_channels"``: the channels within the gate, but where
-        some channel is beyond it (a press), not those ``under_contact`` (the terminals
-        within reach of the contact's location, a press's flanks included); the rest stay
-        frozen. A contact with every channel within the gate is no press the gate can
-        tell from drift: it is followed, so that a phantom ends instead of freezing its
-        own cause in place."""
+        reading: capacitive touch controllers' "anti-touch" recalibration).
+
+        In contact, ``under_contact`` are the contact's channels (the terminals within
+        reach of its location, a press's flanks included). ``contact_channels``: the
+        other channels are followed as on an untouched frame (a second press beyond the
+        gate waits), so drift is followed everywhere the contact is not; the contact's
+        own channels stay frozen, so a sustained press is never absorbed, except where
+        they cannot be the press: (a) a channel more than ``fallen_counts`` below its
+        expected untouched reading (no press lowers a reading: its baseline is stale),
+        and (b) once the contact's summed rise has fallen to half its peak in this
+        contact (the press lifted) and what is left on each of its channels is within
+        the drift the freeze may have missed (``drift_bound`` counts per √s of the
+        contact's board time, a random walk's growth): what is left is that drift, and
+        is followed, so that the phantom a release would leave ends.
+        ``quiet_channels``: the channels within the gate, but where some channel is
+        beyond it, not the contact's; a contact with every channel within the gate is
+        followed. ``freeze``: nothing is followed in contact."""
         if self.rest is None or self.time_constant_s <= 0:
             return False
         touching = under_contact is not None
+        if not touching:
+            self._contact_ms, self._peak = 0.0, 0.0
         if touching and self.in_contact == "freeze":
             return False
         error = np.asarray(counts, dtype=np.float64) - self.expected(counts)
         own = error - np.median(error)
-        if touching:
+        if not touching:
+            quiet = own <= self.gate_counts
+        elif self.in_contact == "quiet_channels":
             quiet = np.abs(own) <= self.gate_counts
             if not quiet.all():
                 quiet &= ~under_contact
         else:
-            quiet = own <= self.gate_counts
+            quiet = self._contact_channels(own, max(elapsed_ms, 0.0), under_contact)
         if not quiet.any():
             return False
         # an exponential average in board time: the same for any frame rate or lost frames
         weight = -math.expm1(-max(elapsed_ms, 0.0) / 1000.0 / self.time_constant_s)
         self.offset = self.offset + np.where(quiet, weight * error, 0.0)
         return True
+
+    def _contact_channels(self, own: np.ndarray, elapsed_ms: float,
+                          near: np.ndarray) -> np.ndarray:
+        """Which channels a contact frame follows (``contact_channels``, :meth:`track`)."""
+        self._contact_ms += elapsed_ms
+        quiet = (~near & (own <= self.gate_counts)) | (own < -self.fallen_counts)
+        rise = float(np.clip(own[near], 0.0, None).sum())
+        self._peak = max(self._peak, rise)
+        missed = self.drift_bound * math.sqrt(self._contact_ms / 1000.0)
+        if rise <= self._peak / 2 and (own[near] <= missed).all():
+            quiet |= near
+        return quiet
 
     @property
     def drift(self) -> float | None:
