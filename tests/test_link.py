@@ -240,6 +240,33 @@ def test_a_frame_whose_board_time_fell_is_never_credited_within_or_across_answer
     assert [type(e) for e in events] == [SampleFrame] * 3 + [SampleComplete]
 
 
+def test_a_streamed_frame_is_judged_against_the_last_frame_accepted():
+    """Issue 57, finding 5 (on cf46b9c): the host followed a rejected frame's time, so the
+    second of two back-to-back fallen frames passed (13 of 4,616 frames with backward
+    time at 5 %). Each is judged against the last frames accepted (issue 56's check); a
+    frame accepted with a time damaged ahead is taken back by the next, not followed."""
+    from eskin.device.host import HostProtocol, Junk, StreamFrame, TimeJumped
+    from eskin.device.protocol import encode_frame
+
+    def stream(host, times, first_seq):
+        events = host.receive(b"".join(encode_frame(first_seq + i, t, [500] * 20)
+                                       for i, t in enumerate(times)))
+        return [e.frame.t_ms if isinstance(e, StreamFrame)
+                else ("back", e.frame.t_ms) if isinstance(e, TimeJumped) else "junk"
+                for e in events if isinstance(e, StreamFrame | Junk | TimeJumped)]
+
+    host = HostProtocol("b")
+    host.send_stream()
+    host.receive(b"#OK STREAM ON\n")
+    # two (and three) fallen frames in a row: each rejected, whatever the one before said
+    assert stream(host, [0, 12, 24, 5, 6, 36, 48], 0) == [0, 12, 24, "junk", "junk", 36, 48]
+    assert stream(host, [7, 8, 9, 60], 7) == ["junk", "junk", "junk", 60]
+    # a time damaged ahead is accepted (nothing tells it yet), then taken back by the
+    # next frame, which the one before vouches for: the board's clock is followed on
+    assert stream(host, [99_999, 72, 84, 96], 11) == [
+        99_999, ("back", 99_999), 72, 84, 96]
+
+
 def test_another_board_answering_after_a_reconnect_is_refused():
     with simulated_board(SkinParams(seed=1), rest_length_mm=101.0, socket_port=0) as first, \
             simulated_board(SkinParams(seed=2), rest_length_mm=101.0, socket_port=0) as second:
