@@ -304,3 +304,23 @@ def test_a_five_minute_press_at_full_stretch_leaves_no_phantom_with_real_drift(
     assert not contact[after].any(), (
         f"{contact[after].mean():.2%} of the frames after the release's first second are "
         f"in contact, the first at {(t[after][contact[after]][0] - release) / 1000:.1f} s")
+
+
+def test_a_press_held_through_stretch_changes_is_held_and_placed(params, onnx):
+    """Issue 57: a stretch change re-references the expected reading (from the stretch the
+    channels say, on every frame) without losing a press held through it: a 3.25 N press
+    held while the skin is stretched to 8 mm and back, then released: in contact all
+    through, placed on its node, and untouched again within a second of the release."""
+    sim = board(params)
+    press_at, release = 10_000, 130_000
+    records = scripted(onnx, sim, params.live, [
+        (press_at, "SIM PRESS 5 5 3.2536 100"), (40_000, "STRETCH 8"),
+        (100_000, "STRETCH 0"), (release, "SIM CLEAR")], end_ms=release + 30_000, batch=8)
+    t = np.array([r["t_ms"] for r in records])
+    contact = np.array([r["contact"] for r in records])
+    held = (t >= press_at + 1000) & (t < release)
+    assert not contact[t < press_at].any()
+    assert contact[held].all()
+    placed = [(r["x"], r["y"]) == (5, 5) for r, h in zip(records, held, strict=True) if h]
+    assert np.mean(placed) >= 0.95
+    assert not contact[t >= release + 1000].any()

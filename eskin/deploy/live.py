@@ -87,18 +87,14 @@ class Tare:
     def apply(self, counts: np.ndarray) -> np.ndarray:
         return np.asarray(counts, dtype=np.float64) - self.offset
 
-    def expected(self, counts: np.ndarray) -> np.ndarray | None:
-        """What this board should read untouched at the stretch ``counts`` are at, within
-        the stretches the stack was trained on: a common rise beyond the largest is not
-        read as more stretch, which the detector never saw, but left as offset for
-        :meth:`track` to follow (temperature moves every terminal alike, and reads as
-        stretch; the stepper cannot take the skin beyond what it was trained on)."""
+    def expected(self, counts: np.ndarray, *,
+                 ignore: np.ndarray | None = None) -> np.ndarray | None:
+        """What this board should read untouched at the stretch ``counts`` are at, as the
+        channels not in ``ignore`` (a contact's) say it."""
         if self.rest is None:
             return None
-        stretch = self.rest.stretch_of(self.apply(counts))
-        if stretch is not None:
-            stretch = float(np.clip(stretch, self.rest.stretch[0], self.rest.stretch[-1]))
-        return self.rest.at(stretch) + self.offset
+        return self.rest.at(self.rest.stretch_of(self.apply(counts), ignore=ignore)) \
+            + self.offset
 
     def track(self, counts: np.ndarray, elapsed_ms: float, *,
               under_contact: np.ndarray | None = None) -> bool:
@@ -131,8 +127,13 @@ class Tare:
             self._contact_ms, self._peak = 0.0, 0.0
         if touching and self.in_contact == "freeze":
             return False
-        error = np.asarray(counts, dtype=np.float64) - self.expected(counts)
-        own = error - np.median(error)
+        # in contact the stretch is the other channels' to say: a press raises its own
+        # (half of a 10 x 10 skin's within reach 2), and a stretch read from them all
+        # would move every expected reading, and the offset followed toward it
+        ignore = under_contact if touching and self.in_contact == "contact_channels" \
+            else None
+        error = np.asarray(counts, dtype=np.float64) - self.expected(counts, ignore=ignore)
+        own = error - np.median(error if ignore is None else error[~ignore])
         if not touching:
             quiet = own <= self.gate_counts
         elif self.in_contact == "quiet_channels":

@@ -283,14 +283,19 @@ class RestTable:
         share = (stretch - self.stretch[at]) / (self.stretch[at + 1] - self.stretch[at])
         return self.counts[at] + share * (self.counts[at + 1] - self.counts[at])
 
-    def stretch_of(self, reading: np.ndarray) -> float | None:
+    def stretch_of(self, reading: np.ndarray, *,
+                   ignore: np.ndarray | None = None) -> float | None:
         """The stretch an untouched ``reading`` is at: each channel whose untouched reading
         rises with stretch says its own (inverting :meth:`at`), and the median of them is
-        taken, so that a press, which raises a few channels, does not move it. None with
-        one row, or no channel that rises."""
+        taken, so that a press, which raises a few channels, does not move it; channels in
+        ``ignore`` (a contact's: live's baseline) say nothing, unless fewer than three
+        would be left. None with one row, or no channel that rises."""
         if len(self.stretch) == 1:
             return None
-        rising = np.flatnonzero(np.all(np.diff(self.counts, axis=0) > 0, axis=0))
+        says = np.all(np.diff(self.counts, axis=0) > 0, axis=0)
+        if ignore is not None and (says & ~ignore).sum() >= 3:
+            says = says & ~ignore
+        rising = np.flatnonzero(says)
         if not len(rising):
             return None
         # every rising channel at once (live calls this on each frame): its segment is the
