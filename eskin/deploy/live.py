@@ -90,11 +90,18 @@ class Tare:
     def expected(self, counts: np.ndarray, *,
                  ignore: np.ndarray | None = None) -> np.ndarray | None:
         """What this board should read untouched at the stretch ``counts`` are at, as the
-        channels not in ``ignore`` (a contact's) say it."""
+        channels not in ``ignore`` (a contact's) say it, up to the largest stretch the
+        stack was trained on: a common rise beyond it (temperature moves every terminal
+        alike, and reads as stretch) is not read as a stretch the detector never saw,
+        but left as offset for :meth:`track` to follow. Not below the least: at rest the
+        skin sits there, its noise reads either side, and a bound there would take one
+        side's into the offset alone (ten untouched minutes: 1.6 % contact)."""
         if self.rest is None:
             return None
-        return self.rest.at(self.rest.stretch_of(self.apply(counts), ignore=ignore)) \
-            + self.offset
+        stretch = self.rest.stretch_of(self.apply(counts), ignore=ignore)
+        if stretch is not None:
+            stretch = min(stretch, float(self.rest.stretch[-1]))
+        return self.rest.at(stretch) + self.offset
 
     def track(self, counts: np.ndarray, elapsed_ms: float, *,
               under_contact: np.ndarray | None = None) -> bool:
