@@ -102,6 +102,12 @@ def run(scene: str, settings, params_path: Path = Path("params.yaml")) -> pd.Dat
     plan = plan_from_params(scene, get_scene(params, scene, params_path))
     stack = ExportedStack.from_file(stack_path(scene))
     board = live_board(params, stack.skin)
+    if settings.drift_offset_pf is not None:  # the hour's own drift: the sim's is the data's
+        import dataclasses
+
+        board = SimulatedBoard(dataclasses.replace(board.model.params, drift_offset_pf=float(
+            settings.drift_offset_pf)), skin=board.skin, rest_length_mm=board.rest_length_mm,
+            frame_period_ms=board.frame_period_ms)
     rest_length_mm = float(params.acquire.rest_length_mm)
     steps = script(settings, plan, rest_length_mm)
     end_ms = int(settings.minutes * 60_000)

@@ -82,6 +82,9 @@ class LiveHour(Section):
     retare_after_sustained: bool
     press_ramp_ms: NonNegative
     batch_frames: Count
+    # the simulated board's drift SD for the hour (pF), in place of params.yaml's
+    # sim.drift_offset_pf (none: that); its own, so that a harder hour does not redraw data
+    drift_offset_pf: NonNegative | None = None
 
 
 class BenchParams(Section):
