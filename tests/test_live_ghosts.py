@@ -328,9 +328,10 @@ def test_a_press_held_through_stretch_changes_is_held_and_placed(params, onnx):
 
 def test_a_contact_is_frozen_whole_for_its_first_seconds_then_only_on_its_channels():
     """Issue 57: with contact_channels a contact's own channels stay frozen and the others
-    are followed, but only after live.baseline.frozen_first_s (10 s) of it: followed from
-    a contact's first frame, the live hour (seed 39) had 4.2 % phantom frames at 16 mm,
-    none frozen whole. Here half the channels drift 3 counts during a press on x5, y5."""
+    are followed, but only after live.baseline.frozen_first_s (10 s) of a press: followed
+    from a contact's first frame, the live hour (seed 39) had 4.2 % phantom frames at 16
+    mm, none frozen whole. Here half the channels drift 3 counts during a press on x5, y5;
+    a contact with no channel beyond the gate is not held."""
     from eskin.config.live import LiveBaseline
     from eskin.deploy.live import Tare, terminals_under
     from eskin.deploy.stack import RestTable
@@ -353,6 +354,10 @@ def test_a_contact_is_frozen_whole_for_its_first_seconds_then_only_on_its_channe
     # reads as stretch: the two are one on a frame)
     left = moved[~near] - drift[~near]
     assert np.ptp(left) < 1.0 and np.ptp(moved[~near]) > 2.0, moved[~near]
+    # a contact with no channel beyond the gate (a phantom, not a press) is not held
+    tare._contact_ms, tare._pressed, after = 0.0, False, tare.offset.copy()
+    assert tare.track(rest.at(1.0) + after + drift, 12.0, under_contact=near)
+    assert not np.array_equal(tare.offset[~near], after[~near])
     # untouched, the expected reading goes on beyond the largest trained stretch (the
     # skin sits there); in contact it stops there (drift the contact leaves reads as it)
     beyond = rest.at(1.2) + tare.offset

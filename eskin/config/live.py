@@ -24,8 +24,8 @@ class LiveBaseline(Section):
     # its expected reading is followed back (no press lowers a reading) ...
     drift_counts_per_sqrt_s: NonNegative = 0.5  # ... and, once its press lifted, what is
     # left within the drift a freeze of this long may have missed (0: never)
-    frozen_first_s: NonNegative = 10.0   # contact_channels: a contact's first seconds,
-    # frozen whole (a press's: the drift they may hide is under a count)
+    frozen_first_s: NonNegative = 10.0   # contact_channels: a press's first seconds (one
+    # of its channels beyond the gate), frozen whole: the drift they may hide is a count
 
 
 class LiveContact(Section):
