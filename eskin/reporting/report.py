@@ -169,11 +169,14 @@ def draw_figure(job: FigureJob, code: str = "") -> FigureFiles:
 
 
 def drawing_code() -> str:
-    """The version of everything that draws a figure, for the figure cache's keys: this
-    package's sources and the versions of matplotlib and numpy. (The figure's data, its
-    spec and its skin are the cached call's arguments, so they are in the key already.)"""
+    """The version of what draws a figure, for the figure cache's keys: the sources of the
+    drawers (``figures.py``), of this module (which calls them and saves the files) and of
+    the skin's class, and the versions of matplotlib and numpy. The figure's data, its
+    spec, its text and its skin are the cached call's arguments, so they are in the key
+    already: a headline label edited in ``presentation.py`` redraws nothing."""
+    package = Path(__file__).parent
     digest = hashlib.md5(f"{matplotlib.__version__} {np.__version__}".encode())
-    for source in sorted(Path(__file__).parent.glob("*.py")):
+    for source in (package / "figures.py", Path(__file__), package.parent / "skin.py"):
         digest.update(source.read_bytes())
     return digest.hexdigest()
 
