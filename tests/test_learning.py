@@ -351,6 +351,7 @@ def test_folds_give_the_same_predictions_on_every_joblib_backend(backend, projec
     assert result.per_fold == reference.per_fold
 
 
+@pytest.mark.heavy  # starts a loky pool
 def test_the_first_fold_decides_whether_the_rest_go_to_the_pool(project, monkeypatch):
     """Folds go to the workers when the time they save on the remaining folds exceeds the
     pool's start; the predictions are the same either way."""

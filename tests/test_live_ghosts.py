@@ -279,6 +279,7 @@ def onnx_full_stretch(repo_params, tmp_path_factory):
                                                sources={}))
 
 
+@pytest.mark.heavy  # 28 s: fifteen minutes of board time, frame by frame
 def test_a_five_minute_press_at_full_stretch_leaves_no_phantom_with_real_drift(
         params, onnx_full_stretch):
     """Issue 57's acceptance: at the largest stretch (16 mm) with real-sized drift, a
@@ -306,6 +307,7 @@ def test_a_five_minute_press_at_full_stretch_leaves_no_phantom_with_real_drift(
         f"in contact, the first at {(t[after][contact[after]][0] - release) / 1000:.1f} s")
 
 
+@pytest.mark.heavy  # minutes of board time, frame by frame
 def test_a_press_held_through_stretch_changes_is_held_and_placed(params, onnx):
     """Issue 57: a stretch change re-references the expected reading (from the stretch the
     channels say, on every frame) without losing a press held through it: a 3.25 N press

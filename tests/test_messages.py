@@ -48,7 +48,7 @@ COMMANDS = {
 # Every stage that takes a scene (python -m stages.<module> <scene> ...), by its main().
 STAGES = {
     "acquire": (TYPO,), "ingest": (TYPO,), "featurize": (TYPO,), "train": (TYPO, "force"),
-    "folds": (TYPO,), "pairs": (TYPO,), "export": (TYPO,), "bench": ("summary", TYPO),
+    "folds": (TYPO,), "export": (TYPO,), "bench": ("summary", TYPO),
     "soak": (TYPO,),
     "stress": (TYPO,), "live_latency": (TYPO,), "dask_scaling": (TYPO,),
     "learning_curve": (TYPO,), "plan_check": (TYPO,),
@@ -290,7 +290,7 @@ def test_a_mistyped_registered_model_is_one_line_with_the_closest(tmp_path):
 # Every stage of the pipeline (dvc.yaml), and what a Ctrl-C leaves of it.
 PIPELINE_STAGES = {"acquire": RECEIVED_KEPT, "track": TRACK_KEPT,
                    **{stage: STAGE_NOT_KEPT for stage in (
-                       "ingest", "featurize", "folds", "settings", "train", "pairs", "export",
+                       "ingest", "featurize", "folds", "settings", "train", "export",
                        "report")}}
 
 

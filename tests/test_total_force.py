@@ -71,6 +71,9 @@ def two_touch_scene(folder) -> dict:
                        "force_sign": -1, "contact_n": 0.5, "trials": "file"}}
 
 
+# every test reads a two-contact pipeline run here, in process (acquisition to report)
+pytestmark = pytest.mark.heavy
+
 @pytest.fixture(scope="module")
 def pipeline(tmp_path_factory, repo_params):
     """ingest → featurize → every task → pairs → export → report, as the stages run them,
@@ -118,7 +121,6 @@ def pipeline(tmp_path_factory, repo_params):
             "paired": paired, "exported": exported, "scores": scores}
 
 
-@pytest.mark.heavy
 def test_the_dataset_and_its_features_are_of_the_total_force_kind(pipeline):
     root = pipeline["root"]
     assert scene_kind(pipeline["params"].scenes["two"]) is TWO_CONTACTS_TOTAL_FORCE
@@ -130,7 +132,6 @@ def test_the_dataset_and_its_features_are_of_the_total_force_kind(pipeline):
     assert "force1" not in features and list(features.columns[15:21]) == TOTAL_LABELS
 
 
-@pytest.mark.heavy
 def test_the_total_force_is_trained_and_scored_as_a_regression(pipeline):
     force = pipeline["scores"]["force"]
     assert force["status"] == "trained" and force["kind"] == "two_force_total"
@@ -172,7 +173,6 @@ def test_pairs_score_the_positions_and_skip_the_per_contact_forces_with_the_reas
     assert set(metrics["two"]["pairs"]) == {"pair_accuracy", "ghost_share"}
 
 
-@pytest.mark.heavy
 def test_the_report_gives_the_total_force_and_says_once_why_there_is_no_per_contact_force(
         pipeline):
     root = pipeline["root"]
