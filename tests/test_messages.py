@@ -353,11 +353,13 @@ def test_an_interrupted_training_stage_says_it_kept_nothing(small_params, tmp_pa
         # SIGINT as in a terminal (a background job of a shell starts with it ignored)
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     said, deadline = b"", time.monotonic() + 120
-    while b"CV:" not in said and time.monotonic() < deadline:  # its folds' progress bar
+    # into the folds: its progress bar has counted the first (a SIGINT 0.3 s after the
+    # bar was drawn was once lost, in a CI run on a busy machine; not seen again in 11
+    # runs here, loaded or not, and not explained)
+    while b"| 1/10 [" not in said and time.monotonic() < deadline:
         if select.select([stage.stderr], [], [], 1)[0]:
             said += os.read(stage.stderr.fileno(), 4096)
-    assert b"CV:" in said, said
-    time.sleep(0.3)  # into the folds (the bar is drawn before tqdm's constructor returns)
+    assert b"| 1/10 [" in said, said
     stage.send_signal(signal.SIGINT)
     _, rest = stage.communicate(timeout=120)
     stderr = (said + rest).decode()
