@@ -101,13 +101,10 @@ def run(scene: str, settings, params_path: Path = Path("params.yaml")) -> pd.Dat
     params = load_params(Params, params_path)
     plan = plan_from_params(scene, get_scene(params, scene, params_path))
     stack = ExportedStack.from_file(stack_path(scene))
-    board = live_board(params, stack.skin)
     if settings.drift_offset_pf is not None:  # the hour's own drift: the sim's is the data's
-        import dataclasses
-
-        board = SimulatedBoard(dataclasses.replace(board.model.params, drift_offset_pf=float(
-            settings.drift_offset_pf)), skin=board.skin, rest_length_mm=board.rest_length_mm,
-            frame_period_ms=board.frame_period_ms)
+        params = params.model_copy(update={"sim": params.sim.model_copy(
+            update={"drift_offset_pf": float(settings.drift_offset_pf)})})
+    board = live_board(params, stack.skin)
     rest_length_mm = float(params.acquire.rest_length_mm)
     steps = script(settings, plan, rest_length_mm)
     end_ms = int(settings.minutes * 60_000)
@@ -282,13 +279,11 @@ def _share(values) -> float | None:
     return round(float(values.mean()), 5) if len(values) else None
 
 
-def batch_cv_scores(scene: str, scores_dir: Path = SCORES_DIR,
-                    pairs: Path | None = None) -> dict[str, Any]:
+def batch_cv_scores(scene: str, scores_dir: Path = SCORES_DIR) -> dict[str, Any]:
     """The trained stack's conditions-CV scores (mean ± fold sd), to set the live ones
-    beside; ``pairs``: the scene's contacts scored as sets (default: where the report
-    writes them)."""
+    beside; a two-contact scene's pairs from where the report writes them."""
     out: dict[str, Any] = {}
-    pairs = scores_path(scene, PAIRS) if pairs is None else pairs
+    pairs = scores_path(scene, PAIRS)
     if pairs.exists():
         held_out = json.loads(pairs.read_text()).get("conditions", {})
         for name in ("pair_accuracy", "force_mae"):
