@@ -24,6 +24,7 @@ from eskin.catalog import (
     featurizer_path,
     folds_path,
     model_path,
+    predictions_path,
     processed_path,
     scores_path,
     stack_path,
@@ -116,7 +117,8 @@ def pipeline(tmp_path_factory, repo_params):
         metrics_path=root / METRICS, pairs_dir=root / PAIRS_DIR)
     scores = {task: json.loads((root / scores_path("two", task)).read_text())
               for task in (*TASK_NAMES, PAIRS)}
-    paired = score_scene_pairs("two", root / "reports/predictions", scores["localise"])
+    paired = score_scene_pairs("two", {task: pd.read_parquet(root / predictions_path("two", task))
+                                       for task in ("localise", "force")}, scores["localise"])
     return {"root": root, "params": params, "ingested": ingested, "trained": trained,
             "paired": paired, "exported": exported, "scores": scores}
 

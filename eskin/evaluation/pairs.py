@@ -20,7 +20,6 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -153,14 +152,13 @@ class PairsScored:
     reason: str = ""
 
 
-def score_scene_pairs(scene: str, predictions_dir: Path,
+def score_scene_pairs(scene: str, predictions: Mapping[str, pd.DataFrame],
                       localise: Mapping[str, Any] | None) -> PairsScored:
-    """Score a two-force scene's contacts as sets (order-free), from its tasks' predictions
-    (under ``predictions_dir``/``scene``); the scene's kind and dataset come from the
-    localise task's scores document (``localise``; None: the scene has none). A recording
-    of the contacts' total force only has its positions scored, and its per-contact force
-    scores skipped with the reason (``skipped_scores``)."""
-    directory = Path(predictions_dir) / scene
+    """Score a two-force scene's contacts as sets (order-free), from its tasks' out-of-fold
+    predictions (``predictions``, by task, as the report has read them); the scene's kind
+    and dataset come from the localise task's scores document (``localise``; None: the
+    scene has none). A recording of the contacts' total force only has its positions
+    scored, and its per-contact force scores skipped with the reason (``skipped_scores``)."""
     document: dict[str, Any] = {"scene": scene, "task": "pairs"}
     localise = localise or {}
 
@@ -177,10 +175,10 @@ def score_scene_pairs(scene: str, predictions_dir: Path,
         document["skipped_scores"] = {"force": TOTAL_FORCE_ONLY}
     frames = {}
     for task in ("localise",) if kind.total_force else ("localise", "force"):
-        path = directory / f"{task}.parquet"
-        if not path.exists():
-            raise FileNotFoundError(f"{path}: no predictions; run `dvc repro train@{scene}-{task}`")
-        frames[task] = pd.read_parquet(path)
+        if task not in predictions:
+            raise FileNotFoundError(f"{scene}/{task}: no predictions; run "
+                                    f"`dvc repro train@{scene}-{task}`")
+        frames[task] = predictions[task]
     if any(frame.empty for frame in frames.values()):
         skipped = [task for task, frame in frames.items() if frame.empty]
         return skip(f"no predictions from {', '.join(skipped)} (skipped)",

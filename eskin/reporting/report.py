@@ -231,7 +231,8 @@ def provenance(environ: Mapping[str, str] | None = None) -> Provenance:
                       experiment=environ.get("DVC_EXP_NAME", ""))
 
 
-def _score_pairs(scores: dict[str, dict[str, Any]], predictions_dir: Path,
+def _score_pairs(scores: dict[str, dict[str, Any]],
+                 predictions: Mapping[str, Mapping[str, pd.DataFrame]],
                  pairs_dir: Path | None, scores_dir: Path) -> None:
     """Each scene's contacts scored as sets, added to its scores (last, as ``pairs``) and
     written where the scene has two contacts (a one-contact scene's says why it has none,
@@ -243,7 +244,7 @@ def _score_pairs(scores: dict[str, dict[str, Any]], predictions_dir: Path,
     for scene, by_task in scores.items():
         if "localise" not in by_task:  # nothing trained to pair
             continue
-        paired = score_scene_pairs(scene, predictions_dir, by_task["localise"])
+        paired = score_scene_pairs(scene, predictions[scene], by_task["localise"])
         by_task[PAIRS] = paired.document
         if paired.applies:
             write_json(paired.document, (pairs_dir / f"{scene}.json" if pairs_dir is not None
@@ -343,13 +344,14 @@ def report(*, report: Report, scenes: Mapping[str, Scene], scores_dir: Path,
     skins = {name: scene_skin(scene) for name, scene in scenes.items()}
     scores = {scene: _task_files(scores_dir, scene, ".json", lambda p: json.loads(p.read_text()))
               for scene in kinds}
-    _score_pairs(scores, predictions_dir, Path(pairs_dir) if pairs_dir is not None else None,
-                 Path(scores_dir))
     if not any(scores.values()):
         raise FileNotFoundError(f"{scores_dir}: no scores for any scene of params.yaml "
                                 f"({', '.join(kinds)}); run the training stages first")
     predictions = {scene: _task_files(predictions_dir, scene, ".parquet", pd.read_parquet)
                    for scene in kinds}
+    # scored from the predictions just read, not read again
+    _score_pairs(scores, predictions, Path(pairs_dir) if pairs_dir is not None else None,
+                 Path(scores_dir))
 
     figures_dir, plots_dir = Path(figures_dir), Path(plots_dir)
     # The directory holds this run's figures only: none left from a scene, figure or
