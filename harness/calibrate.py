@@ -55,8 +55,9 @@ FIT_FOLDS = 5  # the search: half the folds, as the GP fits a 2,000-sample subsa
 
 
 def simulate_plan(sim: SkinParams, plan: ScenePlan, seed: int = 0) -> pd.DataFrame:
-    """Every condition of ``plan`` as one trial, in the paper's layout (no board)."""
-    model = SkinModel(sim)
+    """Every condition of ``plan`` as one trial, in the paper's layout (no board), on the
+    plan's skin."""
+    model = SkinModel(sim, plan.skin)
     blocks = []
     for trial_no, condition in enumerate(plan.conditions):
         trial = Trial(model, [seed, trial_no])

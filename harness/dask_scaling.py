@@ -33,7 +33,7 @@ from eskin.data.schema import dataset_skin, read_metadata
 from eskin.evaluation.crossval import cross_validate
 from eskin.evaluation.folds import assign_folds
 from eskin.evaluation.tasks import get_task
-from eskin.learning.choice import model_for_skin, model_settings
+from eskin.learning.choice import chosen_model
 from eskin.learning.estimators import build_model
 
 TASK = "force"
@@ -81,7 +81,7 @@ def run_cv(scene: str, params: Params, backend: str, n_jobs: int) -> tuple[objec
     cv = params.cv
     folds = assign_folds(frame, kind, "conditions", int(cv.folds), int(cv.seed), skin=skin)
     section = getattr(params.train, TASK)
-    name, hyper, _ = model_for_skin(section, *model_settings(section, "tuned", kind), skin)
+    name, hyper, _ = chosen_model(section, "tuned", kind, skin, task.role)
     estimator = build_model(task.role, name, hyper, skin)
     started = time.perf_counter()
     with parallel_config(backend=backend):

@@ -52,7 +52,7 @@ from eskin.data.schema import (
 from eskin.evaluation.crossval import cross_validate
 from eskin.evaluation.folds import conditions, trial_conditions
 from eskin.evaluation.tasks import Task, get_task
-from eskin.learning.choice import model_for_skin, model_settings
+from eskin.learning.choice import chosen_model
 from eskin.learning.estimators import build_model
 from eskin.learning.features import featurize, fit_featurizer
 from eskin.tracking.planning import (
@@ -150,8 +150,8 @@ def _model(task: Task, params: Params, configuration: str, the_kind,
     """(model name, hyperparameters) the pipeline trains for ``task`` under
     ``configuration`` (``train.configuration``, or ``paper``)."""
     task_params = getattr(params.train, task.name)
-    name, hyper, _ = model_for_skin(
-        task_params, *model_settings(task_params, configuration, the_kind.scene_kind), skin)
+    name, hyper, _ = chosen_model(task_params, configuration, the_kind.scene_kind, skin,
+                                  task.role)
     return name, hyper
 
 

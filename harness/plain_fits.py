@@ -32,7 +32,7 @@ from eskin.config.base import load_params
 from eskin.config.params import Params
 from eskin.data.schema import dataset_kind, dataset_skin
 from eskin.evaluation.tasks import get_task
-from eskin.learning.choice import model_for_skin, model_settings
+from eskin.learning.choice import chosen_model
 from eskin.learning.estimators import build_model
 
 
@@ -63,9 +63,8 @@ def fit_task(params: Params, scene: str, task_name: str, root: Path = Path("."),
     skin, kind = dataset_skin(source), dataset_kind(source)
     task = get_task(kind.name, task_name)
     task_params = getattr(params.train, task_name)
-    name, hyper, _ = model_for_skin(
-        task_params, *model_settings(task_params, params.train.configuration, kind.scene_kind),
-        skin)
+    name, hyper, _ = chosen_model(task_params, params.train.configuration, kind.scene_kind,
+                                  skin, task.role)
     estimator = build_model(task.role, name, hyper, skin)
     if task.unsupported(frame) is not None:
         return {"model": name, "seconds": time.perf_counter() - started, "skipped": True}

@@ -146,14 +146,15 @@ def models_under_test(train: Any, skin: AnySkin) -> list[tuple[str, str, dict[st
     """(task, model name, hyperparameters) of the tuned and paper configurations of the
     ``train`` section, as they train on ``skin``."""
     from eskin.catalog import TASK_NAMES
-    from eskin.learning.choice import model_for_skin, model_settings
+    from eskin.evaluation.tasks import get_task
+    from eskin.learning.choice import chosen_model
 
     out = []
     for task in TASK_NAMES:
         task_params = getattr(train, task)
         for configuration in ("tuned", "paper"):
-            name, hyper, _ = model_for_skin(
-                task_params, *model_settings(task_params, configuration, KIND), skin)
+            name, hyper, _ = chosen_model(task_params, configuration, KIND, skin,
+                                          get_task(KIND, task).role)
             if (task, name, hyper) not in out:
                 out.append((task, name, hyper))
     return out

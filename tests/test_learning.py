@@ -282,19 +282,23 @@ def test_a_scenes_settings_choose_what_the_whole_section_chooses(repo_params, co
     row/column skin and on a channel array, the model and hyperparameters the whole
     section gives."""
     from eskin.learning.choice import model_for_skin, task_section
-    from eskin.skin import skin_from_dict
+    from eskin.skin import Skin, skin_from_dict
 
     array = skin_from_dict({"channels": [f"m{i}" for i in range(15)],
                             "x_mm": [0.0, 8.0, 16.0], "y_mm": [0.0, 8.0, 16.0]})
-    for task in ("stretch", "force", "detect", "localise"):
-        whole = TaskModels.model_validate(repo_params["train"][task])
+    sections = [repo_params["train"][task] for task in ("stretch", "force", "detect", "localise")]
+    # and a knob of the model a skin of long axes trains instead
+    sections.append({**repo_params["train"]["localise"], "peak_window": {"C": 3.0}})
+    for task, section in zip(("stretch", "force", "detect", "localise", "localise"), sections,
+                             strict=True):
+        whole = TaskModels.model_validate(section)
         for kind in ("single_force", "two_force"):
             part = TaskModels.model_validate(task_section(whole, configuration, kind))
             chosen = model_settings(whole, configuration, kind)
             assert model_settings(part, configuration, kind) == chosen
-            for skin in (PAPER_SKIN, array):
-                assert model_for_skin(part, *chosen, skin) == \
-                    model_for_skin(whole, *chosen, skin), (task, kind)
+            for skin in (PAPER_SKIN, array, Skin(32, 32)):
+                assert model_for_skin(part, *chosen, skin, task) == \
+                    model_for_skin(whole, *chosen, skin, task), (task, kind)
 
 
 def test_a_knob_of_one_kinds_model_leaves_the_other_kinds_settings_file_as_it_was(
@@ -414,3 +418,53 @@ def test_force_profile_reads_stretch_and_press_in_any_units(repo_params):
         predictions = [build_model("force", "physics_profile", {"max_iter": 20}, PAPER_SKIN)
                        .fit(data, force).predict(data) for data in (X, other_units)]
         assert np.allclose(*predictions, atol=1e-9 * np.ptp(force))
+
+
+@pytest.mark.parametrize("rows, columns", [(16, 12), (3, 2)])
+def test_peak_window_locates_each_axis_from_its_own_terminals(repo_params, rows, columns):
+    """PeakWindow learns which axis locates its target (the one whose highest terminal is
+    the node most often) and reads the node from the terminals around the highest, on a
+    skin whose axes differ in length: where it is trained (an axis over 14 terminals) as
+    well as the multinomial logistic regression on every channel, within a point; and on
+    a skin shorter than its window, still three in four (on these few trials)."""
+    from sklearn.model_selection import GroupShuffleSplit
+
+    from eskin.data.plan import single_force_plan
+    from eskin.data.schema import contact_mask
+    from eskin.device.physics import SkinParams
+    from eskin.learning.estimators import PeakWindow
+    from eskin.skin import Skin
+    from harness.calibrate import simulate_plan
+
+    skin = Skin(rows, columns)
+    sim = SkinParams.from_mapping(repo_params["sim"])
+    plan = single_force_plan("t", [1.0, 1.15842], [1.2936, 5.2136], samples=4, skin=skin,
+                             repeats=2)
+    frame = simulate_plan(sim, plan, seed=7)
+    frame = frame[contact_mask(frame)].reset_index(drop=True)
+    train, test = next(GroupShuffleSplit(1, test_size=0.25, random_state=0).split(
+        frame, groups=frame["trial"]))
+    X = frame[skin.channels]
+    for target, axis in (("x", (0, rows)), ("y", (rows, rows + columns))):
+        model = PeakWindow().fit(X.iloc[train], frame[target].iloc[train])
+        assert model.axis_ == axis
+        found = model.predict(X.iloc[test])
+        assert set(found) <= set(frame[target])
+        truth = frame[target].iloc[test].to_numpy()
+        ours = np.mean(found == truth)
+        assert ours > (0.9 if rows > 14 else 0.75), (target, ours)
+        if rows > 14:
+            reference = build_model("localise", "logistic").fit(X.iloc[train],
+                                                               frame[target].iloc[train])
+            theirs = np.mean(reference.predict(X.iloc[test]) == truth)
+            assert ours > theirs - 0.01, (target, ours, theirs)
+
+
+def test_peak_window_refuses_positions_that_are_not_node_numbers():
+    from eskin.learning.estimators import PeakWindow
+
+    X = pd.DataFrame(np.random.default_rng(0).normal(size=(40, 20)), columns=CHANNELS)
+    with pytest.raises(ValueError, match="node numbers"):
+        PeakWindow().fit(X, np.linspace(1.0, 10.0, 40))
+    with pytest.raises(ValueError, match="cx1..cxR"):
+        PeakWindow().fit(X.to_numpy(), np.arange(40) % 10 + 1)

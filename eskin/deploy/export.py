@@ -18,6 +18,7 @@ The conversion is skl2onnx's, with converters (registered in its registry, for t
 process) for what it lacks: eskin's own transformers
 (:class:`~eskin.learning.estimators.ForceProfile`,
 :class:`~eskin.learning.estimators.ActiveTerminals`,
+:class:`~eskin.learning.estimators.PeakWindow`,
 :class:`~eskin.learning.features.BaselineDelta`), the rounding ``FunctionTransformer``
 of ``eskin.learning.estimators._scaled``, LinearSVC and eskin's
 Gaussian processes in float64, and the tree ensembles (random forests, extra trees,
@@ -51,7 +52,12 @@ from sklearn.preprocessing import FunctionTransformer
 from eskin.data.schema import skin_metadata
 from eskin.errors import EskinError
 from eskin.kinds import get_kind
-from eskin.learning.estimators import ActiveTerminals, ForceProfile, row_column_skin
+from eskin.learning.estimators import (
+    ActiveTerminals,
+    ForceProfile,
+    PeakWindow,
+    row_column_skin,
+)
 from eskin.learning.features import BaselineDelta
 
 OPSETS = {"": 21, "ai.onnx.ml": 5}
@@ -224,6 +230,82 @@ def _active_terminals(scope, operator, container) -> None:
         columns += [nodes.op("Cast", top, to=TensorProto.DOUBLE), amplitude, ratio]
     columns.append(nodes.op("Cast", nodes.op("Equal", *signs), to=TensorProto.DOUBLE))
     nodes.op("Concat", *columns, out=operator.outputs[0].full_name, axis=1)
+
+
+def _peak_window(scope, operator, container) -> None:
+    """:meth:`PeakWindow.predict`, step for step: the highest terminal of its axis (the
+    first of equals, as numpy's argmax), the window around it with the axis's ends
+    repeated, the offset model's scores (x·w + b) and their best offset, then the nearest
+    node training saw. The scores are the second output."""
+    model, nodes = operator.raw_operator, _Nodes(scope, container)
+    start, stop = model.axis_
+    width, reach = stop - start, model.window
+    level = nodes.round(nodes.op("Div", nodes.op("Sub", operator.inputs[0].full_name,
+                                                 nodes.const(model.mean_)),
+                                 nodes.const(model.scale_)), 6)
+    axis = nodes.columns(level, start, stop)
+    top = nodes.op("ArgMax", axis, axis=1, keepdims=1)
+    padded = nodes.op("Pad", axis, nodes.const([0, reach, 0, reach], np.int64), mode="edge")
+    around = nodes.op("GatherElements", padded, nodes.op(
+        "Add", top, nodes.const([list(range(2 * reach + 1))], np.int64)), axis=1)
+    quiet = min(3, width)
+    lowest = nodes.op("TopK", axis, nodes.const([quiet], np.int64), outputs=2, axis=1,
+                      largest=0, sorted=1)[0]
+    base = nodes.op("Div", nodes.row_sum(lowest, quiet), nodes.const(float(quiet)))
+    around = nodes.op("Sub", around, base)
+    relative = nodes.op("Div", around, nodes.op("Max", nodes.columns(around, reach, reach + 1),
+                                                nodes.const(1e-3)))
+    near = nodes.const(reach + 1, np.int64)
+    ends = nodes.op("Cast", nodes.op("Concat", nodes.op("Min", top, near), nodes.op(
+        "Min", nodes.op("Sub", nodes.const(width - 1, np.int64), top), near), axis=1),
+                    to=TensorProto.DOUBLE)
+    which = nodes.op("Cast", nodes.op("Equal", top, nodes.const([list(range(width))], np.int64)),
+                     to=TensorProto.DOUBLE)
+    features = nodes.op("Concat", around, relative, ends, base, which, axis=1)
+    offsets = model.offset_model_
+    if len(offsets.classes_) < 2:  # one offset, always (a DummyClassifier): a score of 0
+        coef, intercept = np.zeros((1, features_width(model))), np.zeros(1)
+    else:
+        coef, intercept = offsets.coef_, offsets.intercept_
+    scores = nodes.op("Add", nodes.op("MatMul", features, nodes.const(coef.T)),
+                      nodes.const(intercept))
+    nodes.op("Identity", scores, out=operator.outputs[1].full_name)
+    if len(offsets.classes_) == 1:
+        best = nodes.op("Cast", nodes.op("Reshape", nodes.op("Mul", scores, nodes.const(0.0)),
+                                         nodes.const([-1], np.int64)), to=TensorProto.INT64)
+    elif len(offsets.classes_) == 2:
+        best = nodes.op("Cast", nodes.op("Greater", nodes.op("Reshape", scores, nodes.const(
+            [-1], np.int64)), nodes.const(0.0)), to=TensorProto.INT64)
+    else:
+        best = nodes.op("ArgMax", scores, axis=1, keepdims=0)
+    offset = nodes.op("Gather", nodes.const(offsets.classes_.astype(np.int64), np.int64), best,
+                      axis=0)
+    node = nodes.op("Add", nodes.op("Reshape", top, nodes.const([-1], np.int64)),
+                    nodes.op("Add", offset, nodes.const(1, np.int64)))
+    classes = np.asarray(model.classes_)
+    distance = nodes.op("Abs", nodes.op("Sub", nodes.op("Cast", nodes.op(
+        "Unsqueeze", node, nodes.const([1], np.int64)), to=TensorProto.DOUBLE),
+                                        nodes.const([classes.astype(float)])))
+    nodes.op("Gather", nodes.const(classes.astype(np.int64), np.int64),
+             nodes.op("ArgMin", distance, axis=1, keepdims=0),
+             out=operator.outputs[0].full_name, axis=0)
+
+
+def _peak_window_shape(operator) -> None:
+    from skl2onnx.common.data_types import DoubleTensorType, Int64TensorType
+
+    n = operator.inputs[0].get_first_dimension()
+    operator.outputs[0].type = Int64TensorType([n])
+    offsets = operator.raw_operator.offset_model_
+    operator.outputs[1].type = DoubleTensorType(
+        [n, offsets.coef_.shape[0] if len(offsets.classes_) > 1 else 1])
+
+
+def features_width(model) -> int:
+    """The columns of :class:`PeakWindow`'s offset features: the window twice, the two
+    ends, the level and one per terminal of its axis."""
+    start, stop = model.axis_
+    return 2 * (2 * model.window + 1) + 3 + (stop - start)
 
 
 class _Trees:
@@ -491,6 +573,8 @@ def _register() -> None:
                                 _active_terminals)
     update_registered_converter(LinearSVC, "SklearnLinearSVC", _linear_svc_shape, _linear_svc,
                                 options={"zipmap": [False], "nocl": [False]})
+    update_registered_converter(PeakWindow, "EskinPeakWindow", _peak_window_shape,
+                                _peak_window, options={"zipmap": [False], "nocl": [False]})
     for gp in (SparseGaussianProcess, FixedKernelGaussianProcess):
         update_registered_converter(gp, f"Eskin{gp.__name__}", _regressor_shape,
                                     _standardised_rbf)

@@ -20,11 +20,21 @@ if TYPE_CHECKING:
     from eskin.config.train import TaskModels
     from eskin.skin import AnySkin
 
-# Models that read a row/column skin's x and y terminals (ForceProfile, ActiveTerminals),
-# each with the generic model a channel array trains instead: the same gradient boosting
-# on the channels themselves (docs/learning.md).
+# Models that read a row/column skin's x and y terminals (ForceProfile, ActiveTerminals,
+# PeakWindow), each with the generic model a channel array trains instead: the same
+# gradient boosting (for PeakWindow, logistic regression) on the channels themselves
+# (docs/learning.md).
 ROW_COLUMN_MODELS: dict[str, str] = {"physics_profile": "hist_gradient_boosting",
-                                     "active_terminals": "hist_gradient_boosting"}
+                                     "active_terminals": "hist_gradient_boosting",
+                                     "peak_window": "logistic"}
+
+# Models whose fit grows with the channels times the nodes of an axis, each with the model
+# a skin of longer axes trains instead and the most terminals an axis may have for the
+# first. A multinomial logistic regression on every channel (Newton's Hessian is that
+# product squared) cost per row, against the paper's 10 × 10: 1.6× at 12 × 12, 2.7× at 14,
+# 3.7× at 16, 38× at 32; PeakWindow's cost per row hardly grows (docs/learning.md).
+LONG_AXIS_MODELS: dict[tuple[str, str], tuple[str, int]] = {
+    ("localise", "logistic"): ("peak_window", 14)}
 
 CONFIGURATIONS = ("tuned", "paper")
 
@@ -63,22 +73,39 @@ def hyperparameters(task_params: TaskModels, name: str) -> dict[str, Any]:
 
 
 def model_for_skin(task_params: TaskModels, name: str, hyper: dict[str, Any],
-                   skin: AnySkin) -> tuple[str, dict[str, Any], str]:
-    """(model, hyperparameters, note) that train on ``skin``: ``name`` as it is, or, for a
-    model that reads row/column terminals on a channel array, its generic model
-    (:data:`ROW_COLUMN_MODELS`) with its hyperparameters, and a note saying so."""
+                   skin: AnySkin, role: str) -> tuple[str, dict[str, Any], str]:
+    """(model, hyperparameters, note) that train on ``skin`` in ``role``: ``name`` as it
+    is, or, with its hyperparameters and a note saying so, for a model that reads
+    row/column terminals on a channel array, its generic model (:data:`ROW_COLUMN_MODELS`),
+    and for one whose cost grows with the nodes on a skin of longer axes, the model that
+    scales (:data:`LONG_AXIS_MODELS`)."""
     generic = ROW_COLUMN_MODELS.get(name)
-    if skin.row_column or generic is None:
-        return name, hyper, ""
-    return generic, hyperparameters(task_params, generic), (
-        f"{name} reads a row/column skin's x and y terminals and this scene is an "
-        f"{skin.describe()}: trained {generic} instead")
+    if not skin.row_column and generic is not None:
+        return generic, hyperparameters(task_params, generic), (
+            f"{name} reads a row/column skin's x and y terminals and this scene is an "
+            f"{skin.describe()}: trained {generic} instead")
+    scaling, most = LONG_AXIS_MODELS.get((role, name), (None, 0))
+    if skin.row_column and scaling is not None and max(skin.rows, skin.columns) > most:
+        return scaling, hyperparameters(task_params, scaling), (
+            f"{name}'s fit grows with the channels times the nodes, and this scene's "
+            f"{skin.describe()} has more than {most} terminals on an axis: trained {scaling} "
+            "instead")
+    return name, hyper, ""
+
+
+def chosen_model(task_params: TaskModels, configuration: str, kind: str, skin: AnySkin,
+                 role: str) -> tuple[str, dict[str, Any], str]:
+    """(model, hyperparameters, note) a scene of ``kind`` on ``skin`` trains for a task of
+    ``role`` from its ``train.<task>`` section: :func:`model_settings`, then
+    :func:`model_for_skin`."""
+    return model_for_skin(task_params, *model_settings(task_params, configuration, kind), skin,
+                          role)
 
 
 def task_section(task_params: TaskModels, configuration: str, kind: str) -> dict[str, Any]:
     """The part of a ``train.<task>`` section a scene of ``kind`` trains from, itself a
-    ``train.<task>`` section: its model by name, that model's hyperparameters and, for a
-    row/column model, those of the generic model a channel array trains instead.
+    ``train.<task>`` section: its model by name, that model's hyperparameters and those of
+    a model a skin may train instead (:func:`model_for_skin`).
     :func:`model_settings` and :func:`model_for_skin` give the same on it as on the whole
     section."""
     name, hyper = model_settings(task_params, configuration, kind)
@@ -86,4 +113,9 @@ def task_section(task_params: TaskModels, configuration: str, kind: str) -> dict
     generic = ROW_COLUMN_MODELS.get(name)
     if generic is not None:
         section[generic] = hyperparameters(task_params, generic)
+    # a model a skin of longer axes trains instead, where params set its hyperparameters
+    # (the section does not know the skin; without them it trains on its defaults)
+    for (_, chosen), (scaling, _) in LONG_AXIS_MODELS.items():
+        if chosen == name and scaling in (task_params.model_extra or {}):
+            section[scaling] = hyperparameters(task_params, scaling)
     return section

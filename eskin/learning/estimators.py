@@ -23,7 +23,14 @@ from functools import partial
 from typing import Any
 
 import numpy as np
-from sklearn.base import BaseEstimator, RegressorMixin, TransformerMixin, clone
+from sklearn.base import (
+    BaseEstimator,
+    ClassifierMixin,
+    RegressorMixin,
+    TransformerMixin,
+    clone,
+)
+from sklearn.dummy import DummyClassifier
 from sklearn.ensemble import (
     ExtraTreesClassifier,
     HistGradientBoostingClassifier,
@@ -245,6 +252,85 @@ class ForceProfile(TransformerMixin, BaseEstimator):
         return np.hstack(columns)
 
 
+class PeakWindow(ClassifierMixin, BaseEstimator):
+    """Where one contact lies along one axis of a row/column skin: the terminal that rose
+    most, and the pressed node's offset from it, read from the terminals around it.
+
+    A press lights at most :data:`PRESS_SPAN` terminals per axis, so what tells a node
+    from its neighbours lies in a window of them. Per row: each channel standardised
+    (over the training rows) and rounded as :func:`_scaled` rounds; the axis's highest
+    terminal; the ``window`` terminals each way of it (the axis's ends repeated), less the
+    axis's level (the mean of its three lowest, which stretch moves and a press leaves
+    alone), and the same relative to the highest; how far the highest lies from each end;
+    the level; and which terminal is the highest (one column each, so that a node's own
+    sensitivity is learnt). A logistic regression reads the offset from those.
+
+    Its cost per row grows with the terminals of one axis, where a multinomial logistic
+    regression on every channel grows with the channels times the nodes (a 32 × 32 skin's
+    fit cost 37 times a 10 × 10's per row; docs/learning.md). Which axis locates the target
+    is learnt: the one whose highest terminal is the node most often. Node numbers are the
+    axis's terminals (1 to R).
+    """
+
+    def __init__(self, window: int = 2, C: float = 1.0) -> None:  # noqa: N803
+        self.window = window
+        self.C = C
+
+    def fit(self, X, y):  # noqa: N803 - scikit-learn's name
+        X, y = validate_data(self, X, y, dtype=np.float64)
+        skin = row_column_skin(self)
+        if self.window < 1:
+            raise ValueError(f"PeakWindow's window must be 1 or more terminals, got {self.window}")
+        node = np.asarray(y, dtype=float)
+        if not np.array_equal(node, np.round(node)):
+            raise ValueError("PeakWindow reads node numbers (1 to the terminals of an axis), "
+                             f"got {node[node != np.round(node)][0]!r}")
+        self.classes_ = np.unique(y)
+        self.mean_ = X.mean(axis=0)
+        spread = X.std(axis=0)
+        self.scale_ = np.where(spread > 0, spread, 1.0)
+        level = self._level(X)
+        axes = ((0, skin.rows), (skin.rows, skin.terminals))
+        hits = [np.mean(level[:, a:b].argmax(axis=1) + 1 == node) for a, b in axes]
+        self.axis_ = axes[int(np.argmax(hits))]
+        peak, features = self._features(level)
+        offset = np.clip(node - peak, -self.window - 1, self.window + 1).astype(np.int64)
+        # one offset only (every highest terminal its node): nothing for a model to learn
+        self.offset_model_ = (DummyClassifier(strategy="most_frequent") if len(set(offset)) < 2
+                              else LogisticRegression(C=self.C, max_iter=1000))
+        self.offset_model_.fit(features, offset)
+        return self
+
+    def _level(self, X: np.ndarray) -> np.ndarray:
+        return np.round((X - self.mean_) / self.scale_, 6)
+
+    def _features(self, level: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(node of each row's highest terminal, the offset model's features)."""
+        start, stop = self.axis_
+        axis = level[:, start:stop]
+        width, reach = stop - start, self.window
+        top = axis.argmax(axis=1)
+        padded = np.pad(axis, ((0, 0), (reach, reach)), mode="edge")
+        around = np.take_along_axis(padded, top[:, None] + np.arange(2 * reach + 1), axis=1)
+        quiet = min(3, width)
+        base = np.sort(axis, axis=1)[:, :quiet].mean(axis=1)
+        around = around - base[:, None]
+        relative = around / np.clip(around[:, reach:reach + 1], 1e-3, None)
+        ends = np.column_stack([np.minimum(top, reach + 1),
+                                np.minimum(width - 1 - top, reach + 1)]).astype(float)
+        which = (top[:, None] == np.arange(width)).astype(float)
+        return top + 1, np.hstack([around, relative, ends, base[:, None], which])
+
+    def predict(self, X):  # noqa: N803
+        check_is_fitted(self)
+        X = validate_data(self, X, dtype=np.float64, reset=False)
+        peak, features = self._features(self._level(X))
+        node = peak + self.offset_model_.predict(features)
+        # the nearest node that training saw (an offset past the axis's end lands on it)
+        nearest = np.abs(self.classes_[None, :].astype(float) - node[:, None]).argmin(axis=1)
+        return self.classes_[nearest]
+
+
 def _scaled(estimator: BaseEstimator) -> Pipeline:
     """Every model sees standardised channels, rounded to 1e-6, whatever their units.
 
@@ -343,6 +429,9 @@ REGISTRY: dict[str, dict[str, Factory]] = {
         "logistic": lambda C=1.0: _scaled(LogisticRegression(C=C, max_iter=1000,
                                                              solver="newton-cholesky")),
         "linear_svm": lambda C=1.0: _scaled(LinearSVC(C=C)),
+        # One contact on a row/column skin: the highest terminal per axis and the offset
+        # from it (PeakWindow), at a cost per row that does not grow with the nodes.
+        "peak_window": lambda window=2, C=1.0: PeakWindow(window=window, C=C),
         # Two contacts: find the pressed terminals, pair them by amplitude (ActiveTerminals).
         "active_terminals": lambda max_iter=200, learning_rate=0.1, min_samples_leaf=20,
             seed=0: _on_active_terminals(HistGradientBoostingClassifier(

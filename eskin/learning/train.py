@@ -32,7 +32,7 @@ from eskin.evaluation.crossval import cross_validate, fit_final, parallel_backen
 from eskin.evaluation.folds import read_scene_folds
 from eskin.evaluation.outputs import save_predictions, write_json
 from eskin.evaluation.tasks import Task, get_task
-from eskin.learning.choice import model_for_skin, model_settings
+from eskin.learning.choice import chosen_model
 from eskin.learning.estimators import build_model
 from eskin.learning.saved import save_models
 
@@ -60,7 +60,8 @@ def train(scene: str, task_name: str, *, task_params: TaskModels, configuration:
     once by the folds stage; a progress bar per scheme), refit and save, on the skin the
     features were taken on. A model that reads a row/column skin's terminals is replaced,
     on a channel array, by its generic model
-    (:func:`~eskin.learning.choice.model_for_skin`), and the summary says so.
+    (:func:`~eskin.learning.choice.model_for_skin`), as is a localisation's logistic regression
+    on a skin of long axes by PeakWindow, and the summary says so.
 
     ``task_params`` is the task's ``train.<task>`` section, ``configuration``
     ``train.configuration``; of ``cv`` only how folds run (``n_jobs``, ``backend``).
@@ -82,8 +83,8 @@ def train(scene: str, task_name: str, *, task_params: TaskModels, configuration:
     the_kind = dataset_kind(source)
     kind = the_kind.name
     task = get_task(kind, task_name)
-    model_name, hyper, model_note = model_for_skin(
-        task_params, *model_settings(task_params, configuration, the_kind.scene_kind), skin)
+    model_name, hyper, model_note = chosen_model(task_params, configuration,
+                                                 the_kind.scene_kind, skin, task.role)
     estimator = build_model(task.role, model_name, hyper, skin)
     header = {"scene": scene, "kind": kind, "task": task_name, "model": model_name,
               "dataset_md5": meta["dataset"]["md5"], "dataset_rows": meta["dataset"]["rows"],

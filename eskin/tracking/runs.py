@@ -549,8 +549,9 @@ def pipeline_tasks(scenes: Mapping[str, Any], train: Any, cv: Mapping[str, Any],
         scores_path,
     )
     from eskin.data.schema import dataset_skin
+    from eskin.evaluation.tasks import get_task
     from eskin.kinds import DATASET_KINDS
-    from eskin.learning.choice import model_for_skin, model_settings
+    from eskin.learning.choice import chosen_model
     from eskin.reporting import presentation
 
     found = []
@@ -569,9 +570,9 @@ def pipeline_tasks(scenes: Mapping[str, Any], train: Any, cv: Mapping[str, Any],
             kind = DATASET_KINDS[scores["kind"]]
             task_models = getattr(train, task)
             # the skin the features were taken on, as the train step reads it
-            _, hyper, _ = model_for_skin(
-                task_models, *model_settings(task_models, train.configuration,
-                                             kind.scene_kind), dataset_skin(features_path(scene)))
+            _, hyper, _ = chosen_model(task_models, train.configuration, kind.scene_kind,
+                                       dataset_skin(features_path(scene)),
+                                       get_task(kind.name, task).role)
             figures = tuple(sorted(p for figure in presentation.figures(kind) if figure.task == task
                                    for p in (FIGURES_DIR / scene).glob(f"{figure.id}_*.*")))
             found.append(TaskFiles(scene, task, scores, path, predictions_path(scene, task),
