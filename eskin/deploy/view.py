@@ -44,15 +44,23 @@ PAGE = """<!doctype html>
 <style>
 body {{ font-family: system-ui, sans-serif; margin: 1.5em; background: #fafafa; color: #222; }}
 h1 {{ font-size: 1.2em; margin: 0 0 .8em; }}
+/* Any skin up to 32 × 32 in a 1,280 px window: the status column keeps its width, the
+map takes what is left (its cells shrink, 4:3 as at full size), and the bars share the
+page's width; a label too wide for its slot shows every k-th one (fit() below). */
 main {{ display: flex; gap: 2em; align-items: flex-start; }}
-#map {{ display: grid; grid-template-columns: 1.6em repeat({size_x}, 2.6em); gap: 3px; }}
-#map div {{ height: 2.6em; display: flex; align-items: center; justify-content: center;
-  font-size: .75em; color: #777; }}
-#map .cell {{ background: #e4e7eb; border-radius: 4px; color: #222; box-sizing: border-box; }}
+#map {{ display: grid; grid-template-columns: 1.6em repeat({size_x}, minmax(0, 2.6em)); gap: 3px;
+  flex: 0 1 auto; min-width: 0; }}
+#map div {{ display: flex; align-items: center; justify-content: center;
+  font-size: .75em; color: #777; white-space: nowrap; }}
+#map .xlabel {{ height: 2.6em; }}
+#map .cell {{ background: #e4e7eb; border-radius: 4px; color: #222; box-sizing: border-box;
+  aspect-ratio: 4 / 3; overflow: hidden; container-type: inline-size; }}
+#map .cell span {{ font-size: clamp(7px, 28cqi, 1em); }}
 #map.pressable .cell {{ cursor: pointer; }}
 #map.pressable .cell:hover {{ outline: 2px solid #8fb0dc; }}
 #map .cell.pressed {{ border: 3px dashed #1a5fb4; }}
-#readout {{ min-width: 17em; }}
+.thinned {{ visibility: hidden; }}
+#readout {{ flex: 1 0 26em; min-width: 0; }}
 #readout p {{ margin: .3em 0; font-size: 1.1em; }}
 #readout b {{ display: inline-block; min-width: 9.5em; font-weight: 600; color: #555; }}
 #contact.touch {{ color: #b3261e; font-weight: 700; }}
@@ -64,15 +72,16 @@ main {{ display: flex; gap: 2em; align-items: flex-start; }}
 #channels {{ margin: 1.5em 0 0; }}
 #channels figcaption {{ font-size: .85em; color: #555; margin-bottom: .4em; }}
 #chart {{ display: flex; gap: 6px; height: 8em; }}
-#axis {{ width: 3.5em; height: 100%; display: flex; flex-direction: column;
+#axis {{ width: 3.5em; flex: none; height: 100%; display: flex; flex-direction: column;
   justify-content: space-between; align-items: flex-end; font-size: .7em; color: #555;
   border-right: 1px solid #999; padding-right: 4px; line-height: 0; }}
-#bars {{ display: grid; grid-template-columns: repeat({terminals}, 30px); gap: 3px;
-  align-items: end; height: 100%;
+#bars {{ display: grid; grid-template-columns: repeat({terminals}, minmax(0, 30px)); gap: 3px;
+  align-items: end; height: 100%; flex: 0 1 auto; min-width: 0;
   background: linear-gradient(#ccc 1px, transparent 1px) 0 0 / 100% 50%; }}
 #bars div {{ background: #4a78b5; min-height: 1px; }}
-#barlabels {{ display: grid; grid-template-columns: repeat({terminals}, 30px); gap: 3px;
-  font-size: .7em; color: #777; text-align: center;
+#barlabels div {{ display: flex; justify-content: center; }} /* a wide label: centred */
+#barlabels {{ display: grid; grid-template-columns: repeat({terminals}, minmax(0, 30px));
+  gap: 3px; font-size: .7em; color: #777; white-space: nowrap;
   margin-left: calc(3.5em + 11px); }} /* the axis' width, its padding, border and gap */
 </style></head>
 <body>
@@ -104,12 +113,18 @@ re-tare (t)</button></p>
 <script>
 const pressing = {pressing};
 const map = document.getElementById("map");
-map.appendChild(document.createElement("div"));
-for (let x = 1; x <= {size_x}; x++) {{
-  const label = document.createElement("div"); label.textContent = "x" + x; map.appendChild(label);
+// A label's text in a span of its own: its width is the text's, wider or not than its slot.
+function labelled(parent, text, kind) {{
+  const label = document.createElement("div"), span = document.createElement("span");
+  span.textContent = text; label.appendChild(span); label.className = kind;
+  parent.appendChild(label);
+  return label;
 }}
+map.appendChild(document.createElement("div"));
+const xLabels = [], yLabels = [], barLabels = [[]];
+for (let x = 1; x <= {size_x}; x++) xLabels.push(labelled(map, "x" + x, "xlabel"));
 for (let y = {size_y}; y >= 1; y--) {{
-  const label = document.createElement("div"); label.textContent = "y" + y; map.appendChild(label);
+  yLabels.push(labelled(map, "y" + y, "ylabel"));
   for (let x = 1; x <= {size_x}; x++) {{
     const cell = document.createElement("div");
     cell.className = "cell"; cell.id = `cell-${{x}}-${{y}}`; map.appendChild(cell);
@@ -117,12 +132,30 @@ for (let y = {size_y}; y >= 1; y--) {{
   }}
 }}
 const names = {names};
-for (const name of names) {{
+for (const [i, name] of names.entries()) {{
   const bar = document.createElement("div"); bar.id = "bar-" + name;
   document.getElementById("bars").appendChild(bar);
-  const label = document.createElement("div"); label.textContent = name;
-  document.getElementById("barlabels").appendChild(label);
+  // a row/column skin's labels in two runs (x1.., y1..), each thinned from its first
+  if ({row_column} && i === {size_x}) barLabels.push([]);
+  barLabels.at(-1).push(labelled(document.getElementById("barlabels"), name, "barlabel"));
 }}
+// Many terminals in a narrow window: show every k-th label of a run, k the fewest slots
+// its widest label needs (along the run: x across, y down), so that none overlap.
+function thin(runs, across) {{
+  const all = runs.flat();
+  if (all.length < 2) return;
+  for (const label of all) label.classList.remove("thinned");
+  const place = label => label.getBoundingClientRect();
+  const [a, b] = [place(all[0]), place(all[1])];
+  const slot = Math.abs(across ? b.left - a.left : b.top - a.top);
+  const widest = Math.max(...all.map(label => {{
+    const text = place(label.firstChild); return across ? text.width : text.height; }}));
+  const k = slot > 0 ? Math.max(1, Math.ceil((widest + 3) / slot)) : 1;
+  for (const run of runs) run.forEach((label, i) => label.classList.toggle("thinned", i % k !== 0));
+}}
+function fit() {{ thin([xLabels], true); thin([yLabels], false); thin(barLabels, true); }}
+fit();
+addEventListener("resize", fit);
 const text = (id, value) => {{ document.getElementById(id).textContent = value; }};
 const fixed = (v, digits) => v === null || v === undefined ? "–" : v.toFixed(digits);
 // The bars' full height: a round number of counts at or above the largest change (20 at
@@ -151,7 +184,7 @@ function show(state) {{
   showPressed(state.pressed);
   const e = state.estimate;
   if (!e) return;
-  for (const cell of marked) {{ cell.style.background = ""; cell.textContent = ""; }}
+  for (const cell of marked) {{ cell.style.background = ""; cell.replaceChildren(); }}
   marked = [];
   // two contacts under one force sensor: their total force, none per contact
   const total = !("x" in e) && "force" in e;
@@ -164,7 +197,9 @@ function show(state) {{
     const shade = total ? (e.force || 0) / 2 : (f || 0);
     const strength = Math.max(0.25, Math.min(1, shade / 6));
     cell.style.background = `rgba(179, 38, 30, ${{strength}})`;
-    cell.textContent = total ? "" : `${{fixed(f, 1)}} N`;
+    const force = document.createElement("span");  // sized to the cell (its CSS)
+    force.textContent = total ? "" : `${{fixed(f, 1)}} N`;
+    cell.replaceChildren(force);
     marked.push(cell);
   }}
   const contact = document.getElementById("contact");
@@ -362,6 +397,7 @@ class LiveView:
         self.page = PAGE.format(scene=scene, kind=kind, device=device, size_x=skin.size_x,
                                 size_y=skin.size_y, terminals=skin.terminals,
                                 names=json.dumps(bar_names(skin)), press_panel=panel,
+                                row_column=json.dumps(skin.row_column),
                                 pressing=json.dumps(pressing is not None)).encode()
         self.skin, self.pressing = skin, pressing
         self._state: dict[str, Any] = {"estimate": None, "lost": 0, "rejected": 0, "tare": None,
