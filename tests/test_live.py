@@ -39,7 +39,7 @@ from eskin.device.host import HostProtocol, StreamFrame, StreamGap
 from eskin.device.link import SerialLink
 from eskin.device.physics import skin_params
 from eskin.device.protocol import encode_frame
-from eskin.skin import PAPER_SKIN
+from eskin.skin import PAPER_SKIN, ChannelArray, Skin
 from tests.conftest import (
     ROOT,
     acquire_step,
@@ -673,6 +673,94 @@ def test_a_view_of_a_real_board_offers_no_pressing_and_says_why():
     assert "real board" in json.loads(refused.value.read())["error"]
 
 
+
+# --- The page's layout, from 2 × 2 to 32 × 32 in a 1,280 px window (issue 59) ---------
+
+
+def assert_laid_out(layout: dict, width: int) -> None:
+    """Nothing of the page beyond ``width``: no horizontal scroll, the status column whole,
+    every bar and node cell inside, no two cells overlapping, no two labels shown either."""
+    assert layout["width"] == width and layout["scroll_width"] <= width
+    left, right, _, _ = layout["readout"]
+    assert 0 <= left < right <= width and layout["readout_hidden"] == 0
+    for name in ("bars", "bar_labels", "x_labels", "y_labels"):
+        placed = np.array(layout[name])
+        assert (placed[:, 0] >= 0).all() and (placed[:, 1] <= width).all(), name
+    assert (np.diff(np.array(layout["bars"])[:, 1]) > 0).all()  # side by side, in order
+    cells = np.array(list(layout["cells"].values()))
+    assert (cells[:, 0] >= 0).all() and (cells[:, 1] <= width).all()
+    assert (cells[:, 1] - cells[:, 0] >= 12).all()  # still a target for a click
+    for boxes, name in ((cells, "cells"), (np.array(layout["bar_labels"]), "bar labels"),
+                        (np.array(layout["x_labels"]), "x labels"),
+                        (np.array(layout["y_labels"]), "y labels")):
+        (l1, l2), (r1, r2), (t1, t2), (b1, b2) = (
+            np.meshgrid(boxes[:, side], boxes[:, side], indexing="ij") for side in range(4))
+        overlap = (np.maximum(l1, l2) < np.minimum(r1, r2)) \
+            & (np.maximum(t1, t2) < np.minimum(b1, b2))
+        assert not overlap[~np.eye(len(boxes), dtype=bool)].any(), name
+
+
+@needs_chromium
+@pytest.mark.starts
+@pytest.mark.parametrize(("rows", "columns"), [(2, 2), (10, 10), (16, 12), (32, 32)])
+def test_the_live_view_lays_out_any_skin_up_to_32_by_32_in_1280_px(repo_params, rows,
+                                                                     columns):
+    """The page of an R × C skin at 1280 × 800 in headless Chromium, read back from the
+    DOM, while the skin's simulated board streams; a click on the far corner node
+    (R, C) lays the weight there, and the board's frames change most by it."""
+    from harness.live_view_layout import LAYOUT, pressed_page, view_on_the_board
+
+    skin = Skin(rows, columns)
+    with view_on_the_board(typed(repo_params), skin) as (view, failure), \
+            headless_chromium() as browser:
+        page = pressed_page(browser, view, (rows, columns))
+        layout = page.evaluate(LAYOUT)
+        outlined = page.eval_on_selector(f"#cell-{rows}-{columns}",
+                                         "cell => cell.classList.contains('pressed')")
+        change = view_state(view.port)["estimate"]["change_counts"]
+        pressed = view_state(view.port)["pressed"]
+    assert not failure, failure
+    assert_laid_out(layout, 1280)
+    assert len(layout["cells"]) == rows * columns and len(layout["bars"]) == rows + columns
+    if rows * columns <= 16 * 12:  # as before the layout grew: 2.6em cells, 30 px bars
+        assert all(abs(right - left - 41.6) < 0.1 for left, right, _, _ in layout["cells"].values())
+        assert all(abs(right - left - 30) < 0.1 for left, right, _, _ in layout["bars"])
+        assert len(layout["bar_labels"]) == rows + columns
+    else:  # x1, x3, .. y1, y3, ..: every other label of each run
+        assert len(layout["bar_labels"]) == (rows + 1) // 2 + (columns + 1) // 2
+    assert outlined and pressed == [{"x": rows, "y": columns, "force_n": 5.0}]
+    assert int(np.argmax(change[:rows])) + 1 in (rows - 1, rows)
+    assert int(np.argmax(change[rows:])) + 1 in (columns - 1, columns)
+
+
+@needs_chromium
+@pytest.mark.starts
+def test_a_channel_arrays_live_view_is_laid_out_in_1280_px_with_its_own_names():
+    """A skin given by its channels: 40 named channels on an 8 × 5 grid of positions, their
+    bars labelled with their names (every other one: they are long), the contact marked."""
+    from harness.live_view_layout import LAYOUT
+
+    skin = ChannelArray(tuple(f"taxel{i:02d}" for i in range(1, 41)), 8, 5)
+    with LiveView(scene="array", kind="single_force", device="lab", skin=skin) as view, \
+            headless_chromium() as browser:
+        view.show({"seq": 1, "t_ms": 12, "x": 7, "y": 2, "force": 2.5, "contact": True,
+                   "contact_probability": 0.9, "stretch": 1.0, "drift_counts": 0.0,
+                   "change_counts": [float(i) for i in range(40)]})
+        page = browser.new_page(viewport={"width": 1280, "height": 800})
+        page.goto(view.url)
+        page.wait_for_function("document.getElementById('location').textContent === 'x 7, y 2'",
+                               timeout=30_000)
+        layout = page.evaluate(LAYOUT)
+        labels = page.eval_on_selector_all(
+            "#barlabels div", "labels => labels.filter(l => getComputedStyle(l).visibility"
+            " !== 'hidden').map(l => l.textContent)")
+        cell = page.inner_text("#cell-7-2")
+    assert_laid_out(layout, 1280)
+    assert len(layout["cells"]) == 40 and len(layout["bars"]) == 40
+    assert labels == [f"taxel{i:02d}" for i in range(1, 41, 2)]
+    assert cell == "2.5 N"
+
+
 def ask(view: LiveView, body: dict, send) -> list | PressRefused:
     """``POST /press``'s part on the server's thread, the loop's on this one (``send``
     standing for the link): what the requester is answered."""
@@ -743,7 +831,7 @@ import eskin.deploy.stack as stack_module  # first, as `eskin live` imports it
 import numpy as np
 from threadpoolctl import threadpool_info
 from sklearn.ensemble import HistGradientBoostingRegressor  # the models' OpenMP, loaded now
-from eskin.skin import PAPER_SKIN
+from eskin.skin import PAPER_SKIN, ChannelArray, Skin
 
 class Identity:
     def transform(self, X):
