@@ -55,7 +55,7 @@ main {{ display: flex; gap: 2em; align-items: flex-start; }}
 #map .xlabel {{ height: 2.6em; }}
 #map .cell {{ background: #e4e7eb; border-radius: 4px; color: #222; box-sizing: border-box;
   aspect-ratio: 4 / 3; overflow: hidden; container-type: inline-size; }}
-#map .cell span {{ font-size: clamp(7px, 28cqi, 1em); }}
+#map .cell span {{ font-size: clamp(7px, 34cqi, 1em); }} /* 1em (12 px) at full size */
 #map.pressable .cell {{ cursor: pointer; }}
 #map.pressable .cell:hover {{ outline: 2px solid #8fb0dc; }}
 #map .cell.pressed {{ border: 3px dashed #1a5fb4; }}
