@@ -12,6 +12,7 @@ import pytest
 import yaml
 from conftest import typed
 from sklearn.base import clone
+from sklearn.model_selection import StratifiedKFold
 
 from eskin.catalog import (
     METRICS,
@@ -32,7 +33,13 @@ from eskin.data.schema import dataset_skin, md5_file, write_dataset
 from eskin.deploy.export import export_scene
 from eskin.deploy.stack import ExportedStack, SkinStack
 from eskin.deploy.view import LiveView
-from eskin.evaluation.folds import strata, write_scene_folds
+from eskin.evaluation.folds import (
+    coarser_strata,
+    draw_folds,
+    read_fold_notes,
+    strata,
+    write_scene_folds,
+)
 from eskin.evaluation.metrics import position_error_mm
 from eskin.learning import train
 from eskin.learning.choice import model_for_skin
@@ -42,7 +49,7 @@ from eskin.learning.estimators import (
     build_model,
 )
 from eskin.learning.features import featurize_scene
-from eskin.reporting import figures, report
+from eskin.reporting import figures, page, report
 from eskin.skin import ChannelArray, Skin, skin_from_dict
 
 SAMPLES = 4
@@ -382,3 +389,71 @@ def test_the_live_view_draws_the_skins_map_and_channels(skin):
     names = json.loads(page.split("const names = ")[1].split(";")[0])
     assert len(names) == skin.terminals
     assert names[0] == ("x1" if skin.row_column else "m1x")
+
+
+def sampled_once(skin: Skin, stretches=(1.0, 1.07921), forces=(0.0, 1.2936, 3.2536, 5.2136)):
+    """Labels of a planned scene with ``samples: 1``: every node at every stretch and
+    force, one row a trial, and one rest row a stretch (the measured 32 × 32 scene of
+    issue 59: every node 8 rows)."""
+    rows = [(stretch, x, y, force) for stretch in stretches for force in forces
+            for x, y in skin.nodes()] + [(stretch, 0, 0, 0.0) for stretch in stretches]
+    frame = pd.DataFrame(rows, columns=["stretch", "x", "y", "force"])
+    return frame.assign(trial=[f"t{i:05d}" for i in range(len(frame))])
+
+
+def test_folds_a_scene_sampled_once_cannot_stratify_by_node_fall_back_to_blocks():
+    """Issue 59: a 32 × 32 skin sampled once has 8 rows a node, too few for 10 stratified
+    folds; the folds stratify on 2 × 2-node blocks instead, say so, and follow cv.seed."""
+    skin = Skin(32, 32)
+    frame = sampled_once(skin)
+    with pytest.raises(ValueError, match="cannot be greater than the number of members"):
+        StratifiedKFold(10).split(frame, strata(frame, "single_force", skin)).__next__()
+    for scheme in ("stratified", "conditions"):
+        folds, note = draw_folds(frame, "single_force", scheme, 10, 42, skin=skin)
+        assert note.startswith("stratified on 2 × 2-node blocks, not on the node: every node "
+                               "has fewer rows than the 10 folds (at most 8)")
+        assert set(folds) == set(range(10))
+        blocks = next(coarser_strata(frame, "single_force", skin))[1]
+        for fold in range(10):  # each 2 × 2 block has 32 rows: every fold holds each
+            assert set(blocks[folds == fold]) >= set(blocks[blocks > 0])
+        again, other = (draw_folds(frame, "single_force", scheme, 10, seed, skin=skin)[0]
+                        for seed in (42, 43))
+        assert np.array_equal(folds, again) and not np.array_equal(folds, other)
+
+
+def test_folds_fall_back_to_none_where_no_stratum_holds_a_row_a_fold():
+    """A 2 × 2 skin, one row a node and three at rest, 5 folds: neither the node nor
+    pressed-or-not has 5 rows, so the folds are KFold's; fewer rows than folds is refused
+    with the fix."""
+    skin = Skin(2, 2)
+    frame = sampled_once(skin, stretches=(1.0,), forces=(2.0,))
+    frame = pd.concat([frame, frame.tail(1), frame.tail(1)], ignore_index=True)
+    frame["trial"] = [f"t{i}" for i in range(len(frame))]
+    folds, note = draw_folds(frame, "single_force", "stratified", 5, 0, skin=skin)
+    assert note.startswith("not stratified, not on the node")
+    assert sorted(np.bincount(folds)) == [1, 1, 1, 2, 2]
+    with pytest.raises(ValueError, match="needs at least 10 samples; this dataset has 7: "
+                                         "lower cv.folds or acquire more"):
+        draw_folds(frame, "single_force", "stratified", 10, 0, skin=skin)
+
+
+def test_the_folds_file_keeps_the_fallback_for_the_scores_and_the_report(tmp_path):
+    """The folds stage's line and file say how a scheme fell back; the results page says
+    it from the scores; a scene that stratifies by node writes no note."""
+    skin = Skin(4, 4)
+    frame = row_column_dataset(skin, [1, 2, 3, 4], [1, 2, 3, 4])
+    features = tmp_path / "features.parquet"
+    write_dataset(frame, "single_force", features, {"kind": "single_force"}, skin=skin)
+    said = write_scene_folds(features, tmp_path / "paper.parquet", scene="lab",
+                             schemes=["stratified", "conditions"], n_splits=7, seed=1)
+    assert "note" not in said and read_fold_notes(tmp_path / "paper.parquet") == {}
+    once = frame.groupby("trial").head(1)  # 4 rows a node, 6 at rest: fewer than 7 folds
+    write_dataset(once, "single_force", features, {"kind": "single_force"}, skin=skin)
+    said = write_scene_folds(features, tmp_path / "once.parquet", scene="lab",
+                             schemes=["stratified", "conditions"], n_splits=7, seed=1)
+    notes = read_fold_notes(tmp_path / "once.parquet")
+    assert set(notes) == {"stratified", "conditions"}
+    assert said.endswith(f"; stratified and conditions CV {notes['stratified']}")
+    scores = {"force": {"status": "skipped", "reason": "why", "fold_notes": notes}}
+    assert (f"- lab conditions CV folds: {notes['conditions']}"
+            in page.results_markdown([("lab", "single_force", skin, scores)]))

@@ -32,6 +32,8 @@ import numpy as np
 import pandas as pd
 from sklearn.model_selection import (
     BaseCrossValidator,
+    GroupKFold,
+    KFold,
     PredefinedSplit,
     StratifiedGroupKFold,
     StratifiedKFold,
@@ -111,45 +113,105 @@ def applicable_schemes(frame: pd.DataFrame, kind: str, schemes: list[str]) -> li
     return [s for s in schemes if s != "trials" or repeated_conditions(frame, kind)]
 
 
-def assign_folds(frame: pd.DataFrame, kind: str, scheme: str, n_splits: int,
-                 seed: int, *, skin: AnySkin) -> np.ndarray:
-    """Fold number (0..n_splits-1) of every row (on ``skin``), where it is a test sample."""
+def coarser_strata(frame: pd.DataFrame, kind: str, skin: AnySkin):
+    """Coarser strata than :func:`strata`, finest first, each as (what it is, a stratum per
+    row): each contact's node taken in blocks of 2 × 2 nodes, 4 × 4, … up to the whole
+    skin (pressed or not). What a split falls back to where every node (or pair) has fewer
+    rows than folds."""
+    positions = list(get_kind(kind).positions.values())
+    block, previous = 2, None
+    while True:
+        size_x, size_y = -(-skin.size_x // block), -(-skin.size_y // block)
+        out = np.zeros(len(frame), dtype=np.int64)
+        for x, y in positions:
+            bx = np.where(frame[x].to_numpy() > 0, (frame[x].to_numpy(np.int64) - 1) // block, -1)
+            by = (frame[y].to_numpy(np.int64) - 1) // block
+            node = np.where(bx >= 0, bx * size_y + by + 1, 0)
+            out = out * (size_x * size_y + 1) + node
+        whole = size_x == 1 and size_y == 1
+        what = "pressed or not" if whole else f"{block} × {block}-node blocks"
+        if len(np.unique(out)) > 1 and (previous is None
+                                        or len(np.unique(out)) < len(np.unique(previous))):
+            yield what, out
+        if whole:
+            return
+        block, previous = block * 2, out
+
+
+def _split(scheme: str, n_splits: int, seed: int, labels: np.ndarray | None,
+           groups: np.ndarray) -> np.ndarray:
+    """Fold number of each row under ``scheme``'s splitter: stratified on ``labels``, or
+    (``labels`` None) unstratified; raises scikit-learn's ValueError where it cannot."""
+    rows = np.zeros(len(groups))
+    if scheme == "stratified":
+        splitter = (StratifiedKFold if labels is not None else KFold)(
+            n_splits, shuffle=True, random_state=seed)
+        splits = splitter.split(rows, labels)
+    else:
+        splitter = (StratifiedGroupKFold if labels is not None else GroupKFold)(
+            n_splits, shuffle=True, random_state=seed)
+        splits = splitter.split(rows, labels, groups)
+    folds = np.full(len(groups), -1, dtype=np.int64)
+    with warnings.catch_warnings():
+        # A stratum smaller than the fold count is legal and common in small scenes;
+        # the split is still valid, only less balanced. Say it once, not per call.
+        warnings.filterwarnings("ignore", message="The least populated class")
+        for fold, (_, test) in enumerate(splits):
+            folds[test] = fold
+    return folds
+
+
+def draw_folds(frame: pd.DataFrame, kind: str, scheme: str, n_splits: int,
+               seed: int, *, skin: AnySkin) -> tuple[np.ndarray, str]:
+    """Fold number (0..n_splits-1) of every row (on ``skin``), where it is a test sample,
+    and a note: empty where the scheme split on its own strata (the node, or the pair of
+    nodes), else how it fell back and why. Where every node has fewer rows than folds
+    (a large skin sampled once), stratification falls back to coarser strata
+    (:func:`coarser_strata`), then to none (``KFold``, ``GroupKFold``), each seeded with
+    ``seed``. A dataset with fewer rows (or conditions) than folds is refused."""
     if scheme not in SCHEMES:
         raise ValueError(f"cv scheme must be one of {SCHEMES}, got {scheme!r}")
     if n_splits < 2:
         raise ValueError(f"cv.folds must be at least 2, got {n_splits}")
     if scheme == "trials":
-        return _trial_folds(frame, kind, n_splits, seed)
+        return _trial_folds(frame, kind, n_splits, seed), ""
     labels = strata(frame, kind, skin)
     groups = condition_groups(frame, kind) if scheme == "conditions" else frame["trial"].to_numpy()
     n_groups = len(np.unique(groups))
     if scheme == "conditions" and n_groups < n_splits:
         raise ValueError(f"conditions CV with {n_splits} folds needs at least {n_splits} "
-                         f"conditions; this dataset has {n_groups}")
+                         f"conditions; this dataset has {n_groups}: lower cv.folds to "
+                         f"{max(n_groups, 2)} or acquire more conditions")
     if scheme == "stratified" and len(frame) < n_splits:
         raise ValueError(f"{n_splits}-fold CV needs at least {n_splits} samples; "
-                         f"this dataset has {len(frame)}")
-    folds = np.full(len(frame), -1, dtype=np.int64)
-    with warnings.catch_warnings():
-        # A stratum smaller than the fold count is legal and common in small scenes;
-        # the split is still valid, only less balanced. Say it once, not per call.
-        warnings.filterwarnings("ignore", message="The least populated class")
-        if scheme == "stratified":
-            splitter = StratifiedKFold(n_splits, shuffle=True, random_state=seed)
-            splits = splitter.split(np.zeros(len(frame)), labels)
-        else:
-            splitter = StratifiedGroupKFold(n_splits, shuffle=True, random_state=seed)
-            splits = splitter.split(np.zeros(len(frame)), labels, groups)
+                         f"this dataset has {len(frame)}: lower cv.folds or acquire more")
+    try:
+        return _split(scheme, n_splits, seed, labels, groups), ""
+    except ValueError as err:  # scikit-learn's words, without the dataset's numbers
+        refused = err
+    largest = int(pd.Series(labels).value_counts().max())
+    node = "pair of nodes" if len(get_kind(kind).positions) > 1 else "node"
+    why = (f"every {node} has fewer rows than the {n_splits} folds (at most {largest}); "
+           "more samples per condition, or fewer folds, keeps the node strata")
+    for what, coarse in [*coarser_strata(frame, kind, skin), ("nothing", None)]:
         try:
-            for fold, (_, test) in enumerate(splits):
-                folds[test] = fold
-        except ValueError as err:  # scikit-learn's words, without the dataset's numbers
-            smallest = int(pd.Series(labels).value_counts().min())
-            raise ValueError(
-                f"{scheme} CV with {n_splits} folds cannot split this dataset ({len(frame)} "
-                f"samples, {n_groups} trials, smallest stratum {smallest} sample(s)): {err} "
-                "Acquire more samples or lower cv.folds.") from None
-    return folds
+            folds = _split(scheme, n_splits, seed, coarse, groups)
+        except ValueError:
+            continue
+        how = "not stratified" if coarse is None else f"stratified on {what}"
+        return folds, f"{how}, not on the {node}: {why}"
+    smallest = int(pd.Series(labels).value_counts().min())
+    raise ValueError(
+        f"{scheme} CV with {n_splits} folds cannot split this dataset ({len(frame)} "
+        f"samples, {n_groups} trials, smallest stratum {smallest} sample(s)): {refused} "
+        "Acquire more samples or lower cv.folds.")
+
+
+def assign_folds(frame: pd.DataFrame, kind: str, scheme: str, n_splits: int,
+                 seed: int, *, skin: AnySkin) -> np.ndarray:
+    """Fold number (0..n_splits-1) of every row (on ``skin``), where it is a test sample
+    (:func:`draw_folds`, without its note)."""
+    return draw_folds(frame, kind, scheme, n_splits, seed, skin=skin)[0]
 
 
 class FoldSplit(BaseCrossValidator):
@@ -210,27 +272,44 @@ def write_scene_folds(features: Path, out: Path, *, schemes: list[str], n_splits
                       seed: int, scene: str) -> str:
     """Every scheme's fold numbers for a scene's rows, drawn once (the folds stage): one
     column per scheme, in ``schemes``' order, beside the row's trial (checked by
-    :func:`read_scene_folds`). Every task and model variant of the scene reads them."""
+    :func:`read_scene_folds`). Every task and model variant of the scene reads them. A
+    scheme that fell back (:func:`draw_folds`) says how in the file's ``fold_notes``
+    attribute (:func:`read_fold_notes`; absent where none did, so such files keep their
+    bytes) and in the returned line."""
     from eskin.data.schema import dataset_kind, dataset_skin, read_dataset
 
     frame = read_dataset(features)
     kind, skin = dataset_kind(features).name, dataset_skin(features)
     columns = {"trial": frame["trial"].to_numpy()}
+    notes: dict[str, str] = {}
     drawn = applicable_schemes(frame, kind, schemes)
     for scheme in drawn:
         try:
-            columns[scheme] = assign_folds(frame, kind, scheme, n_splits, seed, skin=skin)
+            columns[scheme], note = draw_folds(frame, kind, scheme, n_splits, seed, skin=skin)
         except ValueError as err:
             raise ValueError(f"scenes.{scene} ({features}): {err}") from None
+        if note:
+            notes[scheme] = note
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    pd.DataFrame(columns).to_parquet(out, index=False)
+    table = pd.DataFrame(columns)
+    if notes:
+        table.attrs["fold_notes"] = notes
+    table.to_parquet(out, index=False)
     left = [s for s in schemes if s not in drawn]
     return (f"{scene}: {n_splits} folds of {len(frame):,} rows, "
             f"{len(np.unique(columns['trial'])):,} trials, for {', '.join(drawn)} CV"
             + (f"; not {', '.join(left)}: a condition has only one trial (or a trial "
                f"several conditions); scenes.{scene}.repeats: 2 or more allows it"
-               if left else ""))
+               if left else "")
+            + "".join(f"; {' and '.join(s for s in notes if notes[s] == note)} CV {note}"
+                      for note in dict.fromkeys(notes.values())))
+
+
+def read_fold_notes(path: Path) -> dict[str, str]:
+    """How each scheme of the folds file at ``path`` fell back from its node strata, by
+    scheme (:func:`draw_folds`); empty where none did."""
+    return dict(pd.read_parquet(path, columns=["trial"]).attrs.get("fold_notes", {}))
 
 
 def read_scene_folds(path: Path, frame: pd.DataFrame) -> dict[str, np.ndarray]:

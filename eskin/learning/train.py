@@ -29,7 +29,7 @@ from eskin.data.schema import (
     read_metadata,
 )
 from eskin.evaluation.crossval import cross_validate, fit_final, parallel_backend
-from eskin.evaluation.folds import read_scene_folds
+from eskin.evaluation.folds import read_fold_notes, read_scene_folds
 from eskin.evaluation.outputs import save_predictions, write_json
 from eskin.evaluation.tasks import Task, get_task
 from eskin.learning.choice import chosen_model
@@ -121,6 +121,11 @@ def train(scene: str, task_name: str, *, task_params: TaskModels, configuration:
     confusion = {r.scheme: r.confusion for r in results if r.confusion}
     if confusion:
         scores_doc["confusion"] = confusion
+    # only where a scheme fell back from its node strata: other scores keep their bytes
+    written = read_fold_notes(folds_path)
+    fold_notes = {r.scheme: written[r.scheme] for r in results if r.scheme in written}
+    if fold_notes:
+        scores_doc["fold_notes"] = fold_notes
     write_json(scores_doc, scores_path)
     if lineage_path is not None:
         write_json({**header, "status": "trained", "features_md5": md5_file(source)},
@@ -139,6 +144,8 @@ def train(scene: str, task_name: str, *, task_params: TaskModels, configuration:
     headline = ", ".join(f"{r.scheme} {_headline(task, r.summary)}" for r in results)
     notes = "".join(f"\n  note ({r.scheme}, {n} of {len(r.per_fold[next(iter(r.per_fold))])} "
                     f"folds): {text}" for r in results for text, n in sorted(r.notes.items()))
+    notes = "".join(f"\n  note ({scheme} folds): {note}"
+                    for scheme, note in fold_notes.items()) + notes
     if model_note:
         notes = f"\n  note: {model_note}" + notes
     return Trained(scene, task_name, model_name, "trained",

@@ -129,6 +129,15 @@ def skipped(scores: Mapping[str, Mapping]) -> list[tuple[str, str]]:
         for what, reason in (document.get("skipped_scores") or {}).items()]
 
 
+def fold_notes(scores: Mapping[str, Mapping]) -> list[tuple[str, str]]:
+    """(scheme, note) of each CV scheme whose folds fell back from the node strata (the
+    folds stage's ``fold_notes``, which every task of the scene carries alike)."""
+    notes: dict[str, str] = {}
+    for document in scores.values():
+        notes.update(document.get("fold_notes") or {})
+    return list(notes.items())
+
+
 def results_markdown(scenes: Scenes) -> str:
     """The results page: each scene's dataset version and headline table beside the paper.
 
@@ -146,6 +155,8 @@ def results_markdown(scenes: Scenes) -> str:
             about += f"; skin: {skin_note(skin)}"
         skips = "".join(f"\n- {scene}/{task} skipped: {reason}"
                         for task, reason in skipped(scores))
+        skips += "".join(f"\n- {scene} {scheme} CV folds: {note}"
+                         for scheme, note in fold_notes(scores))
         parts.append(f"## {scene} ({get_kind(kind).label})\n\n{about}.\n\n"
                      f"{headline_markdown(kind, scores, skin)}" + (f"\n{skips}" if skips else ""))
     return "\n\n".join(parts) + "\n\nMean ± std over folds.\n"
@@ -276,6 +287,7 @@ def render_page(scenes: Scenes, figures: Mapping[str, list[FigureRow]],
         "headline": headline_rows(kind, scores, skin),
         "columns": headline_columns(scores, kind, skin),
         "skipped": skipped(scores),
+        "fold_notes": fold_notes(scores),
         "figures": [{"id": row.id, "title": row.title, "caption": row.caption,
                      "legible": row.legible_width(),
                      "schemes": [{"scheme": scheme, "id": f"{row.id}_{scheme}",
