@@ -500,7 +500,8 @@ def build_parser() -> argparse.ArgumentParser:
                   ("eskin plan two_force --target localise_accuracy=0.9", "and for two forces"),
                   note="Targets are <task>_<metric>: force_r2, localise_accuracy, "
                   "detect_accuracy,\nstretch_r2. An answer says impossible where the Bayes "
-                  "bound forbids the target,\nand beyond the floor where the model levels off "
+                  "bound forbids the target\n(NOT converged, and no limit, where doubling the "
+                  "bound's grid moved it),\nand beyond the floor where the model levels off "
                   "below it."),
         interrupted=NOTHING_CHANGED)
     plan.add_argument("scene", help="a scene, e.g. single_force")

@@ -321,3 +321,31 @@ def test_the_pair_bound_converges_and_no_strong_model_beats_it(two_contacts):
                 assert r2_score(y[test], predicted) < r2_score(y[test], answers[target]), target
             else:
                 assert np.mean(predicted == y[test]) <= np.mean(answers[target] == y[test]), target
+
+
+def test_the_bench_says_where_its_bound_has_not_converged():
+    """Issue 59: on a 2 × 2 skin doubling the oracle's grid moved force MSE/var by 0.0102.
+    The summary's heading, its targets and the figure's legend say NOT converged; a bound
+    that converged is printed as a bound."""
+    scores = {"force": {"r2": 0.9, "r2_std": 0.01}}
+    entry = {"variants": {"m": {"scores": scores, "seconds_per_fold": 1.0}},
+             "bayes_bound": {"scores": {"force": {"r2": 0.95, "r2_std": 0.01}}, "error": 0.05},
+             "pareto_front": ["m"], "gap_closed": {"m": 0.5, "paper": 0.0}}
+    doc = {"kind": "single_force", "task": "force", "default": "m",
+           "schemes": {"conditions": entry},
+           "bayes_bound_convergence": {"force_mse": 0.0102, "x_accuracy": 0.0}}
+    moved = ", NOT converged: doubling the integration moves force_mse by 0.0102"
+    texts = [t["text"] for t in benchmark.targets(doc).values()]
+    assert texts and all(text.endswith(moved) for text in texts)
+    summary = benchmark.summary_markdown("s", {"force": doc}, {"targets": {}})
+    assert f"## force — conditions CV (Bayes bound error 0.0500{moved})" in summary
+    figure = benchmark.benchmark_figure(doc)
+    assert [t.get_text() for t in figure.axes[0].get_legend().get_texts()][-1] == (
+        "Bayes bound (NOT converged)")
+    import matplotlib.pyplot as plt
+
+    plt.close(figure)
+    doc["bayes_bound_convergence"] = {"force_mse": 0.0002}
+    assert not any("converged" in t["text"] for t in benchmark.targets(doc).values())
+    assert "(Bayes bound error 0.0500)" in benchmark.summary_markdown("s", {"force": doc},
+                                                                      {"targets": {}})

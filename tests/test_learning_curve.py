@@ -397,3 +397,41 @@ def test_the_plan_check_records_fresh_repetitions_and_fails_a_plan_that_misses(p
         recordings=3, log=lambda _: None)
     assert refused["checks"][0]["verdict"] == "impossible"
     assert "trained_on" not in refused and "scores" not in refused["checks"][0]
+
+
+# Doubling the oracle's grid on a 2 × 2 skin (issue 59: 3 stretches × 4 forces × 4
+# nodes, 5 samples, 300 rows) moved force MSE/var by 0.0102 and stretch by 0.0220.
+TWO_BY_TWO_MOVES = {"contact_accuracy": 0.0, "force_mse": 0.0102, "stretch_mse": 0.0220}
+
+
+def test_a_bound_that_has_not_converged_is_no_limit_and_every_answer_says_so():
+    """Issue 59: a bound whose doubled grid moved a score is printed as NOT converged by
+    the planner, its table and the curves' page, and no target above it is impossible."""
+    document = synthetic()
+    force = document["tasks"]["force"]
+    force["bound"].update(convergence=TWO_BY_TWO_MOVES, converged=False)
+    above = planning.plan(document, "force_r2", 0.98, COSTS)
+    assert above["verdict"] == "beyond an unconverged bound"
+    said = planning.describe(above, COSTS)
+    assert ("beyond the Bayes bound's 0.9750, which has NOT converged: doubling its "
+            "integration moves stretch_mse by 0.0220: an estimate, not a limit") in said
+    floor = planning.plan(document, "force_r2", 0.965, COSTS)
+    assert "(the bound is 0.9750, NOT converged: doubling" in floor["why"]
+    assert "of the way to a bound NOT converged: doubling" in planning.plan_table(document,
+                                                                                   COSTS)
+    document.update(held_out_rows=1212, trials="1..10")
+    force["flattens_at"] = 10
+    page = learning_curve.render(document, COSTS)
+    assert "| Bayes bound (draw 0, NOT converged) | — | 0.9750 |" in page
+    assert ("The Bayes bound has NOT converged: doubling its integration moves stretch_mse "
+            "by 0.0220: an estimate, not a limit.") in page
+    # converged: a limit, said plainly; a curve written before the check: not checked
+    force["bound"]["converged"] = True
+    assert planning.plan(document, "force_r2", 0.98, COSTS)["why"] == (
+        "impossible, the bound is 0.9750: no model of these readings scores more")
+    assert "NOT converged" not in learning_curve.render(document, COSTS)
+    force["bound"] = {"headline": 0.975}
+    assert planning.plan(document, "force_r2", 0.98, COSTS)["why"].endswith(
+        "scores more (convergence not checked)")
+    assert "Bayes bound (draw 0, convergence not checked)" in learning_curve.render(
+        document, COSTS)

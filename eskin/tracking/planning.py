@@ -136,7 +136,10 @@ def plan(document: Mapping[str, Any], target: str, value: float, settings: Any) 
     Verdicts: ``reliable`` (the lower end reaches it within the measured points: a promise),
     ``extrapolated`` (the lower end's curve reaches it past them: no promise), ``not
     reliably`` (the mean's curve reaches it, the lower end's never does), ``beyond the
-    floor``, ``out of reach``, ``impossible`` (beyond the bound), ``unknown``."""
+    floor``, ``out of reach``, ``impossible`` (beyond the bound), ``beyond an unconverged
+    bound`` (beyond a bound whose integration has not converged: no limit), ``unknown``.
+    An answer that quotes the bound says where it has not converged
+    (:func:`bound_caveat`)."""
     tasks = document["tasks"]
     known = {target_key(name, entry["metric"]): name for name, entry in tasks.items()
              if "metric" in entry}
@@ -150,10 +153,15 @@ def plan(document: Mapping[str, Any], target: str, value: float, settings: Any) 
                               "model": entry["model"], "draws": draws,
                               "reliability": reliability}
     bound = entry.get("bound", {}).get("headline")
+    caveat = bound_caveat(entry.get("bound", {}))
+    if bound is not None and value > bound and entry["bound"].get("converged") is False:
+        return {**answer, "verdict": "beyond an unconverged bound",
+                "why": f"beyond the Bayes bound's {bound:.4f}, which has {caveat}: an "
+                       "estimate, not a limit; no count of trials is read past it"}
     if bound is not None and value > bound:
         return {**answer, "verdict": "impossible",
                 "why": f"impossible, the bound is {bound:.4f}: no model of these readings "
-                       f"scores more"}
+                       f"scores more" + (f" ({caveat})" if caveat else "")}
     fit, low_fit = entry.get("fit"), entry.get("low_fit")
     if fit is None or low_fit is None:
         return {**answer, "verdict": "unknown", "why": "the curve has too few points to fit"}
@@ -177,8 +185,9 @@ def plan(document: Mapping[str, Any], target: str, value: float, settings: Any) 
     if low_r is None:
         return {**answer, "verdict": "beyond the floor",
                 "why": f"beyond the floor: {entry['model']} levels off at "
-                       f"{entry['floor_score']:.4f}" + (f" (the bound is {bound:.4f}: a "
-                                                       "better model, not more data)"
+                       f"{entry['floor_score']:.4f}" + (f" (the bound is {bound:.4f}"
+                                                       + (f", {caveat}" if caveat else "")
+                                                       + ": a better model, not more data)"
                                                        if bound is not None else "")}
     r = low_r
     trials = r * document["conditions"]
@@ -199,6 +208,19 @@ def plan(document: Mapping[str, Any], target: str, value: float, settings: Any) 
             "sampling_s": sampling_s, "placing_s": placing_s,
             "bench_h": (sampling_s + placing_s) / 3600, "extrapolated": extrapolated,
             "why": why}
+
+
+def bound_caveat(bound: Mapping[str, Any]) -> str:
+    """'' for a Bayes bound whose integration converged (harness/learning_curve.py's
+    ``converged``); else ``NOT converged`` and what doubling its grid moved, or
+    ``convergence not checked`` (a curve written before the check was kept with it)."""
+    if "headline" not in bound or bound.get("converged") is True:
+        return ""
+    moves = bound.get("convergence") or {}
+    if bound.get("converged") is False and moves:
+        worst = max(moves, key=moves.get)
+        return f"NOT converged: doubling its integration moves {worst} by {moves[worst]:.4f}"
+    return "convergence not checked"
 
 
 # The verdicts that come with a count of repetitions and its cost.
@@ -236,14 +258,17 @@ def plan_table(document: Mapping[str, Any], settings: Any) -> str:
         first = entry["points"][0]["headline"]
         bound = entry.get("bound", {}).get("headline")
         ceiling = bound if bound is not None else 1.0
+        caveat = bound_caveat(entry.get("bound", {}))
+        to = f" to a bound {caveat}" if caveat else ""
         if ceiling - first < FLAT_GAIN:
             rows.append(f"| {name} | — | 1 | — | — | within {FLAT_GAIN} of "
-                        f"{'the bound' if bound is not None else '1'} at one trial |")
+                        f"{'the bound' if bound is not None else '1'} at one trial"
+                        f"{f' ({caveat})' if caveat else ''} |")
             continue
         for share in (0.25, 0.5, 0.75):
             value = first + share * (ceiling - first)
             answer = plan(document, key, value, settings)
-            target = f"{key} ≥ {value:.4f} ({share:.0%} of the way)"
+            target = f"{key} ≥ {value:.4f} ({share:.0%} of the way{to})"
             mean = answer.get("mean_repeats") or "—"
             if answer["verdict"] in COUNTED:
                 rows.append(f"| {name} | {target} | {mean} | {answer['repeats']} | "
