@@ -446,7 +446,8 @@ def test_the_folds_file_keeps_the_fallback_for_the_scores_and_the_report(tmp_pat
     write_dataset(frame, "single_force", features, {"kind": "single_force"}, skin=skin)
     said = write_scene_folds(features, tmp_path / "paper.parquet", scene="lab",
                              schemes=["stratified", "conditions"], n_splits=7, seed=1)
-    assert "note" not in said and read_fold_notes(tmp_path / "paper.parquet") == {}
+    assert said == "lab: 7 folds of 280 rows, 70 trials, for stratified, conditions CV"
+    assert read_fold_notes(tmp_path / "paper.parquet") == {}
     once = frame.groupby("trial").head(1)  # 4 rows a node, 6 at rest: fewer than 7 folds
     write_dataset(once, "single_force", features, {"kind": "single_force"}, skin=skin)
     said = write_scene_folds(features, tmp_path / "once.parquet", scene="lab",
@@ -457,3 +458,26 @@ def test_the_folds_file_keeps_the_fallback_for_the_scores_and_the_report(tmp_pat
     scores = {"force": {"status": "skipped", "reason": "why", "fold_notes": notes}}
     assert (f"- lab conditions CV folds: {notes['conditions']}"
             in page.results_markdown([("lab", "single_force", skin, scores)]))
+
+
+def test_training_on_fallen_back_folds_keeps_their_note_in_its_scores(params, tmp_path):
+    """The scores file and the training's line carry the folds stage's note."""
+    skin = Skin(4, 4)
+    once = row_column_dataset(skin, [1, 2, 3, 4], [1, 2, 3, 4]).groupby("trial").head(1)
+    write_dataset(once, "single_force", tmp_path / processed_path("lab"),
+                  {"kind": "single_force", "scene": "lab",
+                   "source": {"kind": "import", "path": "lab.csv", "sha256": "0" * 64}},
+                  skin=skin)
+    featurize_scene("lab", tmp_path / "data/processed", tmp_path / "data/features",
+                    tmp_path / "models", settings=params.featurize)
+    write_scene_folds(tmp_path / features_path("lab"), tmp_path / folds_path("lab"),
+                      schemes=["stratified", "conditions"], n_splits=7, seed=1, scene="lab")
+    notes = read_fold_notes(tmp_path / folds_path("lab"))
+    done = train.train("lab", "stretch", task_params=params.train.stretch,
+                       configuration=params.train.configuration, cv=params.cv,
+                       features_dir=tmp_path / "data/features",
+                       **{name: tmp_path / path
+                          for name, path in task_outputs("lab", "stretch").items()})
+    scores = json.loads((tmp_path / task_outputs("lab", "stretch")["scores_path"]).read_text())
+    assert scores["fold_notes"] == notes and set(notes) == {"stratified", "conditions"}
+    assert f"\n  note (conditions folds): {notes['conditions']}" in done.summary
