@@ -187,8 +187,8 @@ def draw_folds(frame: pd.DataFrame, kind: str, scheme: str, n_splits: int,
                          f"this dataset has {len(frame)}: lower cv.folds or acquire more")
     try:
         return _split(scheme, n_splits, seed, labels, groups), ""
-    except ValueError as err:  # scikit-learn's words, without the dataset's numbers
-        refused = err
+    except ValueError as err:  # every stratum smaller than the folds: coarser ones follow
+        refused = err  # scikit-learn's words, said with the dataset's numbers if all fail
     largest = int(pd.Series(labels).value_counts().max())
     node = "pair of nodes" if len(get_kind(kind).positions) > 1 else "node"
     why = (f"every {node} has fewer rows than the {n_splits} folds (at most {largest}); "
