@@ -589,3 +589,13 @@ def test_the_figure_cache_redraws_only_the_figures_whose_data_changed(tmp_path):
                         presentation.figures(get_kind("single_force"))) * len(SETTINGS.schemes)
     assert len(_cached_figures(cache) - before) == force_figures > 0
     assert files(tmp_path / "changed") == files(run(tmp_path / "redrawn", None).figures_dir.parent)
+
+
+def test_a_project_of_one_contact_scenes_still_has_its_pairs_directory(tmp_path):
+    """reports/pairs is the report stage's DVC output: DVC refuses a stage whose output is
+    missing, so the directory is made (empty) where no scene has two contacts — as a lab
+    with one-contact skins only found (`dvc repro`: "output 'reports/pairs' does not
+    exist")."""
+    pairs_dir = tmp_path / "reports" / "pairs"
+    report._score_pairs({"lab8": {"stretch": {}}}, {"lab8": {}}, pairs_dir, tmp_path / "scores")
+    assert pairs_dir.is_dir() and not any(pairs_dir.iterdir())

@@ -236,8 +236,11 @@ def _score_pairs(scores: dict[str, dict[str, Any]],
                  pairs_dir: Path | None, scores_dir: Path) -> None:
     """Each scene's contacts scored as sets, added to its scores (last, as ``pairs``) and
     written where the scene has two contacts (a one-contact scene's says why it has none,
-    on the page, and has no file). A file left by a scene since removed is deleted."""
+    on the page, and has no file). A file left by a scene since removed is deleted. The
+    directory is made even when no scene has two contacts: it is the report stage's DVC
+    output, which must exist."""
     if pairs_dir is not None:
+        pairs_dir.mkdir(parents=True, exist_ok=True)
         for stale in pairs_dir.glob("*.json"):
             if stale.stem not in scores:
                 stale.unlink()
