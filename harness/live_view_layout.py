@@ -28,7 +28,8 @@ from typing import Any
 import numpy as np
 
 from eskin.deploy.view import LiveView, Pressing
-from eskin.skin import Skin
+from eskin.kinds import ONE_CONTACT
+from eskin.skin import Skin, skin_from_dict
 
 UNTOUCHED_FRAMES = 20
 CONTACT_COUNTS = 8.0  # on a row and a column: a touch (the untouched noise is about ±3)
@@ -95,7 +96,7 @@ def view_on_the_board(params, skin: Skin, *, weight_n: float = 5.0
             failure.append(err)
             shown.set()
 
-    with LiveView(scene=f"{skin.rows}x{skin.columns}", kind="single_force", device="sim",
+    with LiveView(scene=f"{skin.rows}x{skin.columns}", kind=ONE_CONTACT.name, device="sim",
                   skin=skin, pressing=Pressing(weight_n, (weight_n,))) as view:
         worker = threading.Thread(target=loop, args=(view,), daemon=True)
         worker.start()
@@ -144,7 +145,7 @@ def main() -> int:
     out = Path(sys.argv[1] if len(sys.argv) > 1 else ".")
     params = load_params(Params)
     with headless_chromium() as browser:
-        for skin in (Skin(10, 10), Skin(32, 32)):
+        for skin in (skin_from_dict({"rows": n, "columns": n}) for n in (10, 32)):
             with view_on_the_board(params, skin) as (view, _):
                 page = pressed_page(browser, view, (skin.rows, skin.columns))
                 path = out / f"live-{skin.rows}x{skin.columns}.png"

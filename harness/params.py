@@ -51,6 +51,7 @@ class Bench(Section):
     n_jobs: Jobs
     backend: Backend
     import_rows: list[Count] = []
+    localise_sizes: list[Annotated[int, Field(ge=2, le=32)]] = []  # localise_cost's N × N skins
     repro_baseline: str = ""  # the revision make bench's repro_speed times against
     tasks: dict[str, dict[str, Variant]]
 

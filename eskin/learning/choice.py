@@ -31,8 +31,8 @@ ROW_COLUMN_MODELS: dict[str, str] = {"physics_profile": "hist_gradient_boosting"
 # Models whose fit grows with the channels times the nodes of an axis, each with the model
 # a skin of longer axes trains instead and the most terminals an axis may have for the
 # first. A multinomial logistic regression on every channel (Newton's Hessian is that
-# product squared) cost per row, against the paper's 10 × 10: 1.6× at 12 × 12, 2.9× at 14,
-# 3.9× at 16, 45× at 32; PeakWindow's, 2.0× at 32 (harness/localise_cost.py).
+# product squared) costs per row, past 14 terminals an axis, over 3× what it costs on the
+# paper's 10 × 10; PeakWindow hardly grows (make bench's localise_cost, docs/learning.md).
 LONG_AXIS_MODELS: dict[tuple[str, str], tuple[str, int]] = {
     ("localise", "logistic"): ("peak_window", 14)}
 
