@@ -383,9 +383,9 @@ def test_a_large_confusion_grid_is_coloured_not_written_in():
 def test_the_live_view_draws_the_skins_map_and_channels(skin):
     with LiveView(scene="lab", kind="single_force", device="sim", skin=skin) as view:
         page = view.page.decode()
-    assert f"repeat({skin.size_x}, 2.6em)" in page and f"y <= {skin.size_y}" not in page
+    assert f"repeat({skin.size_x}, minmax(0, 2.6em))" in page and f"y <= {skin.size_y}" not in page
     assert f"for (let y = {skin.size_y}; y >= 1; y--)" in page
-    assert f"repeat({skin.terminals}, 30px)" in page
+    assert f"repeat({skin.terminals}, minmax(0, 30px))" in page
     names = json.loads(page.split("const names = ")[1].split(";")[0])
     assert len(names) == skin.terminals
     assert names[0] == ("x1" if skin.row_column else "m1x")
