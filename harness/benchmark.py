@@ -224,6 +224,7 @@ def benchmark_task(task: Task, frame: pd.DataFrame, kind: str, variants: Mapping
 # ---------------------------------------------------------------- pipeline steps
 
 CONVERGENCE_ROWS = 200  # samples on which the one-contact bound doubles its grid (two: all)
+MAX_DOUBLINGS = 2  # grids doubled, at most, until the one-contact bound converges
 
 
 def bayes_bound(scene: str, settings: Scene, dataset_path: Path, out_path: Path, *, sim: Sim,
@@ -273,10 +274,18 @@ def bayes_bound(scene: str, settings: Scene, dataset_path: Path, out_path: Path,
             seed=int(seed), progress=progress)
         answers, moves = found.all, pair_oracle.convergence(found, frame)
     else:
-        answers = oracle.posterior_predictions(frame, sim, *conditions, skin=skin,
+        # the finest grid needed: doubled while doubling it moves a score (a 2 × 2 skin's
+        # placement offsets need twice the paper skin's points; issue 59)
+        grid = oracle.FINE
+        for doubling in range(MAX_DOUBLINGS + 1):
+            log(f"  {scene} Bayes bound: doubling the grid on {CONVERGENCE_ROWS} samples")
+            moves = oracle.convergence(frame, sim, *conditions, skin=skin, grid=grid,
+                                       rows=CONVERGENCE_ROWS)
+            if max(moves.values()) < oracle.CONVERGED or doubling == MAX_DOUBLINGS:
+                break
+            grid = grid.doubled()
+        answers = oracle.posterior_predictions(frame, sim, *conditions, skin=skin, grid=grid,
                                                progress=progress)
-        log(f"  {scene} Bayes bound: doubling the grid on {CONVERGENCE_ROWS} samples")
-        moves = oracle.convergence(frame, sim, *conditions, skin=skin, rows=CONVERGENCE_ROWS)
     answers = pd.concat([keys, answers.reset_index(drop=True)], axis=1)
     answers.attrs["convergence"] = json.dumps(moves, sort_keys=True)
     answers.to_parquet(out_path, index=False)

@@ -12,7 +12,8 @@ posterior over conditions (stretch, force, node) from that one reading:
   rest and finds where each one's likelihood lives; each sample's leading
   conditions are integrated again on a grid around that place. The bound
   stage doubles every grid on a sample of rows and reports what moved (a
-  converged bound moves no score by 0.001);
+  converged bound moves no score by 0.001); where a score moved, it integrates
+  on the doubled grid instead, and checks that, up to twice;
 * given the mean, a reading (in pF) is Gaussian per channel: white noise,
   the baseline's drift (stationary in board time, so the same variance at every
   sample), and the ADC's quantisation step (as uniform noise). Creep is left out:

@@ -1,5 +1,7 @@
 """Fast Gaussian processes, the Bayes-bound oracle, and the benchmark's bookkeeping."""
 
+from types import SimpleNamespace
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -349,3 +351,45 @@ def test_the_bench_says_where_its_bound_has_not_converged():
     assert not any("converged" in t["text"] for t in benchmark.targets(doc).values())
     assert "(Bayes bound error 0.0500)" in benchmark.summary_markdown("s", {"force": doc},
                                                                       {"targets": {}})
+
+
+@pytest.mark.parametrize("moves_by_doubling, doublings, verdict", [
+    ([0.0002], 0, "converged"),                      # the paper's skin: FINE as it was
+    ([0.0102, 0.0002], 1, "converged"),              # a 2 × 2 skin's offsets: once
+    ([0.02, 0.01, 0.005], 2, "NOT converged"),       # never: the last grid, said so
+])
+def test_the_one_contact_bound_doubles_its_grid_until_it_converges(
+        monkeypatch, tmp_path, moves_by_doubling, doublings, verdict):
+    """The bound integrates on the grid whose doubling moves no score by CONVERGED, at most
+    MAX_DOUBLINGS times doubled, and says NOT converged where the last still moves one."""
+    import eskin.config.scenes
+    import eskin.data.schema
+    from harness import oracle
+
+    frame = pd.DataFrame({"session": ["s"] * 3, "trial": [0, 0, 1], "sample": [0, 1, 0]})
+    monkeypatch.setattr(eskin.data.schema, "read_metadata", lambda path: {
+        "kind": "single_force", "source": {"kind": "simulated"}})
+    monkeypatch.setattr(eskin.data.schema, "read_dataset", lambda path: frame)
+    monkeypatch.setattr(eskin.config.scenes, "scene_skin", lambda settings: PAPER_SKIN)
+    checked, answered = [], []
+
+    def convergence(frame, sim, stretches, forces, *, skin, grid, rows):
+        checked.append(grid)
+        return {"force_mse": moves_by_doubling[len(checked) - 1], "x_accuracy": 0.0}
+
+    def posterior_predictions(frame, sim, stretches, forces, *, skin, grid, progress):
+        answered.append(grid)
+        return pd.DataFrame({"stretch": [1.0] * len(frame)})
+
+    monkeypatch.setattr(oracle, "convergence", convergence)
+    monkeypatch.setattr(oracle, "posterior_predictions", posterior_predictions)
+    sim = SimpleNamespace()
+    monkeypatch.setattr("eskin.device.physics.skin_params", lambda sim: sim)
+    said = benchmark.bayes_bound("s", SimpleNamespace(stretches=[1.0], forces=[0.0, 1.0]),
+                                 tmp_path / "d.parquet", tmp_path / "b.parquet", sim=sim,
+                                 seed=1, log=lambda line: None)
+    grid = oracle.FINE
+    for _ in range(doublings):
+        grid = grid.doubled()
+    assert answered == [grid] and len(checked) == doublings + 1
+    assert f"; {verdict}:" in said
