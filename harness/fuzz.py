@@ -42,6 +42,7 @@ from eskin.device.protocol import (
     Hello,
     ParseError,
     Reply,
+    SequenceBackwards,
     SequenceGap,
     crc8,
     encode_frame,
@@ -120,7 +121,7 @@ def check_parser(stream: bytes, intact: list[bytes], chunks: list[int]) -> None:
         assert reference_frame_ok(frame.line), f"parser delivered an invalid frame {frame.line!r}"
     delivered = {f.line.rstrip(b"\r") for f in frames}
     backwards = {e.line.rstrip(b"\r") for e in events
-                 if isinstance(e, ParseError) and e.reason.startswith("sequence went backwards")}
+                 if isinstance(e, SequenceBackwards)}
     for line in intact:
         # An intact line glued to junk without a newline is not intact on the wire.
         glued = not (stream.startswith(line) or b"\n" + line in stream)

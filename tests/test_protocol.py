@@ -10,6 +10,7 @@ from eskin.device.protocol import (
     Hello,
     ParseError,
     Reply,
+    SequenceBackwards,
     SequenceGap,
     crc8,
     encode_frame,
@@ -79,8 +80,11 @@ def test_lost_frames_are_reported_as_a_gap_and_repeats_are_rejected():
     parser = FrameParser()
     events = parser.feed(b"".join(encode_frame(s, 0, COUNTS) for s in (0, 1, 4, 4, 5)))
     kinds = [type(e).__name__ for e in events]
-    assert kinds == ["Frame", "Frame", "SequenceGap", "Frame", "ParseError", "Frame"]
+    assert kinds == ["Frame", "Frame", "SequenceGap", "Frame", "SequenceBackwards", "Frame"]
     assert events[2] == SequenceGap(expected=2, got=4)
+    # a repeat is a bad line like any other, and a host tells it apart by its type
+    assert isinstance(events[4], ParseError) and isinstance(events[4], SequenceBackwards)
+    assert not any(isinstance(e, SequenceBackwards) for e in parser.feed(b"D,7,0,1*00\n"))
 
 
 def test_hello_restarts_the_sequence():

@@ -84,10 +84,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from eskin.device.protocol import Frame, FrameParser, Hello, ParseError, Reply, SequenceGap
-
-# A ParseError the frame parser raises for a frame whose seq did not advance.
-_BACKWARDS = "sequence went backwards"
+from eskin.device.protocol import (
+    Frame,
+    FrameParser,
+    Hello,
+    ParseError,
+    Reply,
+    SequenceBackwards,
+    SequenceGap,
+)
 
 
 @dataclass(frozen=True)
@@ -435,7 +440,7 @@ class HostProtocol:
             if self.streaming and (request is None or request.kind != "sample"):
                 events.append(StreamGap(event.expected, event.got))
         elif isinstance(event, ParseError):
-            if event.reason.startswith(_BACKWARDS):
+            if isinstance(event, SequenceBackwards):
                 # The board's count started again (a restart whose #HELLO was lost) or an
                 # old answer is replayed: what was owed, and the time, mean nothing now.
                 if request is not None and request.kind == "sample":

@@ -3,8 +3,9 @@
 The parser is sans-I/O (after h11): it is fed bytes from anywhere — a serial
 port, a pseudo-terminal, a socket, a recorded log — and returns events. It
 never reads a port and never raises on bad input: malformed lines, failed
-CRCs and broken sequences come out as :class:`ParseError` and
-:class:`SequenceGap` events, so one noisy line never costs the session.
+CRCs and broken sequences come out as :class:`ParseError` (a sequence that went back:
+:class:`SequenceBackwards`) and :class:`SequenceGap` events, so one noisy line never costs
+the session.
 
 Frame line (board → host)::
 
@@ -119,6 +120,13 @@ class ParseError:
 
     reason: str
     line: bytes
+
+
+@dataclass(frozen=True)
+class SequenceBackwards(ParseError):
+    """A frame whose seq did not pass the last one's: the board's count started again (a
+    restart whose ``#HELLO`` was lost) or an old frame was replayed. Never delivered; a
+    host tells it from other bad lines by its type."""
 
 
 @dataclass(frozen=True)
@@ -274,7 +282,7 @@ class FrameParser:
                 # Never deliver it, but follow the new count so that a board reset whose
                 # #HELLO was lost costs one frame, not the rest of the session.
                 self._last_seq = event.seq
-                events.append(ParseError(
+                events.append(SequenceBackwards(
                     f"sequence went backwards or repeated: {event.seq} after {last}",
                     event.line))
                 return
