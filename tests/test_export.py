@@ -234,3 +234,17 @@ def test_a_stack_is_as_wide_as_its_skin_and_names_it(skin, tmp_path):
         with pytest.raises(ValueError, match=rf"^the wide stack is for the .*: a frame has "
                                              rf"{skin.terminals} channels, got 21$"):
             each.predict(np.zeros((1, 21)))
+
+
+def test_a_peak_window_with_one_offset_exports(tmp_path):
+    """Where every highest terminal is its node, PeakWindow keeps one offset (a
+    DummyClassifier, as there is nothing to learn): the file gives the same nodes."""
+    from eskin.learning.estimators import PeakWindow
+
+    X = readings(600, seed=12)
+    level = np.round((X - X.mean(axis=0)) / np.where(X.std(axis=0) > 0, X.std(axis=0), 1), 6)
+    model = PeakWindow().fit(pd.DataFrame(X, columns=CHANNELS), level[:, :10].argmax(1) + 1)
+    assert len(model.offset_model_.classes_) == 1
+    stack = SkinStack("one", "single_force", PAPER_SKIN, make_featurizer("raw").fit(X),
+                      {"localise": {"x": model}})
+    assert_same(stack, exported(stack, tmp_path), readings(300, seed=13))
