@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -29,7 +30,7 @@ from eskin.config.params import Params
 from eskin.config.scenes import get_scene
 from eskin.data.plan import ScenePlan, plan_from_params
 from eskin.deploy.live import live_estimates
-from eskin.deploy.stack import ExportedStack
+from eskin.deploy.stack import ExportedStack, SkinStack
 from eskin.device.board import SimulatedBoard
 from eskin.device.simulate import accelerated_stream, live_board
 
@@ -47,8 +48,9 @@ class Step:
     at_ms: int
     press: Press
     stretch_mm: float
-    kind: str  # untouched | press | sustained | stretch
+    kind: str  # untouched | press | sustained | stretch (the harder hour: also tap, long)
     tare: bool = False
+    part: str = ""  # the harder hour's part it belongs to (harness/hard_hour.py)
 
 
 def scene_presses(plan: ScenePlan) -> list[Press]:
@@ -96,18 +98,26 @@ def script(settings, plan: ScenePlan, rest_length_mm: float) -> list[Step]:
     return steps
 
 
-def run(scene: str, settings, params_path: Path = Path("params.yaml")) -> pd.DataFrame:
-    """One row per estimate: the live record beside the script's truth at its frame."""
+def run(scene: str, settings, params_path: Path = Path("params.yaml"), *,
+        steps_of: Callable[[ScenePlan, float], tuple[list[Step], int]] | None = None,
+        stack_kind: str = "onnx") -> pd.DataFrame:
+    """One row per estimate: the live record beside the script's truth at its frame.
+    ``steps_of`` (plan, rest length in mm) gives another script and its end in ms of board
+    time (default: :func:`script`, ``settings.minutes`` long); ``stack_kind``: the exported
+    ``onnx`` stack, or the ``scikit-learn`` one dvc.lock records (slower per batch)."""
     params = load_params(Params, params_path)
     plan = plan_from_params(scene, get_scene(params, scene, params_path))
-    stack = ExportedStack.from_file(stack_path(scene))
+    stack = SkinStack.from_workspace(scene) if stack_kind == "scikit-learn" else \
+        ExportedStack.from_file(stack_path(scene))
     if settings.drift_offset_pf is not None:  # the hour's own drift: the sim's is the data's
         params = params.model_copy(update={"sim": params.sim.model_copy(
             update={"drift_offset_pf": float(settings.drift_offset_pf)})})
     board = live_board(params, stack.skin)
     rest_length_mm = float(params.acquire.rest_length_mm)
-    steps = script(settings, plan, rest_length_mm)
-    end_ms = int(settings.minutes * 60_000)
+    if steps_of is None:
+        steps, end_ms = script(settings, plan, rest_length_mm), int(settings.minutes * 60_000)
+    else:
+        steps, end_ms = steps_of(plan, rest_length_mm)
     # A step acts from the first frame the board reads after it was given (between two
     # batches): the truth, and a step's "since", follow the board, not the script's clock.
     state = {"step": 0, "now": steps[0], "began": 0, "tare": False, "pending": False}
@@ -167,19 +177,20 @@ def run(scene: str, settings, params_path: Path = Path("params.yaml")) -> pd.Dat
             for i, (x, y, newtons) in enumerate(step.press or ((None, None, 0.0),) * 2, 1):
                 truths.update({f"true_x{i}": x, f"true_y{i}": y, f"true_force{i}": newtons})
         rows.append({**{k: r.get(k) for k in estimated}, "t_ms": r["t_ms"],
-                     "kind": step.kind, "since_ms": r["t_ms"] - began,
+                     "kind": step.kind, "part": step.part, "since_ms": r["t_ms"] - began,
                      "pressed": bool(step.press), **truths,
                      "true_stretch": 1 + step.stretch_mm / rest_length_mm})
     frame = pd.DataFrame(rows)
     single = [float(np.median(_single_frame_latency(stack, board)))]
     frame.attrs.update(batch_seconds=seconds, single_frame_seconds=single,
-                       steps=len(steps),
+                       steps=len(steps), frame_period_ms=board.frame_period_ms,
                        stretches_mm=[s.stretch_mm for s in steps if s.kind == "stretch"])
     return frame
 
 
-def _single_frame_latency(stack: ExportedStack, board: SimulatedBoard) -> list[float]:
-    """The ONNX stack on one frame at a time, as a robot loop that keeps up calls it."""
+def _single_frame_latency(stack: ExportedStack | SkinStack,
+                          board: SimulatedBoard) -> list[float]:
+    """The stack on one frame at a time, as a robot loop that keeps up calls it."""
     frames = np.array([e.frame.counts for e in next(accelerated_stream(
         board, batch_frames=1000))], dtype=np.float64)
     out = []
