@@ -88,6 +88,35 @@ class LiveHour(Section):
     drift_offset_pf: NonNegative | None = None
 
 
+class HardHourTargets(Section):
+    """The harder hour's targets, for every part (issue 57, item 6)."""
+
+    phantom_share: real(ge=0, le=1)       # of its untouched frames after 100 ms
+    phantom_after_release_s: NonNegative  # the longest run of contact on untouched frames
+    missed_share: real(ge=0, le=1)        # of its pressed frames after 100 ms
+    cv_sds: NonNegative                   # location, force: fold SDs worse than CV, at most
+    held_share: real(ge=0, le=1)          # the long presses' frames in contact
+
+
+class HardHour(Section):
+    """make bench's harder hour (harness/hard_hour.py): its script, board and targets."""
+
+    seed: Seed
+    drift_offset_pf: NonNegative          # the board's drift SD in every part (pF)
+    press_ramp_ms: NonNegative
+    batch_frames: Count
+    untouched_s: Positive                 # between two presses
+    light_press_s: Positive
+    held_presses: Annotated[int, Field(ge=0)]
+    held_press_s: Positive
+    taps: Annotated[int, Field(ge=0)]
+    tap_ms: Positive
+    long_presses_min: list[Positive]
+    after_long_s: NonNegative
+    untouched_min: Positive
+    targets: HardHourTargets
+
+
 class BenchParams(Section):
     """bench/params.yaml: `make bench`'s knobs (bench/dvc.yaml)."""
 
@@ -97,6 +126,7 @@ class BenchParams(Section):
     soak: Soak
     fuzz: Fuzz
     live_hour: LiveHour
+    hard_hour: HardHour
     learning_curve: LearningCurve
 
 

@@ -46,7 +46,8 @@ TRACE_ENV = "ESKIN_PARAMS_TRACE"
 SECTION_FILES: dict[str, Path] = {
     **dict.fromkeys(("sim", "sim_board", "acquire", "scenes", "ingest", "featurize", "cv",
                      "train", "report", "live"), DEFAULT_PARAMS),
-    **dict.fromkeys(("bench", "soak", "fuzz", "live_hour", "learning_curve"), BENCH_PARAMS),
+    **dict.fromkeys(("bench", "soak", "fuzz", "live_hour", "hard_hour",
+                     "learning_curve"), BENCH_PARAMS),
     "stress": STRESS_PARAMS,
 }
 
