@@ -240,7 +240,8 @@ def score_hard(frame: pd.DataFrame, batch_cv: dict[str, Any], targets) -> dict[s
             "two_contacts": pairs, "parts": parts,
             "phantoms_longer_than_target": int((runs["seconds"]
                                                 > targets.phantom_after_release_s).sum()),
-            "onnx_latency_ms_median": round(frame.attrs["single_frame_seconds"][0] * 1000, 3),
+            "latency_ms_median": round(  # one frame through the stack run() ran
+                frame.attrs["single_frame_seconds"][0] * 1000, 3),
             "batch_cv": batch_cv,
             "targets": targets.model_dump()}
 
@@ -301,7 +302,8 @@ def render(scene: str, result: dict[str, Any]) -> str:
     lines += ["", "Conditions CV (mean ± fold SD): " + ", ".join(spread) + ". "
               f"Frames scored: a press's first {GRACE_MS} ms, and a release's, are not "
               "(the longest phantom counts from the release's first frame). "
-              f"ONNX latency, one frame, median: {result['onnx_latency_ms_median']} ms."]
+              f"The {result.get('stack', 'onnx')} stack's latency, one frame, median: "
+              f"{result['latency_ms_median']} ms."]
     if pairs:
         lines += ["", "Two contacts: the stack reports two contacts on every frame and "
                   "detects none (issue 57, item 3), so every untouched frame is a phantom: "
