@@ -3,7 +3,8 @@
 # make bench: bench/dvc.yaml, per scene: variants' run time against error, the Bayes bound;
 #             the soak (a whole scene over a faulty link, two SIGKILLs); then the fuzzers
 #             (100,000 inputs each), the import's memory, the trained stacks' live
-#             latency, and cross-validation on Dask against loky.
+#             latency, cross-validation on Dask against loky, and the harder hour
+#             (issue 57: the live stack on harder presses, each part against its targets).
 # make stress: the numerical stress suite (stress/dvc.yaml), per scene.
 SHELL := /bin/bash
 PYTHON ?= python3
@@ -142,6 +143,7 @@ bench: setup
 	@cat reports/benchmark/*/summary.md reports/soak/*.md
 	@cat reports/fuzz/parser.json reports/fuzz/import.json reports/import_memory.md
 	@cat reports/live_latency/*.md reports/dask_scaling/*.md reports/lock_interrupts/default.md
+	@cat reports/hard_hour/*.md
 
 # Every model under the data real users produce (stress/dvc.yaml): reports/stress.{json,md}.
 stress: setup
