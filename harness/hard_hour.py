@@ -32,6 +32,7 @@ import numpy as np
 import pandas as pd
 
 from eskin.data.plan import ScenePlan
+from eskin.kinds import ONE_CONTACT
 from harness.live_hour import GRACE_MS, Press, Step, scene_presses
 
 PARTS = ("light_edges", "held_through_stretch", "taps", "long_presses", "untouched")
@@ -342,7 +343,7 @@ def describe(settings, stretches_mm: list[float], plan: ScenePlan) -> str:
 # ---------------------------------------------------------------- the README's copy
 
 README = Path("README.md")
-README_SCENE = "single_force"
+README_SCENE = ONE_CONTACT.name  # the paper's one-contact scene, named as its kind
 BEGIN, END = "<!-- hard_hour table: python -m harness.hard_hour -->", "<!-- /hard_hour table -->"
 
 
