@@ -327,30 +327,34 @@ def test_a_channel_array_trains_the_generic_model_of_a_row_column_one():
                                          "physics_profile": {"max_iter": 5},
                                          "hist_gradient_boosting": {"max_iter": 7}})
     array = skin_from_dict(MAGNETIC)
-    assert model_for_skin(section, "physics_profile", {"max_iter": 5}, Skin(8, 8), "force") == (
-        "physics_profile", {"max_iter": 5}, "")
+    assert model_for_skin(section, "physics_profile", {"max_iter": 5}, Skin(8, 8), "force",
+                          "single_force") == ("physics_profile", {"max_iter": 5}, "")
     name, hyper, note = model_for_skin(section, "physics_profile", {"max_iter": 5}, array,
-                                       "force")
+                                       "force", "single_force")
     assert (name, hyper) == ("hist_gradient_boosting", {"max_iter": 7})
     assert note.startswith("physics_profile reads a row/column skin's x and y terminals")
-    assert model_for_skin(section, "logistic", {}, array, "localise") == ("logistic", {}, "")
+    assert model_for_skin(section, "logistic", {}, array, "localise", "single_force") == (
+        "logistic", {}, "")
 
 
 def test_a_skin_of_long_axes_localises_with_a_model_whose_cost_scales():
     """A localisation's logistic regression on every channel grows with the channels times
-    the nodes: past 14 terminals on an axis the scene trains PeakWindow, and says so; a
-    detector's logistic regression (two classes) and a channel array keep theirs."""
+    the nodes: past 14 terminals on an axis a one-contact scene trains PeakWindow, and says
+    so; a detector's logistic regression (two classes), a two-contact scene (PeakWindow
+    locates one contact) and a channel array keep theirs."""
     section = TaskModels.model_validate({"model": "logistic", "logistic": {"C": 1.0},
                                          "peak_window": {"C": 2.0}})
     for skin in (Skin(10, 10), Skin(14, 3), Skin(2, 2)):
-        assert model_for_skin(section, "logistic", {"C": 1.0}, skin, "localise") == (
-            "logistic", {"C": 1.0}, "")
+        assert model_for_skin(section, "logistic", {"C": 1.0}, skin, "localise",
+                              "single_force") == ("logistic", {"C": 1.0}, "")
     for skin in (Skin(15, 4), Skin(32, 32)):
-        name, hyper, note = model_for_skin(section, "logistic", {"C": 1.0}, skin, "localise")
+        name, hyper, note = model_for_skin(section, "logistic", {"C": 1.0}, skin, "localise",
+                                           "single_force")
         assert (name, hyper) == ("peak_window", {"C": 2.0})
         assert "more than 14 terminals on an axis: trained peak_window instead" in note
-    assert model_for_skin(section, "logistic", {"C": 1.0}, Skin(32, 32), "detect") == (
-        "logistic", {"C": 1.0}, "")
+    for role, kind in (("detect", "single_force"), ("localise", "two_force")):
+        assert model_for_skin(section, "logistic", {"C": 1.0}, Skin(32, 32), role, kind) == (
+            "logistic", {"C": 1.0}, "")
 
 
 def test_strata_number_the_nodes_of_the_datasets_skin():

@@ -297,8 +297,8 @@ def test_a_scenes_settings_choose_what_the_whole_section_chooses(repo_params, co
             chosen = model_settings(whole, configuration, kind)
             assert model_settings(part, configuration, kind) == chosen
             for skin in (PAPER_SKIN, array, Skin(32, 32)):
-                assert model_for_skin(part, *chosen, skin, task) == \
-                    model_for_skin(whole, *chosen, skin, task), (task, kind)
+                assert model_for_skin(part, *chosen, skin, task, kind) == \
+                    model_for_skin(whole, *chosen, skin, task, kind), (task, kind)
 
 
 def test_a_knob_of_one_kinds_model_leaves_the_other_kinds_settings_file_as_it_was(

@@ -28,13 +28,14 @@ ROW_COLUMN_MODELS: dict[str, str] = {"physics_profile": "hist_gradient_boosting"
                                      "active_terminals": "hist_gradient_boosting",
                                      "peak_window": "logistic"}
 
-# Models whose fit grows with the channels times the nodes of an axis, each with the model
-# a skin of longer axes trains instead and the most terminals an axis may have for the
-# first. A multinomial logistic regression on every channel (Newton's Hessian is that
-# product squared) costs per row, past 14 terminals an axis, over 3× what it costs on the
-# paper's 10 × 10; PeakWindow hardly grows (make bench's localise_cost, docs/learning.md).
-LONG_AXIS_MODELS: dict[tuple[str, str], tuple[str, int]] = {
-    ("localise", "logistic"): ("peak_window", 14)}
+# Models whose fit grows with the channels times the nodes of an axis, by kind of scene
+# and role, each with the model a skin of longer axes trains instead and the most
+# terminals an axis may have for the first (PeakWindow locates one contact only). A
+# multinomial logistic regression on every channel (Newton's Hessian is that product
+# squared) costs per row, past 14 terminals an axis, over 3× what it costs on the paper's
+# 10 × 10; PeakWindow hardly grows (make bench's localise_cost, docs/learning.md).
+LONG_AXIS_MODELS: dict[tuple[str, str, str], tuple[str, int]] = {
+    (ONE_CONTACT.name, "localise", "logistic"): ("peak_window", 14)}
 
 CONFIGURATIONS = ("tuned", "paper")
 
@@ -73,18 +74,18 @@ def hyperparameters(task_params: TaskModels, name: str) -> dict[str, Any]:
 
 
 def model_for_skin(task_params: TaskModels, name: str, hyper: dict[str, Any],
-                   skin: AnySkin, role: str) -> tuple[str, dict[str, Any], str]:
-    """(model, hyperparameters, note) that train on ``skin`` in ``role``: ``name`` as it
-    is, or, with its hyperparameters and a note saying so, for a model that reads
-    row/column terminals on a channel array, its generic model (:data:`ROW_COLUMN_MODELS`),
-    and for one whose cost grows with the nodes on a skin of longer axes, the model that
-    scales (:data:`LONG_AXIS_MODELS`)."""
+                   skin: AnySkin, role: str, kind: str) -> tuple[str, dict[str, Any], str]:
+    """(model, hyperparameters, note) that train on ``skin`` in ``role`` for a scene of
+    ``kind``: ``name`` as it is, or, with its hyperparameters and a note saying so, for a
+    model that reads row/column terminals on a channel array, its generic model
+    (:data:`ROW_COLUMN_MODELS`), and for one whose cost grows with the nodes on a skin of
+    longer axes, the model that scales (:data:`LONG_AXIS_MODELS`)."""
     generic = ROW_COLUMN_MODELS.get(name)
     if not skin.row_column and generic is not None:
         return generic, hyperparameters(task_params, generic), (
             f"{name} reads a row/column skin's x and y terminals and this scene is an "
             f"{skin.describe()}: trained {generic} instead")
-    scaling, most = LONG_AXIS_MODELS.get((role, name), (None, 0))
+    scaling, most = LONG_AXIS_MODELS.get((kind, role, name), (None, 0))
     if skin.row_column and scaling is not None and max(skin.rows, skin.columns) > most:
         return scaling, hyperparameters(task_params, scaling), (
             f"{name}'s fit grows with the channels times the nodes, and this scene's "
@@ -99,7 +100,7 @@ def chosen_model(task_params: TaskModels, configuration: str, kind: str, skin: A
     ``role`` from its ``train.<task>`` section: :func:`model_settings`, then
     :func:`model_for_skin`."""
     return model_for_skin(task_params, *model_settings(task_params, configuration, kind), skin,
-                          role)
+                          role, kind)
 
 
 def task_section(task_params: TaskModels, configuration: str, kind: str) -> dict[str, Any]:
@@ -115,7 +116,7 @@ def task_section(task_params: TaskModels, configuration: str, kind: str) -> dict
         section[generic] = hyperparameters(task_params, generic)
     # a model a skin of longer axes trains instead, where params set its hyperparameters
     # (the section does not know the skin; without them it trains on its defaults)
-    for (_, chosen), (scaling, _) in LONG_AXIS_MODELS.items():
-        if chosen == name and scaling in (task_params.model_extra or {}):
+    for (of_kind, _, chosen), (scaling, _) in LONG_AXIS_MODELS.items():
+        if (of_kind, chosen) == (kind, name) and scaling in (task_params.model_extra or {}):
             section[scaling] = hyperparameters(task_params, scaling)
     return section
