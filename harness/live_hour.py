@@ -290,6 +290,22 @@ def _share(values) -> float | None:
     return round(float(values.mean()), 5) if len(values) else None
 
 
+def write_report(directory: Path, scene: str, result: dict[str, Any], text: str) -> None:
+    """An hour's result as ``<directory>/<scene>.json`` and its table as ``.md``; printed."""
+    directory.mkdir(parents=True, exist_ok=True)
+    (directory / f"{scene}.json").write_text(json.dumps(result, indent=2) + "\n")
+    (directory / f"{scene}.md").write_text(text + "\n")
+    print(text)
+
+
+def write_skipped_import(directory: Path, scene: str, title: str) -> None:
+    """An imported scene's report: no hour, and why."""
+    reason = ("an imported scene has no plan to script presses from, and no simulated "
+              "skin to stream.")
+    write_report(directory, scene, {"scene": scene, "skipped": reason},
+                 f"# {title}: {scene}\n\nSkipped: {reason}")
+
+
 def batch_cv_scores(scene: str, scores_dir: Path = SCORES_DIR) -> dict[str, Any]:
     """The trained stack's conditions-CV scores (mean ± fold sd), to set the live ones
     beside; a two-contact scene's pairs from where the report writes them."""

@@ -1,7 +1,6 @@
 """DVC stage of `make bench`: the live stack on the harder hour of the simulated board
 (issue 57, item 6), each part scored against its targets (harness/hard_hour.py)."""
 
-import json
 import sys
 import time
 from pathlib import Path
@@ -12,7 +11,7 @@ from eskin.config.scenes import get_scene
 from eskin.data.plan import plan_from_params
 from eskin.errors import run_friendly
 from harness.hard_hour import describe, hard_script, render, score_hard, trained_stretches_mm
-from harness.live_hour import batch_cv_scores, run
+from harness.live_hour import batch_cv_scores, run, write_report, write_skipped_import
 from harness.params import HardHour
 
 REPORT = Path("reports/hard_hour")
@@ -22,14 +21,8 @@ def main(scene: str) -> int:
     params = load_params(Params)
     scene_params = get_scene(params, scene)
     settings = load_params(sections(BENCH_PARAMS, hard_hour=HardHour)).hard_hour
-    REPORT.mkdir(parents=True, exist_ok=True)
     if scene_params.source == "import":
-        text = (f"# Harder hour: {scene}\n\nSkipped: an imported scene has no plan to script "
-                "presses from, and no simulated skin to stream.")
-        (REPORT / f"{scene}.json").write_text(json.dumps(
-            {"scene": scene, "skipped": text.split("Skipped: ")[1]}, indent=2) + "\n")
-        (REPORT / f"{scene}.md").write_text(text + "\n")
-        print(text)
+        write_skipped_import(REPORT, scene, "Harder hour")
         return 0
     start = time.process_time()
     frame = run(scene, settings,
@@ -40,10 +33,7 @@ def main(scene: str) -> int:
               **score_hard(frame, batch_cv_scores(scene), settings.targets),
               "script": describe(settings, stretches, plan),
               "run_cpu_s": round(time.process_time() - start)}  # board to scores
-    text = render(scene, result)
-    (REPORT / f"{scene}.json").write_text(json.dumps(result, indent=2) + "\n")
-    (REPORT / f"{scene}.md").write_text(text + "\n")
-    print(text)
+    write_report(REPORT, scene, result, render(scene, result))
     return 0
 
 

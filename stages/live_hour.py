@@ -1,7 +1,6 @@
 """DVC stage of `make bench`: the live stack on an hour of the simulated board, scored
 against the script (harness/live_hour.py)."""
 
-import json
 import sys
 from pathlib import Path
 
@@ -9,7 +8,15 @@ from eskin.config.base import BENCH_PARAMS, load_params, sections
 from eskin.config.params import Params
 from eskin.config.scenes import get_scene, scene_kind
 from eskin.errors import run_friendly
-from harness.live_hour import batch_cv_scores, render, run, score, score_pairs
+from harness.live_hour import (
+    batch_cv_scores,
+    render,
+    run,
+    score,
+    score_pairs,
+    write_report,
+    write_skipped_import,
+)
 from harness.params import LiveHour
 
 REPORT = Path("reports/live_hour")
@@ -19,14 +26,8 @@ def main(scene: str) -> int:
     scene_params = get_scene(load_params(Params), scene)
     kind = scene_kind(scene_params)
     settings = load_params(sections(BENCH_PARAMS, live_hour=LiveHour)).live_hour
-    REPORT.mkdir(parents=True, exist_ok=True)
     if scene_params.source == "import":
-        text = (f"# Live hour: {scene}\n\nSkipped: an imported scene has no plan to script "
-                "presses from, and no simulated skin to stream.")
-        (REPORT / f"{scene}.json").write_text(json.dumps(
-            {"scene": scene, "skipped": text.split("Skipped: ")[1]}, indent=2) + "\n")
-        (REPORT / f"{scene}.md").write_text(text + "\n")
-        print(text)
+        write_skipped_import(REPORT, scene, "Live hour")
         return 0
     frame = run(scene, settings)
     scored = score(frame, batch_cv_scores(scene)) if kind.detects else \
@@ -42,10 +43,7 @@ def main(scene: str) -> int:
                          + " (of the bench's, those the scene was trained on), "
                          f"{settings.untouched_s:g} s untouched between, seed "
                          f"{settings.seed}")}
-    text = render(scene, result)
-    (REPORT / f"{scene}.json").write_text(json.dumps(result, indent=2) + "\n")
-    (REPORT / f"{scene}.md").write_text(text + "\n")
-    print(text)
+    write_report(REPORT, scene, result, render(scene, result))
     return 0
 
 
