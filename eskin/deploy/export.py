@@ -267,19 +267,8 @@ def _peak_window(scope, operator, container) -> None:
         coef, intercept = np.zeros((1, features_width(model))), np.zeros(1)
     else:
         coef, intercept = offsets.coef_, offsets.intercept_
-    scores = nodes.op("Add", nodes.op("MatMul", features, nodes.const(coef.T)),
-                      nodes.const(intercept))
-    nodes.op("Identity", scores, out=operator.outputs[1].full_name)
-    if len(offsets.classes_) == 1:
-        best = nodes.op("Cast", nodes.op("Reshape", nodes.op("Mul", scores, nodes.const(0.0)),
-                                         nodes.const([-1], np.int64)), to=TensorProto.INT64)
-    elif len(offsets.classes_) == 2:
-        best = nodes.op("Cast", nodes.op("Greater", nodes.op("Reshape", scores, nodes.const(
-            [-1], np.int64)), nodes.const(0.0)), to=TensorProto.INT64)
-    else:
-        best = nodes.op("ArgMax", scores, axis=1, keepdims=0)
-    offset = nodes.op("Gather", nodes.const(offsets.classes_.astype(np.int64), np.int64), best,
-                      axis=0)
+    offset = _linear_labels(nodes, features, coef, intercept, offsets.classes_,
+                            scores_out=operator.outputs[1].full_name)
     node = nodes.op("Add", nodes.op("Reshape", top, nodes.const([-1], np.int64)),
                     nodes.op("Add", offset, nodes.const(1, np.int64)))
     classes = np.asarray(model.classes_)
@@ -503,17 +492,30 @@ def _linear_svc(scope, operator, container) -> None:
     """LinearSVC's decision (skl2onnx 1.20 has none in float64): x·w + b, positive for the
     second of two classes, else the highest score's class; the scores as second output."""
     model, nodes = operator.raw_operator, _Nodes(scope, container)
-    scores = nodes.op("Add", nodes.op("MatMul", operator.inputs[0].full_name,
-                                      nodes.const(model.coef_.T)),
-                      nodes.const(model.intercept_))
-    nodes.op("Identity", scores, out=operator.outputs[1].full_name)
-    if len(model.classes_) == 2:
+    _linear_labels(nodes, operator.inputs[0].full_name, model.coef_, model.intercept_,
+                   model.classes_, scores_out=operator.outputs[1].full_name,
+                   out=operator.outputs[0].full_name)
+
+
+def _linear_labels(nodes: _Nodes, x: str, coef, intercept, classes, *, scores_out: str,
+                   out: str | None = None) -> str:
+    """A linear classifier's labels as scikit-learn's ``predict`` gives them: the scores
+    x·w + b (written to ``scores_out``), positive for the second of two classes, else the
+    highest score's class (the first of equals); one class (a constant model, its score
+    0) is always that class."""
+    scores = nodes.op("Add", nodes.op("MatMul", x, nodes.const(np.asarray(coef).T)),
+                      nodes.const(intercept))
+    nodes.op("Identity", scores, out=scores_out)
+    if len(classes) == 1:
+        best = nodes.op("Cast", nodes.op("Reshape", nodes.op("Mul", scores, nodes.const(0.0)),
+                                         nodes.const([-1], np.int64)), to=TensorProto.INT64)
+    elif len(classes) == 2:
         best = nodes.op("Cast", nodes.op("Greater", nodes.op("Reshape", scores, nodes.const(
             [-1], np.int64)), nodes.const(0.0)), to=TensorProto.INT64)
     else:
         best = nodes.op("ArgMax", scores, axis=1, keepdims=0)
-    nodes.op("Gather", nodes.const(np.asarray(model.classes_).astype(np.int64), np.int64), best,
-             out=operator.outputs[0].full_name, axis=0)
+    return nodes.op("Gather", nodes.const(np.asarray(classes).astype(np.int64), np.int64), best,
+                    out=out, axis=0)
 
 
 def _linear_svc_shape(operator) -> None:
