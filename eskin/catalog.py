@@ -30,7 +30,8 @@ PAIRS = "pairs"
 SCORED_TASKS: tuple[str, ...] = (*TASK_NAMES, PAIRS)
 
 # The one score a task is summarised by (MLflow compare, stage output, audit), by scorer.
-HEADLINE_METRIC = {"regression": "r2", "detection": "accuracy", "localisation": "accuracy"}
+HEADLINE_METRIC = {"regression": "r2", "detection": "accuracy", "localisation": "accuracy",
+                   "counting": "accuracy"}
 # The scheme DVC's metrics file holds (the one `make bench` chooses models by); every
 # scheme's scores, with spreads and confusion counts, are in the scores files.
 HEADLINE_SCHEME = "conditions"

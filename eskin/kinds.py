@@ -14,10 +14,11 @@ its :class:`Kind`, so the rest of eskin asks the kind instead of testing its nam
   (:func:`kind_of_labels`); the variant's name is what its scores and stack record;
 * the file widths an import accepts (the paper's two-contact files have no stretch);
 * the strata of cross-validation (the node, or the pair of nodes);
-* whether the localise task trains on contacts only (one contact: the detector decides
-  first) and whether the stack gates its estimates on the detector;
-* the stack's outputs (the report's headline rows and figures of each kind are the
-  report's: eskin.reporting.presentation).
+* what the detect task learns: whether a contact presses (one contact), or how many of
+  the contacts press (several: 0, 1 or 2 with two; a scene recorded with fewer contacts
+  on some conditions, ``scenes.<s>.contact_counts``, has something to count);
+* the stack's outputs, with and without a detector (the report's headline rows and
+  figures of each kind are the report's: eskin.reporting.presentation).
 """
 
 from __future__ import annotations
@@ -108,11 +109,15 @@ class Kind:
         return self.labels if width == skin.terminals + len(self.labels) else self.labels[:-1]
 
     @property
-    def detects(self) -> bool:
-        """Whether a contact detector decides first: one contact localises and weighs only
-        the frames it calls touched (the paper's localisation "assumes that there is
-        pressure"); with two contacts every sample presses, and nothing gates."""
-        return self.contacts == 1
+    def detect_target(self) -> str:
+        """The detect task's target: ``contact`` (one contact: pressed or not) or
+        ``contacts`` (several: how many press, 0 to :attr:`contacts`)."""
+        return "contact" if self.contacts == 1 else "contacts"
+
+    @property
+    def detect_scorer(self) -> str:
+        """How the detect task is scored (eskin.evaluation.metrics.SCORERS)."""
+        return "detection" if self.contacts == 1 else "counting"
 
     def strata(self, frame, skin: AnySkin) -> np.ndarray:
         """The stratum of each row for CV: its node, or its combination of nodes."""
@@ -122,12 +127,17 @@ class Kind:
             out = out * (skin.n_nodes + 1) + node
         return out
 
-    @property
-    def stack_outputs(self) -> list[str]:
-        """The estimates a stack gives for each frame, in order."""
-        if self.detects:
+    def stack_outputs(self, counted: bool) -> list[str]:
+        """The estimates a stack gives for each frame, in order. A one-contact stack always
+        says whether a contact presses (every frame does, without a detector); a
+        several-contact stack says it, and how many press (``contacts``), only where
+        ``counted``: where its scene had samples with fewer contacts to learn from."""
+        if self.contacts == 1:
             return ["stretch", "contact", "contact_probability", *self.node_columns,
                     *self.force_columns]
+        if counted:
+            return ["stretch", "contact", "contact_probability", "contacts",
+                    *self.node_columns, *self.force_columns]
         return ["stretch", *self.node_columns, *self.force_columns]
 
 

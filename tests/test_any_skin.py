@@ -368,8 +368,12 @@ def test_the_position_error_is_the_mean_distance_in_mm():
     error = position_error_mm([1, 2, 3], [1, 1, 2], [1, 3, 3], [2, 1, 2],
                               (0.0, 3.0, 7.0), (0.0, 4.0))
     assert error == {"error_mm": pytest.approx((4.0 + 4.0 + 0.0) / 3)}
+    # an absent contact (node 0) on either side has no distance: left out
+    assert position_error_mm([1, 0, 2], [1, 0, 1], [1, 2, 0], [2, 1, 0],
+                             (0.0, 3.0), (0.0, 4.0)) == {"error_mm": pytest.approx(4.0)}
+    assert np.isnan(position_error_mm([0], [0], [1], [1], (0.0,), (0.0,))["error_mm"])
     with pytest.raises(ValueError, match="a node"):
-        position_error_mm([0], [1], [1], [1], (0.0,), (0.0,))
+        position_error_mm([-1], [1], [1], [1], (0.0,), (0.0,))
 
 
 def test_a_large_confusion_grid_is_coloured_not_written_in():

@@ -201,7 +201,7 @@ def test_the_stack_outputs_the_total_force_and_the_pair_of_positions(pipeline):
     model = onnx.load(path)
     outputs = [output.name for output in model.graph.output]
     assert outputs == ["stretch", "x1", "y1", "x2", "y2", "force"]
-    assert outputs == TWO_CONTACTS_TOTAL_FORCE.stack_outputs
+    assert outputs == TWO_CONTACTS_TOTAL_FORCE.stack_outputs(counted=False)
     props = {p.key: p.value for p in model.metadata_props}
     assert props["eskin.kind"] == "two_force_total"
     assert json.loads(props["eskin.columns"]) == outputs
@@ -221,7 +221,8 @@ def test_the_stack_outputs_the_total_force_and_the_pair_of_positions(pipeline):
 def test_a_kind_knows_its_total_force_variant():
     total = TWO_CONTACTS.with_total_force()
     assert total is TWO_CONTACTS_TOTAL_FORCE and total.total_force
-    assert total.scene_kind == "two_force" and total.contacts == 2 and not total.detects
+    assert total.scene_kind == "two_force" and total.contacts == 2
+    assert total.detect_target == "contacts"
     assert total.labels == TOTAL_LABELS
     assert total.force_columns == ["force"] and total.node_columns == ["x1", "y1", "x2", "y2"]
     assert total.weighed_contacts == {"force": ["x1", "x2"]}

@@ -77,9 +77,13 @@ def test_kinds_say_their_columns_widths_and_outputs():
     assert one.labels == ["force", "x", "y", "stretch"]
     assert two.labels == ["force1", "x1", "y1", "force2", "x2", "y2", "stretch"]
     assert one.file_widths(PAPER_SKIN) == (24,) and two.file_widths(PAPER_SKIN) == (26, 27)
-    assert one.stack_outputs == ["stretch", "contact", "contact_probability", "x", "y", "force"]
-    assert two.stack_outputs == ["stretch", "x1", "y1", "x2", "y2", "force1", "force2"]
-    assert one.detects and not two.detects
+    for counted in (True, False):  # one contact: the same, with a detector or without
+        assert one.stack_outputs(counted) == ["stretch", "contact", "contact_probability",
+                                              "x", "y", "force"]
+    assert two.stack_outputs(False) == ["stretch", "x1", "y1", "x2", "y2", "force1", "force2"]
+    assert two.stack_outputs(True) == ["stretch", "contact", "contact_probability", "contacts",
+                                       "x1", "y1", "x2", "y2", "force1", "force2"]
+    assert (one.detect_target, two.detect_target) == ("contact", "contacts")
     with pytest.raises(ValueError, match="unknown scene kind 'three_force'"):
         get_kind("three_force")
 

@@ -74,7 +74,8 @@ SkinSpec = Annotated[
 
 Source = Literal[SOURCES]  # type: ignore[valid-type]
 # The plan: what an acquired scene records; an import's labels come from its files.
-PLAN_KEYS = ("stretches", "forces", "samples", "repeats", "nodes_x", "nodes_y")
+PLAN_KEYS = ("stretches", "forces", "samples", "repeats", "nodes_x", "nodes_y",
+             "contact_counts")
 
 # What an import's columns may give, in the kinds' own words: every kind's forces and
 # nodes, each node also as a position in mm (``x_mm``: placed on the skin's grid).
@@ -245,6 +246,10 @@ class AcquiredScene(Scene):
     repeats: Count = 1
     nodes_x: list[Annotated[int, Field(ge=1)]] | None = None
     nodes_y: list[Annotated[int, Field(ge=1)]] | None = None
+    # Several contacts: how many press in the plan's conditions. The paper's plan presses
+    # every one (the kind's count, the default); adding 0 and 1 lets the stack learn how
+    # many press (a live robot's skin is mostly untouched), at the cost of those rows.
+    contact_counts: list[Annotated[int, Field(ge=0)]] | None = None
 
     @model_validator(mode="after")
     def _source_fields(self) -> AcquiredScene:
@@ -269,6 +274,15 @@ class AcquiredScene(Scene):
                                  "another)")
         if two and any(force <= 0 for force in self.forces):
             raise ValueError("two-force levels must be > 0 (both indenters touch)")
+        counts = self.contact_counts
+        if counts is not None and not two:
+            raise ValueError("contact_counts belongs to scenes of several contacts: a "
+                             f"{kind.name} plan already records node 0 (no contact)")
+        if counts is not None and (kind.contacts not in counts or max(counts) > kind.contacts
+                                   or len(set(counts)) != len(counts)):
+            raise ValueError(f"contact_counts {counts}: each count once, from 0 to "
+                             f"{kind.contacts}, {kind.contacts} included (e.g. "
+                             f"[0, 1, {kind.contacts}])")
         return self
 
 

@@ -937,9 +937,11 @@ def _labels_of(numeric: pd.DataFrame, mapped: _Map, spec: Import, kind: str,
         out[node] = np.where(pressed, values, 0.0)
     for force in forces:
         out[force] = forces[force]
-    if the_kind.contacts > 1:  # contact 1 is the one whose node comes first (x, then y)
-        first = skin.node_id(np.nan_to_num(out["x1"]), np.nan_to_num(out["y1"]))
-        second = skin.node_id(np.nan_to_num(out["x2"]), np.nan_to_num(out["y2"]))
+    if the_kind.contacts > 1:  # contact 1 is the one whose node comes first (x, then y),
+        # and an absent contact (node 0) comes last, as a plan names it (eskin.data.plan)
+        first, second = (np.where(node > 0, node, skin.n_nodes + 1) for node in (
+            skin.node_id(np.nan_to_num(out[f"x{i}"]), np.nan_to_num(out[f"y{i}"]))
+            for i in (1, 2)))
         swap = first > second
         for a, b in (("x1", "x2"), ("y1", "y2"), ("force1", "force2")):
             if a in out:

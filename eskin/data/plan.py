@@ -16,7 +16,9 @@ Label conventions (docs/scenes.md):
   data, node 0 is recorded at every force level and every node at 0 N; a
   sample is a contact only when force > 0 and node > 0.
 * two forces — contact 1 is the contact whose node comes first in row-major
-  order (lower x, then lower y); contact 2 is the other.
+  order (lower x, then lower y); contact 2 is the other. A condition where fewer
+  press (``contact_counts``) names its absent contacts last, at node 0: one
+  contact is contact 1.
 """
 
 from __future__ import annotations
@@ -129,14 +131,25 @@ def single_force_plan(name: str, stretches: Sequence[float], forces: Sequence[fl
 
 def two_force_plan(name: str, stretches: Sequence[float], forces: Sequence[float],
                    nodes_x: Sequence[int], nodes_y: Sequence[int], samples: int,
-                   skin: AnySkin = PAPER_SKIN, repeats: int = 1) -> ScenePlan:
+                   skin: AnySkin = PAPER_SKIN, repeats: int = 1,
+                   contact_counts: Sequence[int] = (2,)) -> ScenePlan:
     """Every unordered pair of distinct nodes on the x × y grid, every force for each contact,
-    ``repeats`` times."""
+    ``repeats`` times. With 1 in ``contact_counts``, also every node of the grid pressed
+    alone at every force; with 0, the skin untouched, once per stretch and force (a weight
+    named and not placed, as a single-force plan's node 0). Those come after the pairs, so
+    that the pairs' trials are the paper's plan's, whatever is added."""
     nodes = sorted((int(x), int(y)) for x in nodes_x for y in nodes_y)
+    absent = Contact(0, 0, 0.0)
     conditions = [Condition(float(s), (Contact(*a, float(fa)), Contact(*b, float(fb))))
                   for s in stretches
                   for a, b in itertools.combinations(nodes, 2)  # a < b: a is contact 1
                   for fa in forces for fb in forces]
+    if 1 in contact_counts:
+        conditions += [Condition(float(s), (Contact(*a, float(f)), absent))
+                       for s in stretches for a in nodes for f in forces]
+    if 0 in contact_counts:
+        conditions += [Condition(float(s), (Contact(0, 0, float(f)), absent))
+                       for s in stretches for f in forces]
     return ScenePlan(name, TWO_CONTACTS.name, _repeated(conditions, repeats), samples, skin,
                      repeats)
 
@@ -151,4 +164,4 @@ def plan_from_params(name: str, scene: AcquiredScene) -> ScenePlan:
     if KINDS[scene.kind].contacts == 1:
         return single_force_plan(name, stretches, forces, scene.samples, skin, scene.repeats)
     return two_force_plan(name, stretches, forces, scene.nodes_x, scene.nodes_y, scene.samples,
-                          skin, scene.repeats)
+                          skin, scene.repeats, scene.contact_counts or (TWO_CONTACTS.contacts,))

@@ -117,12 +117,21 @@ def contact_mask(frame: pd.DataFrame) -> np.ndarray:
     """True where an indenter presses the skin (force > 0 and node > 0): either one,
     in a two-force scene (the total force and either node, where only the total is
     labelled)."""
+    return contact_count(frame) > 0
+
+
+def contact_count(frame: pd.DataFrame) -> np.ndarray:
+    """How many indenters press the skin in each row: those with force > 0 and node > 0
+    (where only the total force is labelled, the nodes of a row whose total is > 0)."""
     if "x" in frame:
-        return ((frame["force"] > 0) & (frame["x"] > 0)).to_numpy()
+        return ((frame["force"] > 0) & (frame["x"] > 0)).to_numpy().astype(np.int64)
+    contacts = range(1, sum(1 for name in frame.columns if name.startswith("x")
+                            and name[1:].isdigit()) + 1)
     if "force" in frame:
-        return ((frame["force"] > 0) & ((frame["x1"] > 0) | (frame["x2"] > 0))).to_numpy()
-    touching = [(frame[f"force{i}"] > 0) & (frame[f"x{i}"] > 0) for i in (1, 2)]
-    return (touching[0] | touching[1]).to_numpy()
+        nodes = sum((frame[f"x{i}"] > 0).to_numpy().astype(np.int64) for i in contacts)
+        return np.where(frame["force"].to_numpy() > 0, nodes, 0)
+    return sum(((frame[f"force{i}"] > 0) & (frame[f"x{i}"] > 0)).to_numpy().astype(np.int64)
+               for i in contacts)
 
 
 def md5_file(path: Path) -> str:

@@ -56,17 +56,37 @@ def localisation(y_true: np.ndarray, y_pred: np.ndarray, score=None) -> dict[str
 def position_error_mm(x_true: np.ndarray, y_true: np.ndarray, x_pred: np.ndarray,
                       y_pred: np.ndarray, x_mm, y_mm) -> dict[str, float]:
     """The mean Euclidean distance in mm between true and predicted positions, node
-    numbers (1-based) placed by the skin's ``x_mm``/``y_mm``."""
+    numbers (1-based) placed by the skin's ``x_mm``/``y_mm``. Rows where either side
+    places no contact (node 0: an absent contact of a count below the kind's; the detect
+    task scores the count) are left out; NaN when none is left."""
     x_mm, y_mm = np.asarray(x_mm, dtype=float), np.asarray(y_mm, dtype=float)
     nodes = [np.asarray(v, dtype=np.int64) for v in (x_true, y_true, x_pred, y_pred)]
-    if any((v < 1).any() for v in nodes):
-        raise ValueError("a position error needs a node (1 and above) on both sides")
-    x_true, y_true, x_pred, y_pred = nodes
+    if any((v < 0).any() for v in nodes):
+        raise ValueError("a position is a node (1 and above) or 0 (no contact)")
+    placed = np.logical_and.reduce([v > 0 for v in nodes])
+    if not placed.any():
+        return {"error_mm": float("nan")}
+    x_true, y_true, x_pred, y_pred = (v[placed] for v in nodes)
     distance = np.hypot(x_mm[x_true - 1] - x_mm[x_pred - 1], y_mm[y_true - 1] - y_mm[y_pred - 1])
     return {"error_mm": float(distance.mean())}
 
 
-SCORERS = {"regression": regression, "detection": detection, "localisation": localisation}
+def counting(y_true: np.ndarray, y_pred: np.ndarray, score=None) -> dict[str, float]:
+    """How many contacts press: accuracy, balanced accuracy and macro F1 over the counts,
+    and the accuracy of "any contact" (a count above 0), the single-contact detector's."""
+    y_true = np.asarray(y_true, dtype=np.int64)
+    y_pred = np.asarray(y_pred, dtype=np.int64)
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="y_pred contains classes not in y_true")
+        balanced = balanced_accuracy_score(y_true, y_pred)
+    return {"accuracy": float(accuracy_score(y_true, y_pred)),
+            "balanced_accuracy": float(balanced),
+            "f1_macro": float(f1_score(y_true, y_pred, average="macro", zero_division=0.0)),
+            "contact_accuracy": float(accuracy_score(y_true > 0, y_pred > 0))}
+
+
+SCORERS = {"regression": regression, "detection": detection, "localisation": localisation,
+           "counting": counting}
 
 
 def confusion(y_true: np.ndarray, y_pred: np.ndarray) -> dict[str, list]:

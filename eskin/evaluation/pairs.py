@@ -116,7 +116,8 @@ def score_pairs(localise: pd.DataFrame, force: pd.DataFrame | None
     """Per CV scheme, mean and std over folds of :func:`pair_scores`.
 
     The frames are the out-of-fold predictions of a two-force scene's localise and
-    force tasks (one row per sample and scheme, keyed by trial and sample); ``force``
+    force tasks (one row per sample and scheme, keyed by trial and sample), scored on the
+    samples where both contacts press; ``force``
     None: the scene has no per-contact forces, and its positions alone are scored.
     """
     joined = localise
@@ -127,6 +128,10 @@ def score_pairs(localise: pd.DataFrame, force: pd.DataFrame | None
         if len(joined) != len(localise):
             raise ValueError(f"the two-force predictions do not cover the same samples: "
                              f"{len(localise)} localised, {len(joined)} with both forces")
+    # The pairs are the samples where every contact presses: those with fewer (a scene
+    # recorded with contact_counts) have no pair to match; the detect task counts them.
+    joined = joined[np.logical_and.reduce([joined[f"x{i}_true"].to_numpy() > 0
+                                           for i in CONTACTS])]
     out = {}
     for scheme, rows in joined.groupby("scheme", sort=False):
         outcomes = pair_outcomes(rows, forces=force is not None)

@@ -11,12 +11,15 @@ Single force (the paper's section III-D):
   paper's localisation "assumes that there is pressure on the sensor"); on a
   skin that places its positions in mm, also each contact's position error in mm.
 
-Two forces (section III-E): ``force`` (force1 and force2, one model each) and
-``localise`` (x1, y1, x2, y2), every sample; ``stretch`` where the scene has two
-or more levels. ``detect`` needs samples without contact, which a two-force
-scene has not: it is skipped, with that reason in its metrics file. A recording of two
-contacts that gives their total force only (the kind's total-force variant) has one
-force target, ``force``, the total; its positions are learnt as any two contacts'.
+Two forces (section III-E): ``force`` (force1 and force2, one model each), every
+sample, and ``localise`` (x1, y1, x2, y2), samples with a contact; ``stretch`` where the
+scene has two or more levels. ``detect`` learns how many contacts press (0, 1 or 2), and
+needs samples with fewer than two: the paper's plan presses both on every sample, and
+the task is skipped, with that reason in its metrics file; a scene recorded with
+``contact_counts: [0, 1, 2]`` has them (an absent contact is node 0, after the pressed
+ones). A recording of two contacts that gives their total force only (the kind's
+total-force variant) has one force target, ``force``, the total; its positions are
+learnt as any two contacts'.
 
 Every kind has the same task names (:data:`TASK_NAMES`), so the stage graph is
 scenes × tasks, and a task a scene's data cannot support is skipped by the data,
@@ -32,7 +35,7 @@ import numpy as np
 import pandas as pd
 
 from eskin.catalog import HEADLINE_METRIC
-from eskin.data.schema import contact_mask
+from eskin.data.schema import contact_count, contact_mask
 from eskin.kinds import DATASET_KINDS, Kind, get_kind
 
 
@@ -89,10 +92,14 @@ class Task:
                     f"(λ = {frame['stretch'].iloc[0]:g})")
         for name, values in self.target_values(frame[rows]).items():
             if len(np.unique(values)) < 2:
-                if self.name == "detect":
+                if self.name == "detect" and name == "contact":
                     has = "a contact" if bool(np.unique(values)[0]) else "no contact"
                     return ("detect needs contact and no-contact samples; every sample of "
                             f"this scene has {has}")
+                if self.name == "detect":
+                    return ("detect counts the contacts and needs samples with different "
+                            f"counts; every sample of this scene has {np.unique(values)[0]} "
+                            "(record some with fewer: scenes.<scene>.contact_counts)")
                 return (f"{self.name} needs two or more distinct values of {name}; this scene "
                         f"has only {np.unique(values)[0].item()!r}")
         return None
@@ -100,17 +107,18 @@ class Task:
 
 def _tasks(kind: Kind) -> dict[str, Task]:
     """The tasks of a kind of scene, in TASK_NAMES order."""
-    # With one contact the detector decides first: localisation learns from contacts only.
-    localise_rows = {"rows": contact_mask, "row_note": "contact samples"} if kind.detects else {}
+    # The detector decides first: localisation learns from contact samples only (with two
+    # contacts on the paper's plan, that is every sample).
+    count = {"contact": contact_mask, "contacts": contact_count}[kind.detect_target]
     return {
         "stretch": Task("stretch", "stretch", "regression", {"stretch": _column("stretch")}),
         "force": Task("force", "force", "regression",
                       {force: _physical_force(force, nodes)
                        for force, nodes in kind.weighed_contacts.items()}),
-        "detect": Task("detect", "detect", "detection", {"contact": contact_mask}),
+        "detect": Task("detect", "detect", kind.detect_scorer, {kind.detect_target: count}),
         "localise": Task("localise", "localise", "localisation",
-                         {name: _column(name) for name in kind.node_columns}, **localise_rows,
-                         positions=kind.positions),
+                         {name: _column(name) for name in kind.node_columns}, contact_mask,
+                         "contact samples", positions=kind.positions),
     }
 
 

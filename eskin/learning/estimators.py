@@ -414,6 +414,13 @@ REGISTRY: dict[str, dict[str, Factory]] = {
         "hist_gradient_boosting": lambda max_iter=100, seed=0: _scaled(
             HistGradientBoostingClassifier(max_iter=max_iter, random_state=seed)),
         "knn": lambda n_neighbors=5: _scaled(KNeighborsClassifier(n_neighbors)),
+        # Two contacts: how many press, from the pressed terminals (ActiveTerminals); the
+        # counts are weighted alike, as a plan has far more pairs than single contacts.
+        "active_terminals": lambda max_iter=100, learning_rate=0.1, min_samples_leaf=20,
+            seed=0: _on_active_terminals(HistGradientBoostingClassifier(
+                max_iter=max_iter, learning_rate=learning_rate,
+                min_samples_leaf=min_samples_leaf, class_weight="balanced",
+                random_state=seed)),
     },
     "localise": {
         "paper": lambda n_estimators=100, seed=0: _scaled(RandomForestClassifier(

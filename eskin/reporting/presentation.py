@@ -71,6 +71,11 @@ def _two_contact_rows(prefix: str, paper: str = "—") -> tuple[Headline, ...]:
     """The rows a two-contact scene has whatever its force labels: each contact's place
     (``paper``: the paper's word on it), and the pair scored as a set."""
     return (
+        # a scene recorded with fewer contacts on some conditions (contact_counts) counts
+        Headline(f"{prefix}: contact count accuracy (0, 1 or 2)", "detect", "contacts",
+                 "accuracy", optional=True),
+        Headline(f"{prefix}: any-contact accuracy", "detect", "contacts",
+                 "contact_accuracy", optional=True),
         *(Headline(f"{prefix}: {t} accuracy", "localise", t, "accuracy", paper)
           for t in ("x1", "y1", "x2", "y2")),
         *(Headline(f"{prefix}: contact {i} localisation error (mm)", "localise",

@@ -266,7 +266,8 @@ def _task_files(directory: Path, scene: str, suffix: str, reader) -> dict[str, A
 # What a `dvc plots` panel shows, by target (its title, with the scene's name); a node
 # target's is :func:`panel_label`'s.
 PANEL_LABEL = {"stretch": "stretch λ", "force": "force (N)", "force1": "force of contact 1 (N)",
-               "force2": "force of contact 2 (N)", "contact": "contact"}
+               "force2": "force of contact 2 (N)", "contact": "contact",
+               "contacts": "contacts pressing"}
 
 
 def panel_label(target: str, skin: AnySkin) -> str:
@@ -298,7 +299,8 @@ def plot_data(scene: str, kind: str, skin: AnySkin, predictions: dict[str, pd.Da
             points = frame[list(columns)].rename(columns=columns)
             step = -(-len(points) // PLOT_POINTS)
             out.append(("parity", target, points.iloc[::step].round(4)))
-    for task, targets in (("detect", ["contact"]), ("localise", node_columns(kind))):
+    for task, targets in (("detect", [get_kind(kind).detect_target]),
+                          ("localise", node_columns(kind))):
         frame = predictions.get(task)
         if frame is not None and not frame.empty:
             for target in targets:
