@@ -160,6 +160,10 @@ def _live(args: argparse.Namespace) -> int:
                 f"them in data/processed/{args.scene}.live.parquet"))
             resources.callback(recorder.close)
             events = recorder.tap(events)
+        if "contact" not in stack.columns:
+            note(f"{args.scene}: this stack cannot count contacts (its scene presses every "
+                 "contact on every sample), so it reports each on every frame; a scene "
+                 "recorded with contact_counts: [0, 1, 2] learns how many press (docs/live.md)")
         broadcast = view = None
         try:
             if args.serve is not None:

@@ -100,6 +100,43 @@ def test_a_two_force_stack_exports_with_the_same_estimates(tmp_path):
     assert estimates["stretch"].isna().all() and estimates["y1"].isna().all()
 
 
+def test_a_counting_two_force_stack_places_only_the_contacts_it_counts(tmp_path):
+    """A two-contact stack trained with fewer contacts on some samples counts them (0, 1
+    or 2), and places and weighs that many, in scikit-learn and in ONNX alike."""
+    X = readings(1500, seed=5)
+    lifted = X[:, :10] - 500
+    count = np.clip((lifted > 10).sum(axis=1), 0, 2)  # what the peaks say, capped at two
+    peaks = np.sort(np.argsort(X[:, :10], axis=1, kind="stable")[:, -2:], axis=1)
+    models = {
+        "detect": {"contacts": fitted("detect", "hist_gradient_boosting", X, count,
+                                      max_iter=20)},
+        "localise": {f"{axis}{i + 1}": fitted("localise", "active_terminals", X,
+                                               np.where(count > i, peaks[:, i] // 4 + 1, 0),
+                                               max_iter=15)
+                     for i in range(2) for axis in "xy"},
+        "force": {f"force{i + 1}": fitted("force", "hist_gradient_boosting", X,
+                                          np.where(count > i, lifted.max(axis=1) / 10, 0.0),
+                                          max_iter=15) for i in range(2)},
+    }
+    stack = SkinStack("counting", "two_force", PAPER_SKIN, make_featurizer("raw").fit(
+        pd.DataFrame(X, columns=CHANNELS)), models, skipped={"stretch": "one level"})
+    assert stack.columns[:4] == ["stretch", "contact", "contact_probability", "contacts"]
+    onnx_stack = exported(stack, tmp_path)
+    assert onnx_stack.columns == stack.columns
+    test = readings(800, seed=6)
+    assert_same(stack, onnx_stack, test)
+    estimates = stack.predict(test)
+    counted = estimates["contacts"].to_numpy()
+    assert set(np.unique(counted)) == {0, 1, 2}, "the readings press 0, 1 and 2 terminals"
+    assert (estimates["contact"] == (counted > 0)).all()
+    for k in (1, 2):  # contact k is placed and weighed exactly where k or more press
+        placed = estimates[f"x{k}"].notna().to_numpy()
+        np.testing.assert_array_equal(placed, counted >= k)
+        assert (estimates.loc[~placed, f"force{k}"] == 0).all()
+    probability = estimates["contact_probability"].to_numpy()
+    assert probability[counted == 0].max() < 0.5 <= probability[counted > 0].min()
+
+
 def test_a_missing_value_takes_the_branch_each_split_learnt(tmp_path):
     import onnxruntime
 

@@ -678,11 +678,13 @@ def stack_to_onnx(stack) -> onnx.ModelProto:
 
     kind = get_kind(stack.kind)
     outputs["stretch"] = regression("stretch", "stretch")
-    if not kind.detects:
+    if "contact" not in stack.columns:  # two contacts on every frame: nothing counted
         for target in kind.node_columns:
             outputs[target] = located("localise", target)
         for target in kind.force_columns:
             outputs[target] = regression("force", target)
+    elif "contacts" in stack.columns:
+        _counted_outputs(stack, kind, built, outputs, label, located, regression)
     else:
         detected = label("detect", "contact")
         if detected is None:  # no detector: every frame has a contact, as SkinStack says
@@ -720,6 +722,35 @@ def stack_to_onnx(stack) -> onnx.ModelProto:
     model.ir_version = min(p.ir_version for p in parts)
     onnx.checker.check_model(model, full_check=True)
     return model
+
+
+def _counted_outputs(stack, kind, built: _Builder, outputs: dict[str, str], label, located,
+                     regression) -> None:
+    """A counting stack's outputs, as :meth:`SkinStack._predict` gives them: how many
+    contacts press (the detector's label), whether any does, the probability that any does
+    (1 − that of none), and each contact's place and force where that many press."""
+    counter = stack.models["detect"][kind.detect_target]
+    predicted, probabilities = label("detect", kind.detect_target)
+    count = built.node("Cast", predicted, to=TensorProto.DOUBLE)
+    none = built.node("Gather", probabilities, built.const(
+        [list(np.asarray(counter.classes_).astype(np.int64)).index(0)], np.int64), axis=1)
+    probability = built.node("Sub", built.const(1.0), built.node(
+        "Reshape", built.node("Cast", none, to=TensorProto.DOUBLE),
+        built.const([-1], np.int64)))
+    outputs["contact"] = built.node("Greater", count, built.const(0.0))
+    outputs["contact_probability"], outputs["contacts"] = probability, count
+    nan, zero = built.const(np.nan), built.const(0.0)
+    for k, (x, y) in enumerate(kind.positions.values(), start=1):
+        present = built.node("GreaterOrEqual", count, built.const(float(k)))
+        for target in (x, y):
+            outputs[target] = built.node("Where", present, located("localise", target), nan)
+        for force, weighs in kind.weighed_contacts.items():
+            if weighs == [x]:
+                outputs[force] = built.node("Where", present, regression("force", force), zero)
+    for force in kind.force_columns:  # a total force: wherever any contact presses
+        if force not in outputs:
+            outputs[force] = built.node("Where", outputs["contact"],
+                                        regression("force", force), zero)
 
 
 class _Builder:

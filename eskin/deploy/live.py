@@ -22,6 +22,7 @@ import numpy as np
 
 from eskin.config.live import Live, LiveBaseline, LiveContact
 from eskin.deploy.stack import ExportedStack, RestTable, SkinStack
+from eskin.kinds import get_kind
 
 COMMANDS = ("tare",)  # what a client of the page or the JSON socket may ask for
 
@@ -272,6 +273,7 @@ def live_estimates(stack: SkinStack | ExportedStack, batches: Iterable[list], *,
     tare_frames = settings.tare_frames if tare_frames is None else tare_frames
     retare_frames = tare_frames or Live().tare_frames
     detects = "contact" in stack.columns
+    positions = get_kind(stack.kind).positions.values()
     hysteresis = ContactHysteresis.of(settings.contact)
     located = {name: None for name in stack.columns
                if name not in ("stretch", "contact", "contact_probability")}
@@ -326,7 +328,8 @@ def live_estimates(stack: SkinStack | ExportedStack, batches: Iterable[list], *,
                     if taring is None and last_t_ms is not None:
                         tare.track(counts[row], frame.t_ms - last_t_ms,
                                    under_contact=terminals_under(
-                                       record, stack.skin, settings.baseline.reach_terminals)
+                                       record, stack.skin, settings.baseline.reach_terminals,
+                                       positions)
                                    if record["contact"] else None)
                 last_t_ms = frame.t_ms
                 record["drift_counts"] = tare.drift
@@ -338,15 +341,20 @@ def live_estimates(stack: SkinStack | ExportedStack, batches: Iterable[list], *,
         yield from records
 
 
-def terminals_under(record: dict[str, Any], skin, reach: int) -> np.ndarray:
+def terminals_under(record: dict[str, Any], skin, reach: int,
+                    positions: Iterable[tuple[str, str]] = (("x", "y"),)) -> np.ndarray:
     """Which of a row/column skin's terminals (x then y) are within ``reach`` of the
-    contact ``record`` locates; every one where it locates none."""
-    x, y = record.get("x"), record.get("y")
-    if x is None or y is None or not skin.row_column:
+    contacts ``record`` places (each of ``positions``, its kind's (x, y) columns, that
+    is not None); every one where it places none."""
+    placed = [(record[x], record[y]) for x, y in positions
+              if record.get(x) is not None and record.get(y) is not None]
+    if not placed or not skin.row_column:
         return np.ones(skin.terminals, dtype=bool)
-    rows = np.abs(np.arange(1, skin.rows + 1) - x) <= reach
-    columns = np.abs(np.arange(1, skin.columns + 1) - y) <= reach
-    return np.concatenate([rows, columns])
+    under = np.zeros(skin.terminals, dtype=bool)
+    for x, y in placed:
+        under |= np.concatenate([np.abs(np.arange(1, skin.rows + 1) - x) <= reach,
+                                 np.abs(np.arange(1, skin.columns + 1) - y) <= reach])
+    return under
 
 
 def contact_of_frame(record: dict[str, Any], hysteresis: ContactHysteresis,
@@ -367,7 +375,7 @@ def contact_of_frame(record: dict[str, Any], hysteresis: ContactHysteresis,
         if touching and not detected:
             record[name] = located[name]
         elif not touching and detected:
-            record[name] = 0.0 if name.startswith("force") else None
+            record[name] = 0.0 if name.startswith("force") or name == "contacts" else None
 
 
 def _command(line: bytes) -> str:

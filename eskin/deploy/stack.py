@@ -11,11 +11,15 @@ n rows of channel readings (the skin's channels, in its order: x terminals then 
 row/column skin) to a DataFrame of estimates. A stack knows its skin (:attr:`SkinStack.skin`):
 the one its training data were taken on, recorded in the ONNX file beside it.
 
-A kind whose detector gates (one contact: eskin/kinds.py) detects contact, and locates
-and weighs a contact only where it detects one (elsewhere x and y are NaN and the force
-0); stretch is estimated on every frame. A two-contact stack always has two contacts:
-x1, y1, x2, y2, force1, force2 — or x1, y1, x2, y2 and force, their total, where the
-training recording gave only that (the kind's total-force variant).
+A one-contact stack detects contact, and locates and weighs a contact only where it
+detects one (elsewhere x and y are NaN and the force 0); stretch is estimated on every
+frame. A two-contact stack counts the contacts (``contacts``: 0, 1 or 2, and ``contact``,
+whether any presses) where its scene was recorded with fewer than two on some
+conditions (``contact_counts``), and gives the position and force of that many (an
+absent contact: NaN and 0 N). Trained on the paper's plan, which presses both on every
+sample, it has nothing to count from and always gives two: x1, y1, x2, y2, force1,
+force2 — or x1, y1, x2, y2 and force, their total, where the training recording gave
+only that (the kind's total-force variant).
 """
 
 from __future__ import annotations
@@ -115,7 +119,7 @@ class SkinStack:
 
     @property
     def columns(self) -> list[str]:
-        return get_kind(self.kind).stack_outputs
+        return get_kind(self.kind).stack_outputs(counted="detect" in self.models)
 
     def predict(self, counts) -> pd.DataFrame:
         """Estimates for each row of ``counts`` (n × the skin's channels, in its order —
@@ -135,7 +139,7 @@ class SkinStack:
         out = pd.DataFrame(index=range(n))
         out["stretch"] = self._regress("stretch", "stretch", features)
         kind = get_kind(self.kind)
-        if not kind.detects:
+        if "contact" not in self.columns:  # two contacts on every frame: nothing counted
             located = self._each("localise", features)
             weighed = self._each("force", features)
             for name in kind.node_columns:
@@ -143,9 +147,12 @@ class SkinStack:
             for name in kind.force_columns:
                 out[name] = weighed.get(name, np.full(n, np.nan))
             return out
-        contact, probability = self._detect(features)
+        count, probability = self._detect(features, kind.detect_target)
+        contact = count > 0
         out["contact"] = contact
         out["contact_probability"] = probability
+        if "contacts" in self.columns:
+            out["contacts"] = count.astype(np.float64)
         for name in kind.node_columns:
             out[name] = np.full(n, np.nan)
         for name in kind.force_columns:
@@ -158,6 +165,13 @@ class SkinStack:
                     out.loc[contact, name] = located[name]
             for name in kind.force_columns:
                 out.loc[contact, name] = self._regress("force", name, touched)
+            # contact k is there where k or more press: an absent one is not placed
+            for k, (x, y) in enumerate(kind.positions.values(), start=1):
+                absent = contact & (count < k)
+                out.loc[absent, [x, y]] = np.nan
+                for force, weighs in kind.weighed_contacts.items():
+                    if weighs == [x]:
+                        out.loc[absent, force] = 0.0
         return out
 
     def _each(self, task: str, features: pd.DataFrame) -> dict[str, np.ndarray]:
@@ -170,18 +184,21 @@ class SkinStack:
             return np.full(len(features), np.nan)
         return np.asarray(model.predict(features), dtype=np.float64)
 
-    def _detect(self, features: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
-        model = self.models.get("detect", {}).get("contact")
+    def _detect(self, features: pd.DataFrame, target: str) -> tuple[np.ndarray, np.ndarray]:
+        """How many contacts press in each row (a contact detector's 0 or 1), and the
+        probability that any does."""
+        model = self.models.get("detect", {}).get(target)
         n = len(features)
         if model is None:  # no detector (a scene without contact-free samples): always
-            return np.ones(n, dtype=bool), np.full(n, np.nan)
-        contact = np.asarray(model.predict(features)).astype(bool)
+            return np.ones(n, dtype=np.int64), np.full(n, np.nan)
+        count = np.asarray(model.predict(features)).astype(np.int64)
         if hasattr(model, "predict_proba"):
-            classes = list(model.classes_)
-            probability = model.predict_proba(features)[:, classes.index(True)]
+            # the classes with a contact (one column with one contact: its value exactly)
+            pressed = np.asarray(model.classes_).astype(np.int64) > 0
+            probability = model.predict_proba(features)[:, pressed].sum(axis=1)
         else:  # the paper's SVM gives no probability
             probability = np.full(n, np.nan)
-        return contact, probability
+        return count, probability
 
     def check_board(self, device_id: str) -> None:
         check_board(self.scene, self.device, device_id)

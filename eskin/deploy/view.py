@@ -188,8 +188,10 @@ function show(state) {{
   marked = [];
   // two contacts under one force sensor: their total force, none per contact
   const total = !("x" in e) && "force" in e;
-  const contacts = "x" in e ? [[e.x, e.y, e.force]]
-    : [[e.x1, e.y1, total ? null : e.force1], [e.x2, e.y2, total ? null : e.force2]];
+  // a counting stack (two contacts, trained with fewer) says how many press: those first
+  const contacts = ("x" in e ? [[e.x, e.y, e.force]]
+    : [[e.x1, e.y1, total ? null : e.force1], [e.x2, e.y2, total ? null : e.force2]])
+    .slice(0, "contacts" in e ? (e.contacts || 0) : undefined);
   const touching = "contact" in e ? e.contact : true;
   if (touching) for (const [x, y, f] of contacts) {{
     const cell = document.getElementById(`cell-${{x}}-${{y}}`);
@@ -204,7 +206,8 @@ function show(state) {{
   }}
   const contact = document.getElementById("contact");
   contact.className = touching ? "touch" : "";
-  contact.textContent = (touching ? "touch" : "no touch") +
+  contact.textContent = (!touching ? "no touch" : !("contacts" in e) ? "touch"
+    : `${{e.contacts}} contact${{e.contacts === 1 ? "" : "s"}}`) +
     (e.contact_probability === null || e.contact_probability === undefined ? ""
      : ` (p = ${{e.contact_probability.toFixed(3)}})`);
   text("location", touching ? contacts.map(([x, y]) => `x ${{x}}, y ${{y}}`).join("; ") : "–");
