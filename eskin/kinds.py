@@ -109,9 +109,12 @@ class Kind:
         return self.labels if width == skin.terminals + len(self.labels) else self.labels[:-1]
 
     @property
-    def detect_target(self) -> str:
+    def detect_target(self) -> str | None:
         """The detect task's target: ``contact`` (one contact: pressed or not) or
-        ``contacts`` (several: how many press, 0 to :attr:`contacts`)."""
+        ``contacts`` (several: how many press, 0 to :attr:`contacts`); None for a kind
+        that places no contact."""
+        if not self.contacts:
+            return None
         return "contact" if self.contacts == 1 else "contacts"
 
     @property

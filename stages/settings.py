@@ -19,7 +19,7 @@ def main() -> str:
                               task=task, configuration=configuration,
                               task_params=getattr(params.train, task))
                for name, scene in params.scenes.items() for task in TASK_NAMES]
-    return "settings: " + ", ".join(f"{d['scene']}/{d['task']} {d['train']['model']}"
+    return "settings: " + ", ".join(f"{d['scene']}/{d['task']} {(d['train'] or {}).get('model')}"
                                     for d in written)
 
 

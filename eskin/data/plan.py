@@ -26,12 +26,12 @@ from __future__ import annotations
 import hashlib
 import itertools
 import json
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 from eskin.config.scenes import scene_skin
-from eskin.kinds import KINDS, ONE_CONTACT, TWO_CONTACTS
+from eskin.kinds import ONE_CONTACT, TWO_CONTACTS
 from eskin.skin import PAPER_SKIN, AnySkin
 
 if TYPE_CHECKING:
@@ -154,14 +154,28 @@ def two_force_plan(name: str, stretches: Sequence[float], forces: Sequence[float
                      repeats)
 
 
+def _single_force_plan_of(name: str, scene: AcquiredScene, skin: AnySkin) -> ScenePlan:
+    return single_force_plan(name, [float(s) for s in scene.stretches],
+                             [float(f) for f in scene.forces], scene.samples, skin,
+                             scene.repeats)
+
+
+def _two_force_plan_of(name: str, scene: AcquiredScene, skin: AnySkin) -> ScenePlan:
+    return two_force_plan(name, [float(s) for s in scene.stretches],
+                          [float(f) for f in scene.forces], scene.nodes_x, scene.nodes_y,
+                          scene.samples, skin, scene.repeats,
+                          scene.contact_counts or (TWO_CONTACTS.contacts,))
+
+
+# Each scene kind's plan, from its checked params.yaml section, on the scene's skin: a new
+# kind registers its own here.
+PLANS: dict[str, Callable[[str, AcquiredScene, AnySkin], ScenePlan]] = {
+    ONE_CONTACT.name: _single_force_plan_of, TWO_CONTACTS.name: _two_force_plan_of}
+
+
 def plan_from_params(name: str, scene: AcquiredScene) -> ScenePlan:
     """The plan of scene ``name`` from its params.yaml section (``params.scenes[name]``),
     which :class:`eskin.config.AcquiredScene` has checked (kind, ranges, nodes, two-force
-    levels), on the scene's skin. An import scene has no plan: its labels are its files'."""
-    skin = scene_skin(scene)
-    stretches = [float(s) for s in scene.stretches]
-    forces = [float(f) for f in scene.forces]
-    if KINDS[scene.kind].contacts == 1:
-        return single_force_plan(name, stretches, forces, scene.samples, skin, scene.repeats)
-    return two_force_plan(name, stretches, forces, scene.nodes_x, scene.nodes_y, scene.samples,
-                          skin, scene.repeats, scene.contact_counts or (TWO_CONTACTS.contacts,))
+    levels), on the scene's skin (its kind's, :data:`PLANS`). An import scene has no plan:
+    its labels are its files'."""
+    return PLANS[scene.kind](name, scene, scene_skin(scene))

@@ -130,8 +130,8 @@ def contact_count(frame: pd.DataFrame) -> np.ndarray:
     if "force" in frame:
         nodes = sum((frame[f"x{i}"] > 0).to_numpy().astype(np.int64) for i in contacts)
         return np.where(frame["force"].to_numpy() > 0, nodes, 0)
-    return sum(((frame[f"force{i}"] > 0) & (frame[f"x{i}"] > 0)).to_numpy().astype(np.int64)
-               for i in contacts)
+    return sum((((frame[f"force{i}"] > 0) & (frame[f"x{i}"] > 0)).to_numpy().astype(np.int64)
+                for i in contacts), np.zeros(len(frame), dtype=np.int64))
 
 
 def md5_file(path: Path) -> str:

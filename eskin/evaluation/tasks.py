@@ -84,6 +84,8 @@ class Task:
 
     def unsupported(self, frame: pd.DataFrame) -> str | None:
         """Why this scene cannot train the task, or None when it can."""
+        if not self.targets:
+            return f"this kind of scene has no {self.name} labels"
         rows = self.rows(frame)
         if not rows.any():
             return f"no rows for {self.name} ({self.row_note})"
@@ -109,13 +111,14 @@ def _tasks(kind: Kind) -> dict[str, Task]:
     """The tasks of a kind of scene, in TASK_NAMES order."""
     # The detector decides first: localisation learns from contact samples only (with two
     # contacts on the paper's plan, that is every sample).
-    count = {"contact": contact_mask, "contacts": contact_count}[kind.detect_target]
+    counts = {"contact": contact_mask, "contacts": contact_count}
+    detected = {kind.detect_target: counts[kind.detect_target]} if kind.detect_target else {}
     return {
         "stretch": Task("stretch", "stretch", "regression", {"stretch": _column("stretch")}),
         "force": Task("force", "force", "regression",
                       {force: _physical_force(force, nodes)
                        for force, nodes in kind.weighed_contacts.items()}),
-        "detect": Task("detect", "detect", kind.detect_scorer, {kind.detect_target: count}),
+        "detect": Task("detect", "detect", kind.detect_scorer, detected),
         "localise": Task("localise", "localise", "localisation",
                          {name: _column(name) for name in kind.node_columns}, contact_mask,
                          "contact samples", positions=kind.positions),

@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from eskin.config.train import TaskModels
+from eskin.evaluation.tasks import get_task
 from eskin.learning.choice import task_section
 
 
@@ -19,17 +20,19 @@ def write_settings(path: Path, *, scene: str, kind: str, task: str, configuratio
     """One scene's task's settings file: its kind, ``train.configuration`` and
     :func:`task_section`; rewritten with the same bytes when nothing in it changed (so
     DVC does not rerun the task)."""
+    # a task the kind has no labels for trains nothing (eskin.evaluation.tasks): no model
+    labelled = bool(get_task(kind, task).targets)
     document = {"scene": scene, "kind": kind, "task": task, "configuration": configuration,
-                "train": task_section(task_params, configuration, kind)}
+                "train": task_section(task_params, configuration, kind) if labelled else None}
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(document, indent=2, sort_keys=True) + "\n")
     return document
 
 
-def read_settings(path: Path, scene: str, task: str) -> tuple[TaskModels, str]:
+def read_settings(path: Path, scene: str, task: str) -> tuple[TaskModels | None, str]:
     """(``train.<task>`` section, ``train.configuration``) of a scene's task, from its
-    settings file."""
+    settings file; None for a task its kind has no labels for."""
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: no model settings for {scene}/{task}; run "
@@ -39,4 +42,6 @@ def read_settings(path: Path, scene: str, task: str) -> tuple[TaskModels, str]:
         raise ValueError(f"{path} holds the settings of {document.get('scene')}/"
                          f"{document.get('task')}, not {scene}/{task}; run `dvc repro "
                          f"settings`")
+    if document["train"] is None:
+        return None, document["configuration"]
     return TaskModels.model_validate(document["train"]), document["configuration"]

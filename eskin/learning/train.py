@@ -44,14 +44,14 @@ class Trained:
 
     scene: str
     task: str
-    model: str
+    model: str | None  # None: the kind has no labels for the task
     status: str
     summary: str
     reason: str = ""
     results: list = field(default_factory=list)
 
 
-def train(scene: str, task_name: str, *, task_params: TaskModels, configuration: str, cv: CV,
+def train(scene: str, task_name: str, *, task_params: TaskModels | None, configuration: str, cv: CV,
           features_dir: Path, folds_path: Path, scores_path: Path, predictions_path: Path,
           model_path: Path, lineage_path: Path | None = None, record_path: Path | None = None,
           log: Callable[[str], None] = lambda message: print(message, file=sys.stderr,
@@ -83,14 +83,17 @@ def train(scene: str, task_name: str, *, task_params: TaskModels, configuration:
     the_kind = dataset_kind(source)
     kind = the_kind.name
     task = get_task(kind, task_name)
-    model_name, hyper, model_note = chosen_model(task_params, configuration,
-                                                 the_kind.scene_kind, skin, task.role)
-    estimator = build_model(task.role, model_name, hyper, skin)
-    header = {"scene": scene, "kind": kind, "task": task_name, "model": model_name,
+    header = {"scene": scene, "kind": kind, "task": task_name,
               "dataset_md5": meta["dataset"]["md5"], "dataset_rows": meta["dataset"]["rows"],
               "source": describe_source(meta)}
-    if model_note:  # only where a model was replaced: the paper's scores keep their bytes
-        header["model_note"] = model_note
+    model_name = estimator = None
+    if task.targets:  # a task the kind has no labels for has no model to choose
+        model_name, hyper, model_note = chosen_model(task_params, configuration,
+                                                     the_kind.scene_kind, skin, task.role)
+        estimator = build_model(task.role, model_name, hyper, skin)
+        header["model"] = model_name
+        if model_note:  # only where a model was replaced: the paper's scores keep their bytes
+            header["model_note"] = model_note
 
     reason = task.unsupported(frame)
     if reason is not None:
