@@ -12,8 +12,9 @@ import os
 import sys
 import time
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from typing import Any, NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -140,15 +141,31 @@ def channel_frame(X: np.ndarray, channels: list[str]) -> pd.DataFrame:
     return pd.DataFrame(X, columns=channels, copy=False)
 
 
-def _fit_predict_fold(estimator: BaseEstimator, X: np.ndarray, channels: list[str],
-                      targets: pd.DataFrame, splitter: FoldSplit, k: int,
-                      binary: bool) -> tuple[dict, float, float, set, dict]:
+class FoldOutcome(NamedTuple):
+    """What one fold gives back: each target's predictions on its test rows, the seconds
+    spent fitting and predicting (summed over targets), the fits' remarks, each target's
+    decision scores (a binary task's), and, where asked, each target's fitted
+    hyperparameters."""
+
+    predictions: dict[str, np.ndarray]
+    fit_seconds: float
+    predict_seconds: float
+    notes: set[str]
+    scores: dict[str, np.ndarray | None]
+    hyperparameters: dict[str, Any]
+
+
+def _fit_predict_fold(estimator: BaseEstimator | Mapping[str, BaseEstimator], X: np.ndarray,
+                      channels: list[str], targets: pd.DataFrame, splitter: FoldSplit, k: int,
+                      binary: bool, hyperparameters: bool = False) -> FoldOutcome:
+    """Fold ``k``: a clone of ``estimator`` (or of each target's, given by target name)
+    fitted per target and timed."""
     train, test = splitter.fold(k)
     X_train, X_test = channel_frame(X[train], channels), channel_frame(X[test], channels)
-    predictions, fit_s, predict_s, notes, scores = {}, 0.0, 0.0, set(), {}
+    predictions, fit_s, predict_s, notes, scores, fitted = {}, 0.0, 0.0, set(), {}, {}
     for name in targets.columns:
         y = targets[name].to_numpy()
-        model = clone(estimator)
+        model = clone(estimator[name] if isinstance(estimator, Mapping) else estimator)
         start = time.perf_counter()
         model.fit(X_train, y[train])
         fit_s += time.perf_counter() - start
@@ -158,26 +175,45 @@ def _fit_predict_fold(estimator: BaseEstimator, X: np.ndarray, channels: list[st
         if binary:
             scores[name] = decision_scores(model, X_test)
         notes.update(f"{name}: {note}" for note in getattr(model, "convergence_warnings_", []))
-    return predictions, fit_s, predict_s, notes, scores
+        if hyperparameters:
+            if not hasattr(model, "hyperparameters_"):
+                raise ValueError(f"share_hyperparameters: {type(model).__name__} fits no "
+                                 "hyperparameters to share; drop it from the variant")
+            fitted[name] = model.hyperparameters_
+    return FoldOutcome(predictions, fit_s, predict_s, notes, scores, fitted)
+
+
+def sharing_hyperparameters(estimator: BaseEstimator,
+                            fitted: Mapping[str, Any]) -> dict[str, BaseEstimator]:
+    """Each target's ``estimator`` given the hyperparameters fitted for it (by a first
+    fold): later fits only condition on their data."""
+    return {name: clone(estimator).set_params(hyperparameters=hyper)
+            for name, hyper in fitted.items()}
 
 
 def cross_validate(task: Task, frame: pd.DataFrame, folds: np.ndarray, estimator: BaseEstimator,
                    scheme: str, skin: AnySkin, *, n_jobs: int = 1, probe: bool = False,
-                   progress: str | None = None) -> CVResult:
+                   progress: str | None = None, n_folds: int | None = None,
+                   share_hyperparameters: bool = False) -> CVResult:
     """Score ``estimator`` on ``task`` over the given fold assignment of ``frame``'s rows,
     readings of ``skin``; where the skin places its nodes in mm, each contact's position
     error in mm too.
 
     ``n_jobs``: folds in parallel; with ``probe``, only if the first fold, run here, says
     that a pool pays (:func:`pool_pays`; ``CVResult.pooled`` says which).
-    ``progress``: a label, and a progress bar of the folds on stderr (as they finish)."""
+    ``progress``: a label, and a progress bar of the folds on stderr (as they finish).
+    ``n_folds``: only the first so many folds are run (the bench's ``evaluate_folds``);
+    the other folds' rows are trained on, not predicted.
+    ``share_hyperparameters``: the first fold, run here, fits each target's hyperparameters
+    (a model with ``hyperparameters_``, such as the sparse GP) and the other folds reuse
+    them (:func:`sharing_hyperparameters`)."""
     rows = task.rows(frame)
     data = frame[rows].reset_index(drop=True)
     fold_of = np.asarray(folds)[rows]
     channels = skin.channels
     X = data[channels].to_numpy(dtype=np.float64)
     targets = task.target_values(data)
-    splitter = fold_splitter(fold_of)
+    splitter = fold_splitter(fold_of, n_folds)
     splits = list(splitter.split(X))
     binary = task.scorer == "detection"
     # What every fold shares goes to a cluster's workers once (each fold task carries its
@@ -187,24 +223,29 @@ def cross_validate(task: Task, frame: pd.DataFrame, folds: np.ndarray, estimator
     with (_shared_with_cluster(X, target_frame, splitter),
           tqdm(total=len(splits), desc=progress, unit="fold", disable=progress is None,
                file=sys.stderr, leave=False) as bar):
-        outcomes = []
-        if probe and n_jobs != 1 and splits:
-            with threadpool_limits(max(cpu_count() // n_jobs, 1)):
+        outcomes: list[FoldOutcome] = []
+        later = estimator  # what the folds after the first fit
+        probing = probe and n_jobs != 1
+        if splits and (probing or share_hyperparameters):
+            with (threadpool_limits(max(cpu_count() // n_jobs, 1)) if probing
+                  else contextlib.nullcontext()):
                 started = time.perf_counter()
                 outcomes.append(_fit_predict_fold(estimator, X, channels, target_frame,
-                                                  splitter, 0, binary))
+                                                  splitter, 0, binary, share_hyperparameters))
                 bar.update()
-                if not pool_pays(time.perf_counter() - started, len(splits) - 1,
-                                 cpu_count() if n_jobs < 0 else n_jobs):
+                if share_hyperparameters:
+                    later = sharing_hyperparameters(estimator, outcomes[0].hyperparameters)
+                if probing and not pool_pays(time.perf_counter() - started, len(splits) - 1,
+                                             cpu_count() if n_jobs < 0 else n_jobs):
                     for k in range(1, len(splits)):
-                        outcomes.append(_fit_predict_fold(estimator, X, channels,
+                        outcomes.append(_fit_predict_fold(later, X, channels,
                                                           target_frame, splitter, k, binary))
                         bar.update()
         pooled = len(outcomes) < len(splits) and n_jobs != 1
         if len(outcomes) < len(splits):
             for outcome in Parallel(n_jobs=n_jobs, return_as="generator")(
-                    delayed(_fit_predict_fold)(estimator, X, channels, target_frame, splitter,
-                                               k, binary)
+                    delayed(_fit_predict_fold)(later, X, channels, target_frame, splitter, k,
+                                               binary)
                     for k in range(len(outcomes), len(splits))):
                 outcomes.append(outcome)
                 bar.update()
@@ -212,7 +253,8 @@ def cross_validate(task: Task, frame: pd.DataFrame, folds: np.ndarray, estimator
     score: Callable = metrics.SCORERS[task.scorer]
     predictions = data.drop(columns=channels).assign(fold=fold_of)
     per_fold: dict[str, list[dict[str, float]]] = {name: [] for name in targets}
-    for (_, test), (predicted, _, _, _, scores) in zip(splits, outcomes, strict=True):
+    for (_, test), outcome in zip(splits, outcomes, strict=True):
+        predicted, scores = outcome.predictions, outcome.scores
         for name, values in predicted.items():
             columns = {f"{name}_pred": values}
             if scores.get(name) is not None:
@@ -232,7 +274,10 @@ def cross_validate(task: Task, frame: pd.DataFrame, folds: np.ndarray, estimator
         predictions[f"{name}_true"] = values
     confusion = {}
     if task.scorer != "regression":
-        tested = fold_of >= 0  # a row no fold tests (-1: training only) has no prediction
+        # a row no fold tests (-1: training only, or a fold beyond n_folds) has no prediction
+        tested = np.zeros(len(fold_of), dtype=bool)
+        for _, test in splits:
+            tested[test] = True
         confusion = {name: metrics.confusion(
             targets[name][tested], predictions.loc[tested, f"{name}_pred"].to_numpy())
             for name in targets}
@@ -240,8 +285,9 @@ def cross_validate(task: Task, frame: pd.DataFrame, folds: np.ndarray, estimator
         scheme=scheme, predictions=predictions, per_fold=per_fold,
         summary={name: metrics.summarise(scores) for name, scores in per_fold.items()},
         confusion=confusion,
-        fit_seconds=sum(o[1] for o in outcomes), predict_seconds=sum(o[2] for o in outcomes),
-        notes=dict(Counter(note for o in outcomes for note in o[3])), pooled=pooled)
+        fit_seconds=sum(o.fit_seconds for o in outcomes),
+        predict_seconds=sum(o.predict_seconds for o in outcomes),
+        notes=dict(Counter(note for o in outcomes for note in o.notes)), pooled=pooled)
 
 
 def _dtype(values: np.ndarray) -> str:
