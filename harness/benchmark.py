@@ -28,7 +28,7 @@ from joblib import Parallel, delayed
 from sklearn.base import BaseEstimator, clone
 
 from eskin.evaluation import metrics
-from eskin.evaluation.crossval import channel_frame, parallel_backend
+from eskin.evaluation.crossval import cross_validate, parallel_backend
 from eskin.evaluation.folds import FoldSplit, assign_folds, fold_splitter
 from eskin.evaluation.tasks import Task, get_task
 from eskin.kinds import get_kind
@@ -82,42 +82,21 @@ def variant_estimator(role: str, spec: Any, skin: AnySkin) -> tuple[BaseEstimato
     return build_model(role, model, hyper, skin), share
 
 
-def _fit_predict(estimator: BaseEstimator, X: np.ndarray, channels: list[str], y: np.ndarray,
-                 train: np.ndarray,
-                 test: np.ndarray) -> tuple[np.ndarray, float, float, BaseEstimator]:
-    model = clone(estimator)
-    start = time.perf_counter()
-    model.fit(channel_frame(X[train], channels), y[train])
-    fit_s = time.perf_counter() - start
-    start = time.perf_counter()
-    predicted = np.asarray(model.predict(channel_frame(X[test], channels)))
-    return predicted, fit_s, time.perf_counter() - start, model
-
-
 def run_variant(task: Task, data: pd.DataFrame, splitter: FoldSplit,
                 estimator: BaseEstimator, share: bool, *, skin: AnySkin) -> dict[str, Any]:
     """Score one variant on the splitter's folds (:func:`eskin.evaluation.folds.fold_splitter`
-    over ``data``'s rows, readings of ``skin``): per-target mean scores, seconds, peak MiB."""
-    channels = skin.channels
-    X = data[channels].to_numpy(dtype=np.float64)
-    score: Callable = metrics.SCORERS[task.scorer]
-    per_target: dict[str, list[dict[str, float]]] = {}
-    fit_s = predict_s = 0.0
+    over ``data``'s rows, the task's, readings of ``skin``): per-target mean scores, seconds,
+    peak MiB. The folds run through the pipeline's fold runner
+    (:func:`eskin.evaluation.crossval.cross_validate`), one after another in this process,
+    so a variant's times and memory are its own; with ``share``, each target's
+    hyperparameters are fitted on the first training fold (timed) and reused by the others,
+    which only condition on their data."""
     reset_peak_memory()
-    for name, y in task.target_values(data).items():
-        per_target[name] = []
-        shared = estimator
-        for k, (train, test) in enumerate(splitter.split(X)):
-            predicted, f_s, p_s, fitted = _fit_predict(shared, X, channels, y, train, test)
-            if share and k == 0:
-                # Hyperparameters fitted once (on the first training fold, timed above)
-                # and reused: later folds only condition on their data.
-                shared = clone(estimator).set_params(hyperparameters=fitted.hyperparameters_)
-            fit_s += f_s
-            predict_s += p_s
-            per_target[name].append(score(y[test], predicted))
+    result = cross_validate(task, data, splitter.test_fold, estimator, "bench", skin,
+                            n_folds=splitter.n_folds, share_hyperparameters=share)
     n = splitter.get_n_splits()
-    return {"scores": {name: metrics.summarise(folds) for name, folds in per_target.items()},
+    fit_s, predict_s = result.fit_seconds, result.predict_seconds
+    return {"scores": {name: result.summary[name] for name in task.targets},
             "fit_seconds_per_fold": fit_s / n, "predict_seconds_per_fold": predict_s / n,
             "seconds_per_fold": (fit_s + predict_s) / n, "peak_memory_mb": peak_memory_mb()}
 

@@ -12,7 +12,9 @@ from sklearn.utils.estimator_checks import check_estimator
 
 from eskin.data.schema import contact_mask, read_dataset
 from eskin.device.physics import SkinModel, SkinParams
-from eskin.evaluation.folds import fold_splitter
+from eskin.evaluation import metrics
+from eskin.evaluation.crossval import cross_validate
+from eskin.evaluation.folds import assign_folds, fold_splitter
 from eskin.evaluation.tasks import get_task
 from eskin.learning.estimators import build_model
 from eskin.learning.gp import FixedKernelGaussianProcess, SparseGaussianProcess, stable_cholesky
@@ -162,6 +164,32 @@ def test_a_variant_is_scored_on_the_given_folds_only(small_dataset):
     assert result["scores"]["stretch"]["r2"] > 0.9
     assert result["seconds_per_fold"] > 0
     assert result["peak_memory_mb"] is None or result["peak_memory_mb"] > 0
+
+
+@pytest.mark.parametrize(("task_name", "spec"), [
+    ("detect", {"model": "logistic", "C": 1.0, "class_weight": "balanced"}),
+    ("localise", {"model": "knn", "n_neighbors": 5}),
+])
+def test_the_bench_scores_what_the_pipelines_cross_validation_scores(small_dataset, task_name,
+                                                                     spec):
+    """One fold runner: a variant's scores are training's on the same folds, the decision
+    scores' ROC AUC included (a detector), on the task's rows only (localise: contacts);
+    the bench's first evaluate_folds folds are training's first folds."""
+    _, frame = small_dataset
+    task = get_task("single_force", task_name)
+    folds = assign_folds(frame, "single_force", "conditions", 3, 0, skin=PAPER_SKIN)
+    estimator, share = benchmark.variant_estimator(task.role, spec, PAPER_SKIN)
+    pipeline = cross_validate(task, frame, folds, estimator, "conditions", PAPER_SKIN)
+    rows = task.rows(frame)
+    data = frame[rows].reset_index(drop=True)
+    for n_folds in (None, 2):
+        bench = benchmark.run_variant(task, data, fold_splitter(folds[rows], n_folds),
+                                      estimator, share, skin=PAPER_SKIN)
+        assert bench["scores"] == {name: metrics.summarise(pipeline.per_fold[name][:n_folds])
+                                   for name in task.targets}
+    assert bench["scores"] != {name: pipeline.summary[name] for name in task.targets}
+    if task_name == "detect":
+        assert 0.5 < bench["scores"]["contact"]["roc_auc"] <= 1.0
 
 
 @pytest.mark.heavy

@@ -121,20 +121,23 @@ def test_the_bench_scores_the_old_fold_loops_folds():
 
 
 def test_cv_and_the_bench_run_their_folds_through_the_splitter(monkeypatch):
-    """No second fold runner: both take their (train, test) pairs from FoldSplit."""
+    """No second fold runner: the bench runs a variant's folds through cross_validate, which
+    takes each fold's (train, test) from FoldSplit, the bench's first folds only."""
+    from eskin.evaluation import crossval
+
     task, frame = synthetic()
     calls = []
-    split, fold = FoldSplit.split, FoldSplit.fold
-    monkeypatch.setattr(FoldSplit, "split", lambda self, *a, **k: calls.append("split")
-                        or split(self, *a, **k))
+    fold, run = FoldSplit.fold, crossval.cross_validate
     monkeypatch.setattr(FoldSplit, "fold", lambda self, k: calls.append("fold")
                         or fold(self, k))
+    monkeypatch.setattr(benchmark, "cross_validate", lambda *a, **k: calls.append("cv")
+                        or run(*a, **k))
     cross_validate(task, frame, FOLDS, KNeighborsRegressor(n_neighbors=1), "stratified",
                    PAPER_SKIN)
-    assert calls.count("fold") == 4
+    assert calls == ["fold"] * 4
     calls.clear()
     rows = task.rows(frame)
     data = frame[rows].reset_index(drop=True)
-    benchmark.run_variant(task, data, fold_splitter(FOLDS[rows]),
+    benchmark.run_variant(task, data, fold_splitter(FOLDS[rows], 2),
                           KNeighborsRegressor(n_neighbors=1), False, skin=PAPER_SKIN)
-    assert calls == ["split"]
+    assert calls == ["cv", "fold", "fold"]
