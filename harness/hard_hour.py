@@ -185,9 +185,11 @@ def _pair_scores(found: pd.DataFrame) -> dict[str, Any]:
 
     if found.empty:
         return {"pair_accuracy": None, "force_mae_n": None}
+    # a contact a counting stack does not place (it counted fewer) is node 0, 0 N: wrong
     named = pd.DataFrame({
         **{f"{a}{i}_{side}": found[f"{'true_' if side == 'true' else ''}{a}{i}"].astype(float)
-           for a in ("x", "y", "force") for i in CONTACTS for side in ("true", "pred")}})
+           for a in ("x", "y", "force") for i in CONTACTS for side in ("true", "pred")}}
+        ).fillna(0.0)
     scores = pair_scores(pair_outcomes(named))
     return {"pair_accuracy": round(float(scores["pair_accuracy"]), 5),
             "force_mae_n": round(float(scores["force_mae"]), 4)}

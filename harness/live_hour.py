@@ -260,8 +260,9 @@ def score_pairs(frame: pd.DataFrame, batch_scores: dict[str, Any]) -> dict[str, 
     named = pd.DataFrame({
         **{f"{a}{i}_true": pressed[f"true_{a}{i}"].astype(float) for a in ("x", "y", "force")
            for i in CONTACTS},
-        **{f"{a}{i}_pred": pressed[f"{a}{i}"].astype(float) for a in ("x", "y", "force")
-           for i in CONTACTS}})
+        # a contact a counting stack does not place (it counted fewer) is node 0, 0 N
+        **{f"{a}{i}_pred": pressed[f"{a}{i}"].astype(float).fillna(0.0)
+           for a in ("x", "y", "force") for i in CONTACTS}})
     scores = pair_scores(pair_outcomes(named)) if len(named) else {}
     sustained = pressed[pressed["kind"] == "sustained"]
     sustained_scores = pair_scores(pair_outcomes(named.loc[sustained.index])) \
