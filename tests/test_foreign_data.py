@@ -156,7 +156,7 @@ def test_each_scene_trains_what_its_data_supports_and_says_why_it_skips_the_rest
     assert set(pairs["force"]["conditions"]) == {"force1", "force2"}
     assert pairs["localise"]["status"] == "trained" and pairs["pairs"]["status"] == "scored"
     assert "two or more stretch levels" in pairs["stretch"]["reason"]
-    assert "contact and no-contact samples" in pairs["detect"]["reason"]
+    assert "every sample of this scene has 2" in pairs["detect"]["reason"]
     board = scores(root, "board_day1", "stretch")
     assert board["status"] == "skipped" and "this scene has one (λ = 1)" in board["reason"]
     assert scores(root, "board_day1", "force")["status"] == "trained"
@@ -254,7 +254,7 @@ def test_the_benchmark_runs_per_scene_and_says_where_there_is_no_bayes_bound(ben
     pairs = json.loads((bench / "lab_pairs/summary.json").read_text())
     assert pairs["defaults"]["localise"] == "active_terminals"  # two-force default (train.localise)
     assert "two or more stretch levels" in pairs["skipped"]["stretch"]
-    assert "contact and no-contact samples" in pairs["skipped"]["detect"]
+    assert "every sample of this scene has 2" in pairs["skipped"]["detect"]
     assert sorted(p.name for p in (bench / "lab_pairs/figures").iterdir()) == \
         ["force.png", "localise.png"]
     assert len(list((bench / "lab_single/figures").glob("*.png"))) == 4

@@ -260,7 +260,7 @@ def test_two_force_tasks_train(project, tmp_path):
     assert np.isfinite(scores["conditions"]["force1"]["r2"])
     assert np.isfinite(scores["conditions"]["force2"]["r2"])
     for task, reason in (("stretch", "two or more stretch levels"),
-                         ("detect", "contact and no-contact samples")):
+                         ("detect", "every sample of this scene has 2")):
         train(project, "two_force", task, tmp_path / task)
         scores = json.loads((tmp_path / task / "scores.json").read_text())
         assert scores["status"] == "skipped" and reason in scores["reason"], scores
