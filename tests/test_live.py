@@ -583,7 +583,9 @@ def test_a_click_on_the_view_presses_the_simulated_skin_there_with_the_weight_se
         shown = {name: page.inner_text(f"#{name}") for name in ("contact", "force", "pressed")}
         cell = page.inner_text("#cell-6-4")
         outlined = page.eval_on_selector("#cell-6-4", "cell => cell.classList.contains('pressed')")
-        ticks = [page.inner_text(f"#tick-{name}") for name in ("top", "middle")]
+        # both ticks in one call: the page redraws them together, and could between two
+        ticks = page.evaluate("['top', 'middle'].map(name => "
+                              "document.getElementById(`tick-${name}`).innerText)")
         bars = page.eval_on_selector_all(
             "#bars div", "bars => bars.map(bar => [bar.id, bar.style.height, bar.title])")
         caption = page.inner_text("#channels figcaption")
