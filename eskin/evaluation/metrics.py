@@ -42,15 +42,20 @@ def localisation(y_true: np.ndarray, y_pred: np.ndarray, score=None) -> dict[str
     """Accuracy, balanced accuracy, macro F1 and the share within one node of the truth."""
     y_true = np.asarray(y_true)
     y_pred = np.asarray(y_pred)
+    return {**_class_scores(y_true, y_pred),
+            "within_one": float(np.mean(np.abs(y_true.astype(float) - y_pred) <= 1))}
+
+
+def _class_scores(y_true: np.ndarray, y_pred: np.ndarray) -> dict[str, float]:
+    """Accuracy, balanced accuracy and macro F1 of class labels (nodes, or counts)."""
     with warnings.catch_warnings():
-        # A conditions fold may hold no sample of a node the model still predicts: the
-        # score is then over the nodes present, which is what a fold can measure.
+        # A conditions fold may hold no sample of a class the model still predicts: the
+        # score is then over the classes present, which is what a fold can measure.
         warnings.filterwarnings("ignore", message="y_pred contains classes not in y_true")
         balanced = balanced_accuracy_score(y_true, y_pred)
     return {"accuracy": float(accuracy_score(y_true, y_pred)),
             "balanced_accuracy": float(balanced),
-            "f1_macro": float(f1_score(y_true, y_pred, average="macro", zero_division=0.0)),
-            "within_one": float(np.mean(np.abs(y_true.astype(float) - y_pred) <= 1))}
+            "f1_macro": float(f1_score(y_true, y_pred, average="macro", zero_division=0.0))}
 
 
 def position_error_mm(x_true: np.ndarray, y_true: np.ndarray, x_pred: np.ndarray,
@@ -76,12 +81,7 @@ def counting(y_true: np.ndarray, y_pred: np.ndarray, score=None) -> dict[str, fl
     and the accuracy of "any contact" (a count above 0), the single-contact detector's."""
     y_true = np.asarray(y_true, dtype=np.int64)
     y_pred = np.asarray(y_pred, dtype=np.int64)
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message="y_pred contains classes not in y_true")
-        balanced = balanced_accuracy_score(y_true, y_pred)
-    return {"accuracy": float(accuracy_score(y_true, y_pred)),
-            "balanced_accuracy": float(balanced),
-            "f1_macro": float(f1_score(y_true, y_pred, average="macro", zero_division=0.0)),
+    return {**_class_scores(y_true, y_pred),
             "contact_accuracy": float(accuracy_score(y_true > 0, y_pred > 0))}
 
 
