@@ -163,14 +163,19 @@ def test_duplicated_and_spoofed_oks_from_the_simulated_board_cost_a_retry_each(t
 
 
 @pytest.mark.parametrize("transport", ["pty", "socket"])
-def test_a_port_that_is_gone_is_named_once_in_each_notice_and_in_the_error(transport):
+def test_a_port_that_is_gone_is_named_once_in_each_notice_and_in_the_error(transport,
+                                                                           tmp_path):
     """Issue 40: reconnect notices named the port three times (ours, pyserial's, the OS's)."""
     import socket
 
     if transport == "pty":
+        # Opened by a link, as udev's /dev/serial/by-id names a board, that goes on unplug.
+        # A /dev/pts number alone is no test: a pty opened elsewhere reuses it at once.
         master, slave = os.openpty()
-        port = os.ttyname(slave)
+        port = str(tmp_path / "ttyACM-board")
+        os.symlink(os.ttyname(slave), port)
         link = SerialLink(port, timeout_s=0.2)
+        os.unlink(port)
         os.close(master)
         os.close(slave)  # the pty goes with the link's descriptor, closed by reopen
     else:
