@@ -77,6 +77,9 @@ class SoakResult:
     transport: str = "pty"
     requests: int = 0              # SAMPLE requests the board answered (or was sent)
     frames_requested: int = 0      # the frames they asked for
+    # Each differing sample, and the raw-log records of the attempt that stored it: what
+    # a failed soak (a rare one in CI, say) is diagnosed from once its files are gone.
+    evidence: list[str] = field(default_factory=list)
 
     @property
     def passed(self) -> bool:
@@ -120,6 +123,7 @@ class SoakResult:
             f"| verdict | {'PASS' if self.passed else 'FAIL'} |",
             "", "Runs:", "",
             *[f"{i}. {text}" for i, text in enumerate(self.runs, start=1)],
+            *(["", "Evidence:", "", "```", *self.evidence, "```"] if self.evidence else []),
         ]
         return "\n".join(lines) + "\n"
 
@@ -159,6 +163,37 @@ def compare(reference: pd.DataFrame, frame: pd.DataFrame, plan: ScenePlan) -> di
             "duplicated": int(frame.duplicated(KEY).sum()),
             "extra": int((merged["_merge"] == "right_only").sum()),
             "differing": int(differs.sum())}
+
+
+def differing_evidence(reference: pd.DataFrame, frame: pd.DataFrame, plan: ScenePlan,
+                       log: Path, *, at_most: int = 3) -> list[str]:
+    """For the first ``at_most`` samples whose values differ from ``reference``: which
+    columns, both values, the board counters of each, and the raw-log records (bounded)
+    of the attempt whose frame line was stored for it."""
+    values = plan.skin.channels + LABELS[plan.kind] + ["session"]
+    counters = ["seq", "t_ms"]
+    both = reference[KEY + values + counters].merge(
+        frame[KEY + values + counters].drop_duplicates(KEY), on=KEY,
+        suffixes=("_clean", "_soak"))
+    differs = np.zeros(len(both), dtype=bool)
+    for column in values:
+        differs |= (both[f"{column}_clean"] != both[f"{column}_soak"]).to_numpy()
+    records = log.read_text(encoding="ascii", errors="replace").splitlines()
+    out = []
+    for _, row in both[differs].head(at_most).iterrows():
+        changed = ", ".join(f"{c} {row[f'{c}_clean']} -> {row[f'{c}_soak']}" for c in values
+                            if row[f"{c}_clean"] != row[f"{c}_soak"])
+        out.append(f"trial {row['trial']} sample {row['sample']}: {changed} (clean seq "
+                   f"{row['seq_clean']} t_ms {row['t_ms_clean']}; soak seq {row['seq_soak']} "
+                   f"t_ms {row['t_ms_soak']})")
+        prefix = f"D,{int(row['seq_soak'])},{int(row['t_ms_soak'])},"
+        attempts = {line.split("\t")[1] for line in records
+                    if line.startswith("F\t") and line.split("\t")[2].startswith(prefix)}
+        held = [line[:160] for line in records
+                if line[:1] in "BFXE" and line.split("\t")[1:2] and
+                line.split("\t")[1] in attempts]
+        out += [f"  {line}" for line in held[:40]]
+    return out
 
 
 def expected_kinds(settings: Soak) -> list[str]:
@@ -264,7 +299,8 @@ def _soak(written: dict, settings: Soak, workdir: Path, reference: pd.DataFrame,
         kills=len(killed_after), killed_after=killed_after,
         **compare(reference, frame, plan), crc_passed=crc_passed,
         seconds=time.monotonic() - started, runs=runs, transport=transport,
-        requests=len(asked), frames_requested=sum(asked))
+        requests=len(asked), frames_requested=sum(asked),
+        evidence=differing_evidence(reference, frame, plan, log))
 
 
 def wait_for_conditions(log: Path, target: int, process: subprocess.Popen,

@@ -197,7 +197,8 @@ def test_soak_every_fault_kind_and_two_sigkills_lose_and_duplicate_nothing(clean
                       scene="single_force",
                       say=lambda message: None)
     assert result.kills == 2 and all(n > 0 for n in result.faults.values()), result.markdown()
-    assert (result.lost, result.duplicated, result.extra, result.differing) == (0, 0, 0, 0)
+    assert (result.lost, result.duplicated, result.extra, result.differing) == (0, 0, 0, 0), \
+        result.markdown()
     assert result.rows == 404 * 5 and result.passed
     assert re.search(r", [1-9][0-9]* board restart\(s\), [1-9][0-9]* reconnect", result.runs[-1])
 
