@@ -109,6 +109,33 @@ class Kind:
         return self.labels if width == skin.terminals + len(self.labels) else self.labels[:-1]
 
     @property
+    def several(self) -> bool:
+        """Several contacts per condition: a plan places them from node lists, each pressing
+        with a force > 0 (``contact_counts`` may leave some off); they are paired and
+        scored as a set, may be weighed by one sensor (a total-force variant), and an
+        import keeps the rows where they press (its rows at rest teach nothing)."""
+        return self.contacts > 1
+
+    def in_label_order(self, labels: dict[str, np.ndarray], skin: AnySkin
+                       ) -> dict[str, np.ndarray]:
+        """``labels`` (column → values) with each row's contacts in label order, as a plan
+        names them (eskin.data.plan): by node (x, then y), an absent contact (node 0)
+        last. Columns a recording lacks (per-contact forces beside a total) are left out."""
+        if not self.several:
+            return labels
+        nodes = np.stack([skin.node_id(np.nan_to_num(labels[x]), np.nan_to_num(labels[y]))
+                          for _, x, y in self.contact_columns], axis=1)
+        order = np.argsort(np.where(nodes > 0, nodes, skin.n_nodes + 1), axis=1,
+                           kind="stable")
+        out = dict(labels)
+        for group in zip(*self.contact_columns, strict=True):  # the forces, the xs, the ys
+            if all(column in labels for column in group):
+                values = np.take_along_axis(np.stack([labels[c] for c in group], axis=1),
+                                            order, axis=1)
+                out.update({column: values[:, i] for i, column in enumerate(group)})
+        return out
+
+    @property
     def detect_target(self) -> str | None:
         """The detect task's target: ``contact`` (one contact: pressed or not) or
         ``contacts`` (several: how many press, 0 to :attr:`contacts`); None for a kind

@@ -246,7 +246,7 @@ def bayes_bound(scene: str, settings: Scene, dataset_path: Path, out_path: Path,
     # from nodes_x × nodes_y, a force each).
     conditions = [settings.stretches, settings.forces]
     sim, skin = skin_params(sim), scene_skin(settings)
-    if get_kind(meta["kind"]).contacts > 1:
+    if get_kind(meta["kind"]).several:
         # importance sampling: every sample's answer from each half of the points too
         found = pair_oracle.posterior_predictions(
             frame, sim, *conditions, settings.nodes_x, settings.nodes_y, skin=skin,

@@ -67,7 +67,7 @@ def simulate_plan(sim: SkinParams, plan: ScenePlan, seed: int = 0) -> pd.DataFra
         block["stretch"] = condition.stretch
         block["trial"] = trial_no
         block["sample"] = np.arange(plan.samples)
-        if get_kind(plan.kind).contacts == 1:
+        if not get_kind(plan.kind).several:
             (contact,) = condition.contacts
             block["force"], block["x"], block["y"] = contact.force, contact.x, contact.y
         else:

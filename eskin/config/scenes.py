@@ -260,7 +260,7 @@ class AcquiredScene(Scene):
     @model_validator(mode="after")
     def _kind_fields(self) -> AcquiredScene:
         kind = KINDS[self.kind]
-        two = kind.contacts > 1
+        two = kind.several
         skin = scene_skin(self)
         for name, top in (("nodes_x", skin.size_x), ("nodes_y", skin.size_y)):
             if two and not getattr(self, name):
@@ -315,7 +315,7 @@ class ImportedScene(Scene):
         others = [key for key in (*FORCE_KEYS, *POSITION_KEYS)
                   if getattr(columns, key) is not None
                   and key.removesuffix("_mm") not in (*kind.force_columns, *kind.node_columns)
-                  and not (key == "force" and kind.contacts > 1)]
+                  and not (key == "force" and kind.several)]
         if others:
             raise ValueError(f"import.columns.{others[0]} is not a label of a {kind.name} "
                              f"scene ({', '.join(kind.labels)})")
@@ -325,7 +325,7 @@ class ImportedScene(Scene):
             raise ValueError(f"import.columns: force (the total) and {', '.join(given)} (per "
                              "contact) both given; keep one")
         if not total and len(given) != len(kind.force_columns):
-            need = "force" if kind.contacts == 1 else \
+            need = "force" if not kind.several else \
                 f"{' and '.join(kind.force_columns)}, or force (their total)"
             raise ValueError(f"import.columns needs {need}: the column of the force (N)")
         sources = spec.position_sources()
@@ -372,7 +372,7 @@ def import_kind(kind: str, spec: Import | None) -> Kind:
     (``import.columns.force``), the kind's total-force variant."""
     declared = KINDS[kind]
     columns = spec.columns if spec is not None else None
-    if declared.contacts > 1 and columns is not None and columns.force is not None:
+    if declared.several and columns is not None and columns.force is not None:
         return declared.with_total_force()
     return declared
 

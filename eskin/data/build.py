@@ -94,7 +94,7 @@ def _labels_note(metadata: dict) -> str:
     per-contact forces."""
     source, note = metadata["source"], ""
     contact_n = (source.get("force") or {}).get("contact_n")
-    if contact_n is not None and get_kind(metadata["kind"]).contacts == 1:
+    if contact_n is not None and not get_kind(metadata["kind"]).several:
         note += (f"; {source['contact_share']:.0%} contacts (force > {contact_n:g} N over "
                  f"{_rest_words(source['force'].get('rest') or {})})")
     if source.get("rows_at_rest"):

@@ -918,7 +918,7 @@ def _labels_of(numeric: pd.DataFrame, mapped: _Map, spec: Import, kind: str,
         forces = {f: np.where(pressed, residual * share[f], 0.0) for f in forces}
     else:
         pressed = np.ones(n, dtype=bool)
-    at_rest = ~pressed if the_kind.contacts > 1 else np.zeros(n, dtype=bool)
+    at_rest = ~pressed if the_kind.several else np.zeros(n, dtype=bool)
     out: dict[str, np.ndarray] = {}
     tolerance = tolerance_mm(spec, skin) if any(k.endswith("_mm") for k in
                                                 spec.position_sources()) else 0.0
@@ -937,15 +937,7 @@ def _labels_of(numeric: pd.DataFrame, mapped: _Map, spec: Import, kind: str,
         out[node] = np.where(pressed, values, 0.0)
     for force in forces:
         out[force] = forces[force]
-    if the_kind.contacts > 1:  # contact 1 is the one whose node comes first (x, then y),
-        # and an absent contact (node 0) comes last, as a plan names it (eskin.data.plan)
-        first, second = (np.where(node > 0, node, skin.n_nodes + 1) for node in (
-            skin.node_id(np.nan_to_num(out[f"x{i}"]), np.nan_to_num(out[f"y{i}"]))
-            for i in (1, 2)))
-        swap = first > second
-        for a, b in (("x1", "x2"), ("y1", "y2"), ("force1", "force2")):
-            if a in out:
-                out[a], out[b] = np.where(swap, out[b], out[a]), np.where(swap, out[a], out[b])
+    out = the_kind.in_label_order(out, skin)
     out["stretch"] = numeric["stretch"].to_numpy() if "stretch" in numeric else np.ones(n)
     labels = pd.DataFrame({c: out[c] for c in import_kind(kind, spec).labels})
     return labels, at_rest, offset, problems
@@ -1093,7 +1085,7 @@ def import_recording(files: list[Path], spec: Import, kind: str, skin: AnySkin, 
 def _touching(labels: pd.DataFrame, kind: str) -> np.ndarray:
     """Whether each row is a contact: force > 0 at a node; every row of several contacts
     (their scenes keep pressed rows only)."""
-    if get_kind(kind).contacts > 1:
+    if get_kind(kind).several:
         return np.ones(len(labels), dtype=bool)
     return contact_mask(labels)
 

@@ -173,7 +173,7 @@ def score_scene_pairs(scene: str, predictions: Mapping[str, pd.DataFrame],
                            reason)
 
     kind = DATASET_KINDS.get(localise.get("kind", ""))
-    if kind is None or kind.contacts < 2:
+    if kind is None or not kind.several:
         reason = f"a {localise.get('kind')} scene has one contact; pairs need two"
         return skip(reason, reason, applies=False)
     if kind.total_force:

@@ -294,7 +294,7 @@ def plot_data(scene: str, kind: str, skin: AnySkin, predictions: dict[str, pd.Da
         frame = predictions.get(task)
         if frame is not None and not frame.empty:
             columns = {f"{target}_true": "actual", f"{target}_pred": "predicted"}
-            if task == "force" and get_kind(kind).contacts == 1:
+            if task == "force" and not get_kind(kind).several:
                 columns["stretch"] = "stretch"
             points = frame[list(columns)].rename(columns=columns)
             step = -(-len(points) // PLOT_POINTS)
@@ -470,6 +470,6 @@ def scene_metrics(by_task: Mapping[str, dict]) -> dict[str, float]:
         per_contact = {*labelled.node_columns,
                        *([] if labelled.total_force else labelled.force_columns)}
         for target in task.targets:
-            if not (as_set and labelled.contacts > 1 and target in per_contact):
+            if not (as_set and labelled.several and target in per_contact):
                 out[target] = scheme[target][task.headline_metric]
     return out
