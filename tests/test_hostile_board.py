@@ -386,6 +386,23 @@ def test_a_damaged_first_frame_after_a_greeting_costs_one_retry(
     pd.testing.assert_frame_equal(frame[CONTENT], clean[CONTENT])
 
 
+def test_a_restart_after_the_last_conditions_answer_gets_the_stretch_again(
+        honest, tmp_path):
+    """The plan's last condition, stretched, answered whole; then the board restarts
+    (stretch and presses forgotten) in place of the one frame asked to judge the answer's
+    last frame. That condition is asked again, and its board must be stretched again: a
+    soak once stored a frame read at rest for it (the restart seen only by the judging
+    request, which dropped the news; the CI soak of ca3f7da, 1 sample of 2,020)."""
+    params, clean = honest
+    last = len(plan_from_params(
+        "single_force", validate_params(params, Params).scenes["single_force"]).conditions)
+    report, plan = acquire_from(HostileBoard(misbehaviour="restart_mid", at=last + 1),
+                                tmp_path, params)
+    frame = ingest_log(tmp_path / "acquisition.log", plan).frame
+    pd.testing.assert_frame_equal(frame[CONTENT], clean[CONTENT])
+    assert report.resets == 1, report.summary()
+
+
 @pytest.mark.parametrize("transport", ["pty", "socket"])
 def test_an_answer_whose_last_frame_was_lost_costs_one_retry(honest, tmp_path, transport):
     """Finding 2: the next clean answer used to fail too (`frames lost: expected seq N, got

@@ -283,7 +283,12 @@ def acquire(plan: ScenePlan, link: SerialLink, writer: RawLogWriter, placer: Pla
     with bar, _closed_on_the_way_out(writer), _held_on_the_way_out(writer, lambda: pending):
         while queue or pending is not None:
             if not queue:  # the last condition's last frame: one more frame judges it
-                _judge(link, settle)
+                fault = _judge(link, settle)
+                if fault is not None:
+                    # As below: a restarted board forgot where the clamp is (the condition
+                    # put back is placed anew, but its stretch is sent only if it changed).
+                    report.resets += isinstance(fault, BoardReset)
+                    stretch_mm = None
                 continue
             condition, carried = queue.popleft()
             key = condition.key(hello.device_id, hello.firmware)
@@ -496,17 +501,22 @@ class _Pending:
     logged: int | None  # frames logged under ``attempt``
 
 
-def _judge(link: SerialLink, settle: Callable[..., None]) -> None:
+def _judge(link: SerialLink, settle: Callable[..., None]) -> LinkError | None:
     """After the plan's last condition: one frame more, asked for nothing but to judge the
-    board time of the frame before it (none of it is stored)."""
+    board time of the frame before it (none of it is stored). The link fault that cut
+    that request short, if one did: a restart (BoardReset) or a lost link may have left
+    the board without its stretch, and the caller must know to set it again."""
+    fault = None
     try:
         link.sample(SampleBatch(1))
-    except (BoardReset, ProtocolViolation):
-        pass  # nothing judged it: settle() puts the condition back
+    except ProtocolViolation:
+        pass  # answered out of turn, fenced: nothing judged it
     except LinkError as err:
         if isinstance(err, BoardRefused | DeviceChanged):
             raise
+        fault = err  # nothing judged it either
     settle(force=True)  # a frame judged it, or none will: it is asked again
+    return fault
 
 
 def _tail(kept: dict[int, tuple[int, Frame]], last: Frame | None) -> tuple[int, Frame] | None:
