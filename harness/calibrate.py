@@ -131,8 +131,8 @@ def scores(sim: SkinParams, scenes: Mapping[str, Any], *, full: bool = True,
     out["single_force force r2 (conditions)"] = held_out.summary["force"]["r2"]
     pairs = simulate_plan(sim, two_plan)
     two = evaluate(pairs, TWO_CONTACTS.name, "force", "paper", skin=two_plan.skin)
-    out["two_force force1 r2"] = two.summary["force1"]["r2"]
-    out["two_force force2 r2"] = two.summary["force2"]["r2"]
+    for force in TWO_CONTACTS.force_columns:
+        out[f"{TWO_CONTACTS.name} {force} r2"] = two.summary[force]["r2"]
     return out
 
 

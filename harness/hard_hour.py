@@ -32,7 +32,7 @@ import numpy as np
 import pandas as pd
 
 from eskin.data.plan import ScenePlan
-from eskin.kinds import ONE_CONTACT
+from eskin.kinds import ONE_CONTACT, TWO_CONTACTS
 from harness.live_hour import GRACE_MS, Press, Step, scene_presses
 
 PARTS = ("light_edges", "held_through_stretch", "taps", "long_presses", "untouched")
@@ -131,7 +131,7 @@ def reported(frame: pd.DataFrame) -> pd.Series:
     stack that counts none (two contacts on the paper's plan), that it placed one."""
     if "contact" in frame and frame["contact"].notna().any():
         return frame["contact"].fillna(False).astype(bool)
-    return frame["x1"].notna()
+    return frame[TWO_CONTACTS.node_columns[0]].notna()
 
 
 def phantom_runs(frame: pd.DataFrame, contact: pd.Series) -> pd.DataFrame:
@@ -228,7 +228,7 @@ def verdicts(scores: dict[str, Any], batch_cv: dict[str, Any], targets) -> dict[
 def score_hard(frame: pd.DataFrame, batch_cv: dict[str, Any], targets) -> dict[str, Any]:
     """Every part's scores and verdicts, and the whole script's (``frame``: what
     :func:`harness.live_hour.run` returns for :func:`hard_script`)."""
-    pairs = "x1" in frame
+    pairs = TWO_CONTACTS.node_columns[0] in frame
     contact = reported(frame)
     runs = phantom_runs(frame, contact)
     parts: dict[str, Any] = {}

@@ -33,7 +33,13 @@ from eskin.deploy.live import live_estimates
 from eskin.deploy.stack import ExportedStack, SkinStack
 from eskin.device.board import SimulatedBoard
 from eskin.device.simulate import accelerated_stream, live_board
+from eskin.kinds import KINDS
 
+# What a stack may estimate, scored per frame where it does: whether a contact presses,
+# each kind's positions and forces, the stretch.
+ESTIMATES = ["contact", *dict.fromkeys(column for kind in KINDS.values()
+                                       for column in (*kind.node_columns, *kind.force_columns)),
+             "stretch"]
 GRACE_MS = 100  # a press's first 100 ms (and a release's) are not scored: hysteresis' time
 
 
@@ -164,8 +170,7 @@ def run(scene: str, settings, params_path: Path = Path("params.yaml"), *,
                                          requests=requests) if "seq" in r]
     stack.predict = predict  # type: ignore[method-assign]
     at = dict(truth)
-    estimated = [c for c in ("contact", "x", "y", "force", "x1", "y1", "x2", "y2", "force1",
-                             "force2", "stretch") if c in stack.columns or c == "contact"]
+    estimated = [c for c in ESTIMATES if c in stack.columns or c == "contact"]
     rows = []
     for r in records:
         step, began = at[r["t_ms"]]

@@ -55,7 +55,7 @@ SEATING_STARTS = (0.0, 1.5)  # SDs: each descent starts from each (see _modes)
 SEATINGS = [2, 5]  # the seating latents' columns (each contact's offset x, y, then seating)
 ADAPTATIONS = 4    # rounds of fitting a Gaussian to the weighted points (see _importance)
 HALVES = ("all", "first half", "second half")  # the points each estimate uses
-POSITIONS = ("x1", "y1", "x2", "y2")
+POSITIONS = tuple(TWO_CONTACTS.node_columns)
 
 
 @dataclass(frozen=True)
@@ -295,8 +295,8 @@ def _decide(log_post: np.ndarray, cond: PairConditions, model: SkinModel) -> pd.
     the most probable value of each position (a node of ``model``'s skin)."""
     log_post = log_post - logsumexp(log_post, axis=1, keepdims=True)
     post = np.exp(log_post)
-    out = {"stretch": post @ cond.stretch, "force1": post @ cond.force1,
-           "force2": post @ cond.force2}
+    out = {"stretch": post @ cond.stretch,
+           **{force: post @ getattr(cond, force) for force in TWO_CONTACTS.force_columns}}
     for name in POSITIONS:
         nodes = model.x_nodes if name.startswith("x") else model.y_nodes
         onehot = getattr(cond, name)[:, None] == nodes[None, :].astype(int)

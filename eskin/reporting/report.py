@@ -264,16 +264,18 @@ def _task_files(directory: Path, scene: str, suffix: str, reader) -> dict[str, A
 
 
 # What a `dvc plots` panel shows, by target (its title, with the scene's name); a node
-# target's is :func:`panel_label`'s.
-PANEL_LABEL = {"stretch": "stretch λ", "force": "force (N)", "force1": "force of contact 1 (N)",
-               "force2": "force of contact 2 (N)", "contact": "contact",
+# target's, or one contact's force, is :func:`panel_label`'s.
+PANEL_LABEL = {"stretch": "stretch λ", "force": "force (N)", "contact": "contact",
                "contacts": "contacts pressing"}
 
 
 def panel_label(target: str, skin: AnySkin) -> str:
-    """A `dvc plots` panel's title: ``x terminal``, ``y position of contact 2``, …"""
+    """A `dvc plots` panel's title: ``x terminal``, ``y position of contact 2``, ``force of
+    contact 1 (N)``, …"""
     if target in PANEL_LABEL:
         return PANEL_LABEL[target]
+    if target.startswith("force"):
+        return f"force of contact {target.removeprefix('force')} (N)"
     axis, contact = target[0], target[1:]
     return f"{axis} {node_word(skin)}" + (f" of contact {contact}" if contact else "")
 
