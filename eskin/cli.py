@@ -12,15 +12,8 @@ from pathlib import Path
 
 from eskin import __version__
 from eskin.catalog import (
-    FEATURES_DIR,
-    MODELS_DIR,
-    PROCESSED_DIR,
-    RAW_DIR,
     SOURCES,
     TASK_NAMES,
-    features_path,
-    folds_path,
-    task_outputs,
 )
 from eskin.errors import (
     NOTHING_CHANGED,
@@ -447,8 +440,9 @@ def build_parser() -> argparse.ArgumentParser:
     featurize.add_argument("--params", type=Path, default=Path("params.yaml"), help=PARAMS_HELP)
     featurize.set_defaults(run=_learning_step)
     train = _command(
-        commands, "train", "draw a scene's folds, then cross-validate and refit one task "
-        "(train.<task> of params.yaml) into the workspace; logs nothing to MLflow",
+        commands, "train", "write the settings and draw a scene's folds, then "
+        "cross-validate and refit one task (train.<task> of params.yaml) into the workspace, "
+        "as the pipeline's settings, folds and train stages do; logs nothing to MLflow",
         _examples(("eskin train single_force force", "its scores, predictions and model"),
                   note="dvc repro trains every task in its train stages, then its last stage,\n"
                   "track, logs them to MLflow (eskin compare shows them)."),
@@ -637,52 +631,44 @@ def _promote(args: argparse.Namespace) -> int:
     return 0
 
 
-def _learning_step(args: argparse.Namespace) -> int:
+def _check_params(path: Path) -> None:
+    """The whole params file, checked: a command names a typo in any section, where a
+    stage checks the sections it reads (and depends on) alone."""
     from eskin.config.base import load_params
     from eskin.config.params import Params
-    from eskin.config.scenes import get_scene
-    from eskin.evaluation.folds import write_scene_folds
-    from eskin.learning import train
-    from eskin.learning.features import featurize_scene
 
-    params = load_params(Params, args.params)
-    get_scene(params, args.scene, args.params)
+    load_params(Params, path)
+
+
+def _learning_step(args: argparse.Namespace) -> int:
+    """``eskin featurize`` and ``eskin train``: the pipeline's own steps (eskin.steps), as
+    its stages run them; ``train`` first writes the settings and folds it trains from."""
+    _check_params(args.params)
     if args.command == "featurize":
-        print(featurize_scene(args.scene, PROCESSED_DIR, FEATURES_DIR, MODELS_DIR,
-                              settings=params.featurize).summary)
-    else:
-        print(write_scene_folds(features_path(args.scene), folds_path(args.scene),
-                                schemes=list(params.cv.schemes), n_splits=int(params.cv.folds),
-                                seed=int(params.cv.seed), scene=args.scene))
-        print(train.train(args.scene, args.task, task_params=getattr(params.train, args.task),
-                          configuration=params.train.configuration, cv=params.cv,
-                          features_dir=FEATURES_DIR,
-                          **task_outputs(args.scene, args.task)).summary)
+        from eskin.steps import featurize
+
+        print(featurize.run(args.scene, args.params))
+        return 0
+    from eskin.steps import folds, settings, train
+
+    settings.run(args.params)  # every scene's, as the settings stage writes them
+    print(folds.run(args.scene, args.params))
+    print(train.run(args.scene, args.task, args.params))
     return 0
 
 
 def _pipeline_step(args: argparse.Namespace) -> int:
-    from eskin.acquisition import acquire
-    from eskin.config.base import load_params, validating
-    from eskin.config.params import Params
-    from eskin.config.scenes import get_scene
-    from eskin.data import build
-
-    params = load_params(Params, args.params)
-    scene = get_scene(params, args.scene, args.params)
+    """``eskin acquire`` and ``eskin ingest``: the pipeline's own steps (eskin.steps)."""
+    _check_params(args.params)
     if args.command == "acquire":
-        override = {key: value for key, value in (("source", args.source), ("port", args.port))
-                    if value}
-        if override:
-            scene = scene.model_copy(update=override)
-        with validating():  # every scene is checked, but only this one's settings are used
-            acquire.check_scenes({**params.scenes, args.scene: scene}, params.cv)
-        print(acquire.acquire(args.scene, scene, RAW_DIR / args.scene, acquire=params.acquire,
-                              sim=params.sim, board=params.sim_board,
-                              progress=not args.no_progress).summary)
+        from eskin.steps import acquire
+
+        print(acquire.run(args.scene, args.params, source=args.source, port=args.port,
+                          progress=not args.no_progress))
     else:
-        print(build.ingest(args.scene, scene, RAW_DIR / args.scene, PROCESSED_DIR,
-                           ingest=params.ingest).summary)
+        from eskin.steps import ingest
+
+        print(ingest.run(args.scene, args.params))
     return 0
 
 
