@@ -226,13 +226,10 @@ def _press(args: argparse.Namespace) -> int:
 
 
 def _export(args: argparse.Namespace) -> int:
-    from eskin.config.base import load_params
-    from eskin.config.params import Params
-    from eskin.config.scenes import get_scene
-    from eskin.deploy.export import export_scene
+    from eskin.steps import export
 
-    get_scene(load_params(Params, args.params), args.scene, args.params)
-    print(export_scene(args.scene))
+    _check_params(args.params)
+    print(export.run(args.scene, args.params))
     return 0
 
 
