@@ -78,7 +78,8 @@ def test_a_cut_at_a_line_end_is_told_by_the_stages_gone(committed):
 
 def test_commands_on_the_pipeline_refuse_a_damaged_lock_the_device_tools_do_not(
         committed, monkeypatch, capsys):
-    (committed / "dvc.lock").write_text((ROOT / "dvc.lock").read_text()[:8082])
+    text = (ROOT / "dvc.lock").read_text()  # cut mid-hash: DVC still reads it (lock_problem)
+    (committed / "dvc.lock").write_text(text[:text.index("md5: ", 8000) + len("md5: ") + 10])
     monkeypatch.chdir(committed)
     assert cli.main(["audit"]) == 1
     err = capsys.readouterr().err
