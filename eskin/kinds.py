@@ -120,7 +120,8 @@ class Kind:
                        ) -> dict[str, np.ndarray]:
         """``labels`` (column → values) with each row's contacts in label order, as a plan
         names them (eskin.data.plan): by node (x, then y), an absent contact (node 0)
-        last. Columns a recording lacks (per-contact forces beside a total) are left out."""
+        last. A group a recording lacks (per-contact forces, where it gives their total) is
+        passed over."""
         if not self.several:
             return labels
         nodes = np.stack([skin.node_id(np.nan_to_num(labels[x]), np.nan_to_num(labels[y]))
