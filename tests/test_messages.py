@@ -316,6 +316,8 @@ def test_each_stage_says_what_a_ctrl_c_kept_of_it(stage, monkeypatch):
 
     monkeypatch.setattr(eskin.errors, "run_friendly", recorded)
     monkeypatch.setattr(sys, "argv", [stage, "single_force", "force"])
+    # run afresh, as `python -m` does, even where a test before imported it
+    monkeypatch.delitem(sys.modules, f"stages.{stage}", raising=False)
     with pytest.raises(SystemExit):
         runpy.run_module(f"stages.{stage}", run_name="__main__")
     assert told.get("interrupted", STAGE_NOT_KEPT) == PIPELINE_STAGES[stage]
