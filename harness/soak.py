@@ -148,17 +148,26 @@ def soak_params(params: Params, settings: Soak, fault_log: Path, scene: str) -> 
     return out
 
 
+def _merged(reference: pd.DataFrame, frame: pd.DataFrame, plan: ScenePlan
+            ) -> tuple[list[str], pd.DataFrame, np.ndarray]:
+    """The columns compared (channels, labels, session), ``reference`` and ``frame``
+    outer-merged on the sample (suffixes ``_clean``, ``_soak``; the board counters too),
+    and which of the merged rows are in both and differ."""
+    values = plan.skin.channels + LABELS[plan.kind] + ["session"]
+    columns = KEY + values + ["seq", "t_ms"]
+    merged = reference[columns].merge(frame[columns].drop_duplicates(KEY), on=KEY,
+                                      how="outer", suffixes=("_clean", "_soak"),
+                                      indicator=True)
+    differs = np.zeros(len(merged), dtype=bool)
+    for column in values:
+        differs |= (merged[f"{column}_clean"] != merged[f"{column}_soak"]).to_numpy()
+    return values, merged, differs & (merged["_merge"] == "both").to_numpy()
+
+
 def compare(reference: pd.DataFrame, frame: pd.DataFrame, plan: ScenePlan) -> dict[str, int]:
     """Lost, duplicated, extra and differing samples of ``frame`` against ``reference``, the
     datasets of ``plan``."""
-    values = plan.skin.channels + LABELS[plan.kind] + ["session"]
-    merged = reference[KEY + values].merge(
-        frame[KEY + values].drop_duplicates(KEY), on=KEY, how="outer",
-        suffixes=("_clean", "_soak"), indicator=True)
-    both = merged[merged["_merge"] == "both"]
-    differs = np.zeros(len(both), dtype=bool)
-    for column in values:
-        differs |= (both[f"{column}_clean"] != both[f"{column}_soak"]).to_numpy()
+    _, merged, differs = _merged(reference, frame, plan)
     return {"lost": int((merged["_merge"] == "left_only").sum()),
             "duplicated": int(frame.duplicated(KEY).sum()),
             "extra": int((merged["_merge"] == "right_only").sum()),
@@ -170,22 +179,15 @@ def differing_evidence(reference: pd.DataFrame, frame: pd.DataFrame, plan: Scene
     """For the first ``at_most`` samples whose values differ from ``reference``: which
     columns, both values, the board counters of each, and the raw-log records (bounded)
     of the attempt whose frame line was stored for it."""
-    values = plan.skin.channels + LABELS[plan.kind] + ["session"]
-    counters = ["seq", "t_ms"]
-    both = reference[KEY + values + counters].merge(
-        frame[KEY + values + counters].drop_duplicates(KEY), on=KEY,
-        suffixes=("_clean", "_soak"))
-    differs = np.zeros(len(both), dtype=bool)
-    for column in values:
-        differs |= (both[f"{column}_clean"] != both[f"{column}_soak"]).to_numpy()
+    values, merged, differs = _merged(reference, frame, plan)
     records = log.read_text(encoding="ascii", errors="replace").splitlines()
     out = []
-    for _, row in both[differs].head(at_most).iterrows():
+    for _, row in merged[differs].head(at_most).iterrows():
         changed = ", ".join(f"{c} {row[f'{c}_clean']} -> {row[f'{c}_soak']}" for c in values
                             if row[f"{c}_clean"] != row[f"{c}_soak"])
         out.append(f"trial {row['trial']} sample {row['sample']}: {changed} (clean seq "
-                   f"{row['seq_clean']} t_ms {row['t_ms_clean']}; soak seq {row['seq_soak']} "
-                   f"t_ms {row['t_ms_soak']})")
+                   f"{row['seq_clean']:.0f} t_ms {row['t_ms_clean']:.0f}; soak seq "
+                   f"{row['seq_soak']:.0f} t_ms {row['t_ms_soak']:.0f})")
         prefix = f"D,{int(row['seq_soak'])},{int(row['t_ms_soak'])},"
         attempts = {line.split("\t")[1] for line in records
                     if line.startswith("F\t") and line.split("\t")[2].startswith(prefix)}
