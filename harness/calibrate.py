@@ -67,13 +67,9 @@ def simulate_plan(sim: SkinParams, plan: ScenePlan, seed: int = 0) -> pd.DataFra
         block["stretch"] = condition.stretch
         block["trial"] = trial_no
         block["sample"] = np.arange(plan.samples)
-        if not get_kind(plan.kind).several:
-            (contact,) = condition.contacts
-            block["force"], block["x"], block["y"] = contact.force, contact.x, contact.y
-        else:
-            for i, contact in enumerate(condition.contacts, start=1):
-                block[f"force{i}"], block[f"x{i}"], block[f"y{i}"] = (
-                    contact.force, contact.x, contact.y)
+        for (force, x, y), contact in zip(get_kind(plan.kind).contact_columns,
+                                          condition.contacts, strict=True):
+            block[force], block[x], block[y] = contact.force, contact.x, contact.y
         blocks.append(block)
     return pd.concat(blocks, ignore_index=True)
 
