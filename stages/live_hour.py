@@ -30,8 +30,8 @@ def main(scene: str) -> int:
         write_skipped_import(REPORT, scene, "Live hour")
         return 0
     frame = run(scene, settings)
-    scored = score(frame, batch_cv_scores(scene)) if kind.detects else \
-        score_pairs(frame, batch_cv_scores(scene))
+    scored = score_pairs(frame, batch_cv_scores(scene)) if kind.several else \
+        score(frame, batch_cv_scores(scene))
     result = {"scene": scene, **scored,
               "script": (f"{settings.presses} presses of {settings.press_s:g} s, one of "
                          f"{settings.sustained_s:g} s"
