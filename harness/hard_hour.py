@@ -322,7 +322,14 @@ def render(scene: str, result: dict[str, Any]) -> str:
 
 
 def _pct(value) -> str:
-    return "–" if value is None else f"{100 * value:.2f} %"
+    if value is None:
+        return "–"
+    text = f"{100 * value:.2f}"
+    if text in ("0.00", "100.00") and 0 < value < 1:
+        # a share a frame short of none or all says so: "100.00 %" beside a missed target
+        # read as a contradiction
+        text = f"{100 * value:.4f}".rstrip("0")
+    return f"{text} %"
 
 
 def _spread(cv: dict[str, Any], name: str, scale: float, unit: str) -> str:
