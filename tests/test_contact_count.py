@@ -111,14 +111,16 @@ def counting_stack(tmp_path_factory, repo_params):
 # The commands, each sent once its phase before has JUDGED estimates; a phase is judged on
 # the JUDGED frames that follow the first SETTLE after its command's #OK, found by board seq
 # (estimates lag the board under load: counting them instead judged frames from before a
-# press, a CI run of 9c4860f). A known miss (issue 57, light presses): the light weight's
-# probability can stay under live.contact.enter_probability, and its channels move less
-# than live.baseline.gate_counts, so the baseline follows it in (time constant 0.5 s).
-# Judged from 125 frames after the #OK, it was counted 0 on all 40 even on a quiet
-# machine; under CI load, on 29 and 33 of the 40 from 40 on (9c4860f, bdb6d66). This test
-# checks the count where live sees the press: its first frames, the machine to itself.
-SCRIPT = ["SIM PRESS 6 6 1.2936", "SIM PRESS 1 1 5.2136", "SIM CLEAR"]
-SETTLE, JUDGED = 40, 40
+# press, a CI run of 9c4860f). SETTLE is a second of frames (8 ms each). The light weight
+# (1.29 N) checks the baseline: followed at a time constant of 0.5 s, it took in the
+# weight's flank channels within that second (drift 0.5 → 8.6 counts) and live lost the
+# press (bdb6d66); at 20 s it holds them (issue 57). It is not counted: this small scene's
+# detector sees it on about half the frames (p ≥ 0.8 on 39 %, never 50 ms running), which
+# the hysteresis rightly does not call a contact: a known miss of the detector, not of the
+# baseline. The one-weight phase is the issue's own 3.25 N at (6, 6).
+SCRIPT = ["SIM PRESS 6 6 1.2936", "SIM CLEAR", "SIM PRESS 6 6 3.2536", "SIM PRESS 1 1 5.2136",
+          "SIM CLEAR"]
+SETTLE, JUDGED = 125, 40
 
 
 @pytest.mark.heavy
@@ -151,11 +153,13 @@ def test_live_counts_none_one_and_two_contacts_on_the_simulated_board(counting_s
             # every frame parsed so far came before the #OK or with it: later ones after
             begins.append(max(link.protocol.last_accepted.seq, records[-1]["seq"]))
     live = pd.DataFrame(records)
-    untouched, one, two, released = (
-        live[live["seq"] > begin + SETTLE].head(JUDGED) for begin in begins)
-    assert all(len(phase) == JUDGED for phase in (untouched, one, two, released))
-    for phase in (untouched, released):
+    untouched, light, cleared, one, two, released = phases = [
+        live[live["seq"] > begin + SETTLE].head(JUDGED) for begin in begins]
+    assert all(len(phase) == JUDGED for phase in phases)
+    for phase in (untouched, cleared, released):
         assert (phase["contacts"] == 0).all() and phase["x1"].isna().all()
+    # a second and more into the light press, its channels are not followed in
+    assert light["drift_counts"].max() <= 1.0, light["drift_counts"].describe()
     assert (one["contacts"] == 1).mean() >= 0.75, one["contacts"].value_counts()
     single = one[one["contacts"] == 1]
     assert ((single["x1"] == 6) & (single["y1"] == 6)).mean() >= 0.9

@@ -340,7 +340,8 @@ def test_a_contact_is_frozen_whole_for_its_first_seconds_then_only_on_its_channe
 
     slope = np.linspace(70, 90, 20)
     rest = RestTable(np.array([1.0, 1.08, 1.16]), 300 + np.outer([0, 1, 2], slope))
-    tare = Tare.take(np.tile(rest.at(1.0) + 5, (10, 1)), rest, baseline=LiveBaseline())
+    baseline = LiveBaseline()
+    tare = Tare.take(np.tile(rest.at(1.0) + 5, (10, 1)), rest, baseline=baseline)
     tared = tare.offset.copy()
     near = terminals_under({"x": 5, "y": 5}, PAPER_SKIN, 2)
     drift = np.where(np.arange(20) % 2 == 1, 3.0, 0.0)
@@ -348,8 +349,8 @@ def test_a_contact_is_frozen_whole_for_its_first_seconds_then_only_on_its_channe
     for _ in range(int(9.9 / 0.012)):  # the first 9.9 s: nothing followed
         assert not tare.track(pressed, 12.0, under_contact=near)
     assert np.array_equal(tare.offset, tared)
-    for _ in range(int(5 / 0.012)):    # then 5 s (10 time constants): all but its own
-        tare.track(pressed, 12.0, under_contact=near)
+    for _ in range(int(10 * baseline.time_constant_s / 0.012)):  # then 10 time constants:
+        tare.track(pressed, 12.0, under_contact=near)             # all but its own
     moved = tare.offset - tared
     assert np.array_equal(moved[near], np.zeros(near.sum()))
     # the others followed their drift, up to a part common to them all (a common rise

@@ -14,7 +14,7 @@ class LiveBaseline(Section):
     """How `eskin live` follows a board's offset from the training's untouched readings
     after the tare (eskin/deploy/live.py)."""
 
-    time_constant_s: NonNegative = 0.5   # 0: the tare's offset, never followed
+    time_constant_s: NonNegative = 20.0  # 0: the tare's offset, never followed
     gate_counts: Positive = 8.0          # a frame updates it only if no channel moved more
     # in contact: follow all but the contact's channels (contact_channels), freeze it
     # wholly, or follow the channels the contact leaves within the gate (quiet_channels)
