@@ -186,14 +186,14 @@ def train_step(params, scene: str, task: str, features_dir: Path, **kwargs):
     """The folds and training steps as their stages run them (the outputs in ``kwargs``;
     the folds go beside the features, in ``folds/``, unless ``folds_path`` says where)."""
     from eskin.evaluation.folds import write_scene_folds
-    from eskin.learning import train
+    from eskin.steps.train import train_at
 
     params = typed(params)
     folds = kwargs.pop("folds_path", Path(features_dir).parent / "folds" / f"{scene}.parquet")
     write_scene_folds(Path(features_dir) / f"{scene}.parquet", folds,
                       schemes=list(params.cv.schemes), n_splits=int(params.cv.folds),
                       seed=int(params.cv.seed), scene=scene)
-    return train.train(scene, task, task_params=getattr(params.train, task),
+    return train_at(scene, task, task_params=getattr(params.train, task),
                        configuration=params.train.configuration, cv=params.cv,
                        features_dir=features_dir, folds_path=folds, **kwargs)
 

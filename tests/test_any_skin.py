@@ -41,7 +41,6 @@ from eskin.evaluation.folds import (
     write_scene_folds,
 )
 from eskin.evaluation.metrics import position_error_mm
-from eskin.learning import train
 from eskin.learning.choice import model_for_skin
 from eskin.learning.estimators import (
     ActiveTerminals,
@@ -51,6 +50,7 @@ from eskin.learning.estimators import (
 from eskin.learning.features import featurize_scene
 from eskin.reporting import figures, page, report
 from eskin.skin import ChannelArray, Skin, skin_from_dict
+from eskin.steps.train import train_at
 
 SAMPLES = 4
 # 15 channels, 5 magnetometers × xyz, pressed on a 3 × 3 grid placed in mm: a public
@@ -140,7 +140,7 @@ def run_pipeline(root, scene: str, frame: pd.DataFrame, skin, spec, params) -> d
                       seed=int(params.cv.seed), scene=scene)
     trained = {}
     for task in TASK_NAMES:
-        trained[task] = train.train(
+        trained[task] = train_at(
             scene, task, task_params=getattr(params.train, task),
             configuration=params.train.configuration, cv=params.cv,
             features_dir=root / "data/features",
@@ -483,7 +483,7 @@ def test_training_on_fallen_back_folds_keeps_their_note_in_its_scores(params, tm
     write_scene_folds(tmp_path / features_path("lab"), tmp_path / folds_path("lab"),
                       schemes=["stratified", "conditions"], n_splits=7, seed=1, scene="lab")
     notes = read_fold_notes(tmp_path / folds_path("lab"))
-    done = train.train("lab", "stretch", task_params=params.train.stretch,
+    done = train_at("lab", "stretch", task_params=params.train.stretch,
                        configuration=params.train.configuration, cv=params.cv,
                        features_dir=tmp_path / "data/features",
                        **{name: tmp_path / path

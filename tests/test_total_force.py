@@ -54,10 +54,10 @@ from eskin.kinds import (
     get_kind,
     kind_of_labels,
 )
-from eskin.learning import train
 from eskin.learning.features import featurize_scene
 from eskin.reporting import report
 from eskin.skin import skin_from_dict
+from eskin.steps.train import train_at
 
 SKIN = {"channels": CHANNELS, "x_mm": list(GRID_MM), "y_mm": list(GRID_MM)}
 TOTAL_LABELS = ["force", "x1", "y1", "x2", "y2", "stretch"]
@@ -96,7 +96,7 @@ def pipeline(tmp_path_factory, repo_params):
     write_scene_folds(root / features_path("two"), root / folds_path("two"),
                       schemes=list(params.cv.schemes), n_splits=int(params.cv.folds),
                       seed=int(params.cv.seed), scene="two")
-    trained = {task: train.train(
+    trained = {task: train_at(
         "two", task, task_params=getattr(params.train, task),
         configuration=params.train.configuration, cv=params.cv,
         features_dir=root / "data/features",
