@@ -33,7 +33,7 @@ class LiveContact(Section):
 
     enter_probability: real(gt=0, le=1) = 0.8
     leave_probability: real(ge=0, lt=1) = 0.5
-    min_duration_ms: NonNegative = 50.0
+    min_duration_ms: NonNegative = 25.0
 
     @model_validator(mode="after")
     def _ordered(self) -> LiveContact:
