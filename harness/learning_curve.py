@@ -92,7 +92,7 @@ def record_repetitions(scene: str, params: Params, more: int, scratch: Path,
     """A simulated scene's plan recorded ``more`` times beyond its own trials, into a
     scratch copy of its raw log; the dataset of all of them (its path)."""
     from eskin.acquisition import acquire
-    from eskin.data import build
+    from eskin.steps.ingest import ingest_at
 
     settings = params.scenes[scene]
     grown = settings.model_copy(update={"repeats": settings.repeats + more})
@@ -105,7 +105,7 @@ def record_repetitions(scene: str, params: Params, more: int, scratch: Path,
     report = acquire.acquire(scene, grown, raw, acquire=params.acquire, sim=params.sim,
                              board=params.sim_board, progress=False)
     log(f"  {report.summary}")
-    build.ingest(scene, grown, raw, scratch / "processed", ingest=params.ingest)
+    ingest_at(scene, grown, raw, scratch / "processed", ingest=params.ingest)
     return scratch / "processed" / f"{scene}.parquet"
 
 

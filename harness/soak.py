@@ -44,10 +44,10 @@ import yaml
 
 from eskin.config.base import untraced, validate_params
 from eskin.config.params import Params
-from eskin.data import build
 from eskin.data.plan import ScenePlan, plan_from_params
 from eskin.data.schema import LABELS
 from eskin.device.faults import KINDS
+from eskin.steps.ingest import ingest_at
 from harness.params import Soak
 
 KEY = ["trial", "sample"]
@@ -284,7 +284,7 @@ def _soak(written: dict, settings: Soak, workdir: Path, reference: pd.DataFrame,
             raise SoakError(f"run {number} failed ({process.returncode}): {_tail(stderr_path)}")
         runs.append(out.strip())
         say(f"soak: {runs[-1]}")
-    build.ingest(scene, soaked.scenes[scene], raw_dir, workdir / "data" / "processed",
+    ingest_at(scene, soaked.scenes[scene], raw_dir, workdir / "data" / "processed",
                  ingest=soaked.ingest)
     frame = pd.read_parquet(workdir / "data" / "processed" / f"{scene}.parquet")
     fault_lines = fault_log.read_text().splitlines()

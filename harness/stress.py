@@ -341,9 +341,9 @@ def stress(params: Any, settings: Any, scene: str, features_path, out_dir, *, sc
     from pathlib import Path
 
     from eskin.acquisition import acquire
-    from eskin.data import build
     from eskin.data.schema import dataset_skin, describe_source, read_dataset, read_metadata
-    from eskin.learning.features import featurize_scene
+    from eskin.steps.featurize import featurize_at
+    from eskin.steps.ingest import ingest_at
 
     meta = read_metadata(features_path)
     skin = dataset_skin(features_path)
@@ -376,8 +376,8 @@ def stress(params: Any, settings: Any, scene: str, features_path, out_dir, *, sc
         root = Path(scratch) / name
         acquire.acquire(scene, noisy, root / "raw", acquire=params.acquire, sim=sim,
                         board=params.sim_board, progress=False)
-        build.ingest(scene, noisy, root / "raw", root / "processed", ingest=params.ingest)
-        featurize_scene(scene, root / "processed", root / "features", root / "models",
+        ingest_at(scene, noisy, root / "raw", root / "processed", ingest=params.ingest)
+        featurize_at(scene, root / "processed", root / "features", root / "models",
                         settings=params.featurize)
         frames[name] = read_dataset(root / "features" / f"{scene}.parquet")
     log(f"stress: {len(frames['default']):,} samples of {len(trials)} trials, "

@@ -167,30 +167,30 @@ def acquire_step(params, scene: str, raw_dir: Path, **kwargs):
 
 
 def ingest_step(params, scene: str, raw_dir: Path, processed_dir: Path):
-    from eskin.data import build
+    from eskin.steps.ingest import ingest_at
 
     params = typed(params)
-    return build.ingest(scene, params.scenes[scene], raw_dir, processed_dir,
+    return ingest_at(scene, params.scenes[scene], raw_dir, processed_dir,
                         ingest=params.ingest)
 
 
 def featurize_step(params, scene: str, processed_dir: Path, features_dir: Path,
                    models_dir: Path):
-    from eskin.learning.features import featurize_scene
+    from eskin.steps.featurize import featurize_at
 
-    return featurize_scene(scene, processed_dir, features_dir, models_dir,
+    return featurize_at(scene, processed_dir, features_dir, models_dir,
                            settings=typed(params).featurize)
 
 
 def train_step(params, scene: str, task: str, features_dir: Path, **kwargs):
     """The folds and training steps as their stages run them (the outputs in ``kwargs``;
     the folds go beside the features, in ``folds/``, unless ``folds_path`` says where)."""
-    from eskin.evaluation.folds import write_scene_folds
+    from eskin.steps.folds import folds_at
     from eskin.steps.train import train_at
 
     params = typed(params)
     folds = kwargs.pop("folds_path", Path(features_dir).parent / "folds" / f"{scene}.parquet")
-    write_scene_folds(Path(features_dir) / f"{scene}.parquet", folds,
+    folds_at(Path(features_dir) / f"{scene}.parquet", folds,
                       schemes=list(params.cv.schemes), n_splits=int(params.cv.folds),
                       seed=int(params.cv.seed), scene=scene)
     return train_at(scene, task, task_params=getattr(params.train, task),

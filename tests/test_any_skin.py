@@ -30,7 +30,6 @@ from eskin.config.report import Report
 from eskin.config.scenes import ChannelArraySkin, RowColumnSkin
 from eskin.config.train import TaskModels
 from eskin.data.schema import dataset_skin, md5_file, write_dataset
-from eskin.deploy.export import export_scene
 from eskin.deploy.stack import ExportedStack, SkinStack
 from eskin.deploy.view import LiveView
 from eskin.evaluation.folds import (
@@ -38,7 +37,6 @@ from eskin.evaluation.folds import (
     draw_folds,
     read_fold_notes,
     strata,
-    write_scene_folds,
 )
 from eskin.evaluation.metrics import position_error_mm
 from eskin.learning.choice import model_for_skin
@@ -47,9 +45,11 @@ from eskin.learning.estimators import (
     ForceProfile,
     build_model,
 )
-from eskin.learning.features import featurize_scene
 from eskin.reporting import figures, page, report
 from eskin.skin import ChannelArray, Skin, skin_from_dict
+from eskin.steps.export import export_at
+from eskin.steps.featurize import featurize_at
+from eskin.steps.folds import folds_at
 from eskin.steps.train import train_at
 
 SAMPLES = 4
@@ -133,9 +133,9 @@ def run_pipeline(root, scene: str, frame: pd.DataFrame, skin, spec, params) -> d
                   {"kind": "single_force", "scene": scene,
                    "source": {"kind": "import", "path": "lab.csv", "sha256": "0" * 64}},
                   skin=skin)
-    featurize_scene(scene, root / "data/processed", root / "data/features", root / "models",
+    featurize_at(scene, root / "data/processed", root / "data/features", root / "models",
                     settings=params.featurize)
-    write_scene_folds(root / features_path(scene), root / folds_path(scene),
+    folds_at(root / features_path(scene), root / folds_path(scene),
                       schemes=list(params.cv.schemes), n_splits=int(params.cv.folds),
                       seed=int(params.cv.seed), scene=scene)
     trained = {}
@@ -149,7 +149,7 @@ def run_pipeline(root, scene: str, frame: pd.DataFrame, skin, spec, params) -> d
     outs = [featurizer_path(scene), *(model_path(scene, task) for task in TASK_NAMES)]
     (root / "dvc.lock").write_text(yaml.safe_dump({"stages": {"train": {"outs": [
         {"path": path.as_posix(), "md5": md5_file(root / path)} for path in outs]}}}))
-    exported = export_scene(scene, root)
+    exported = export_at(scene, root)
     reported = report.report(
         report=Report(schemes=["stratified", "conditions"], plots_scheme="stratified", dpi=40,
                       page_dpi=30),
@@ -454,13 +454,13 @@ def test_the_folds_file_keeps_the_fallback_for_the_scores_and_the_report(tmp_pat
     frame = row_column_dataset(skin, [1, 2, 3, 4], [1, 2, 3, 4])
     features = tmp_path / "features.parquet"
     write_dataset(frame, "single_force", features, {"kind": "single_force"}, skin=skin)
-    said = write_scene_folds(features, tmp_path / "paper.parquet", scene="lab",
+    said = folds_at(features, tmp_path / "paper.parquet", scene="lab",
                              schemes=["stratified", "conditions"], n_splits=7, seed=1)
     assert said == "lab: 7 folds of 280 rows, 70 trials, for stratified, conditions CV"
     assert read_fold_notes(tmp_path / "paper.parquet") == {}
     once = frame.groupby("trial").head(1)  # 4 rows a node, 6 at rest: fewer than 7 folds
     write_dataset(once, "single_force", features, {"kind": "single_force"}, skin=skin)
-    said = write_scene_folds(features, tmp_path / "once.parquet", scene="lab",
+    said = folds_at(features, tmp_path / "once.parquet", scene="lab",
                              schemes=["stratified", "conditions"], n_splits=7, seed=1)
     notes = read_fold_notes(tmp_path / "once.parquet")
     assert set(notes) == {"stratified", "conditions"}
@@ -478,9 +478,9 @@ def test_training_on_fallen_back_folds_keeps_their_note_in_its_scores(params, tm
                   {"kind": "single_force", "scene": "lab",
                    "source": {"kind": "import", "path": "lab.csv", "sha256": "0" * 64}},
                   skin=skin)
-    featurize_scene("lab", tmp_path / "data/processed", tmp_path / "data/features",
+    featurize_at("lab", tmp_path / "data/processed", tmp_path / "data/features",
                     tmp_path / "models", settings=params.featurize)
-    write_scene_folds(tmp_path / features_path("lab"), tmp_path / folds_path("lab"),
+    folds_at(tmp_path / features_path("lab"), tmp_path / folds_path("lab"),
                       schemes=["stratified", "conditions"], n_splits=7, seed=1, scene="lab")
     notes = read_fold_notes(tmp_path / folds_path("lab"))
     done = train_at("lab", "stretch", task_params=params.train.stretch,

@@ -12,11 +12,11 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
 from eskin.data.importer import import_paper_layout  # noqa: E402
-from eskin.data.ingest import ingest_log  # noqa: E402
 from eskin.data.plan import single_force_plan  # noqa: E402
 from eskin.data.rawlog import RawLogError, RawLogWriter  # noqa: E402
 from eskin.data.schema import DatasetError  # noqa: E402
 from eskin.device.protocol import encode_frame, parse_line  # noqa: E402
+from eskin.steps.ingest import ingest_log  # noqa: E402
 
 # ---------------------------------------------------------------- imports
 

@@ -24,7 +24,6 @@ from eskin.acquisition.runner import AcquisitionError, OperatorPlacer, Simulated
 from eskin.acquisition.session import run_session
 from eskin.config.base import validate_params
 from eskin.config.params import Params
-from eskin.data.ingest import ingest_log
 from eskin.data.plan import plan_from_params
 from eskin.data.rawlog import MAGIC, read_log
 from eskin.data.schema import LABELS
@@ -44,6 +43,7 @@ from eskin.device.host import (
     Violation,
 )
 from eskin.skin import PAPER_SKIN
+from eskin.steps.ingest import ingest_log
 
 PAPER_CHANNELS = PAPER_SKIN.channels  # the scenes of these tests are on the paper's skin
 CONTENT = ["trial", "sample", *PAPER_CHANNELS, *LABELS["single_force"]]

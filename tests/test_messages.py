@@ -335,7 +335,7 @@ def test_an_interrupted_training_stage_says_it_kept_nothing(small_params, tmp_pa
     from conftest import featurize_step, prepared_scene, quick_params
 
     from eskin.catalog import folds_path, model_path, scores_path
-    from eskin.evaluation.folds import write_scene_folds
+    from eskin.steps.folds import folds_at
 
     params = quick_params(small_params, folds=10)
     root = tmp_path / "project"
@@ -343,7 +343,7 @@ def test_an_interrupted_training_stage_says_it_kept_nothing(small_params, tmp_pa
     prepared_scene(params, "single_force", tmp_path / "acquired")
     featurize_step(params, "single_force", tmp_path / "acquired" / "processed",
                    root / "data" / "features", root / "models")
-    write_scene_folds(root / "data" / "features" / "single_force.parquet",
+    folds_at(root / "data" / "features" / "single_force.parquet",
                       root / folds_path("single_force"), schemes=params["cv"]["schemes"],
                       n_splits=10, seed=params["cv"]["seed"], scene="single_force")
     env = {**os.environ, "PYTHONPATH": str(ROOT)}  # the stages package

@@ -12,8 +12,9 @@ from conftest import acquire_step, acquire_until, ingest_step, resume_and_ingest
 
 from eskin.data.rawlog import read_log
 from eskin.data.schema import LABELS, read_metadata
-from eskin.evaluation.folds import applicable_schemes, assign_folds, write_scene_folds
+from eskin.evaluation.folds import applicable_schemes, assign_folds
 from eskin.skin import PAPER_SKIN
+from eskin.steps.folds import folds_at
 
 CHANNELS = PAPER_SKIN.channels
 CONTENT = ["trial", "sample", *CHANNELS, *LABELS["single_force"]]
@@ -119,12 +120,12 @@ def test_a_scene_recorded_once_is_not_scored_under_trials_and_says_why(recorded,
     with pytest.raises(ValueError, match=r"202 of 202 conditions have one trial; record each "
                                          r"at least twice \(scenes.<scene>.repeats: 2\)"):
         assign_folds(once, "single_force", "trials", 10, 42, skin=PAPER_SKIN)
-    said = write_scene_folds(root / "repeats_1" / "single_force.parquet",
+    said = folds_at(root / "repeats_1" / "single_force.parquet",
                              tmp_path / "once.parquet", schemes=["stratified", "trials"],
                              n_splits=5, seed=42, scene="single_force")
     assert "for stratified CV; not trials: a condition has only one trial" in said
     assert list(pd.read_parquet(tmp_path / "once.parquet").columns) == ["trial", "stratified"]
-    said = write_scene_folds(root / "repeats_2" / "single_force.parquet",
+    said = folds_at(root / "repeats_2" / "single_force.parquet",
                              tmp_path / "twice.parquet", schemes=["conditions", "trials"],
                              n_splits=10, seed=42, scene="single_force")
     assert said.endswith("for conditions, trials CV")

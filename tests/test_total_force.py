@@ -41,10 +41,8 @@ from eskin.data.schema import (
     validate,
     write_dataset,
 )
-from eskin.deploy.export import export_scene
 from eskin.deploy.stack import ExportedStack, SkinStack
 from eskin.deploy.view import LiveView
-from eskin.evaluation.folds import write_scene_folds
 from eskin.evaluation.pairs import score_pairs, score_scene_pairs
 from eskin.evaluation.tasks import get_task
 from eskin.kinds import (
@@ -54,9 +52,11 @@ from eskin.kinds import (
     get_kind,
     kind_of_labels,
 )
-from eskin.learning.features import featurize_scene
 from eskin.reporting import report
 from eskin.skin import skin_from_dict
+from eskin.steps.export import export_at
+from eskin.steps.featurize import featurize_at
+from eskin.steps.folds import folds_at
 from eskin.steps.train import train_at
 
 SKIN = {"channels": CHANNELS, "x_mm": list(GRID_MM), "y_mm": list(GRID_MM)}
@@ -91,9 +91,9 @@ def pipeline(tmp_path_factory, repo_params):
     params = typed(params)
     acquire_step(params, "two", root / "data/raw/two")
     ingested = ingest_step(params, "two", root / "data/raw/two", root / "data/processed")
-    featurize_scene("two", root / "data/processed", root / "data/features", root / "models",
+    featurize_at("two", root / "data/processed", root / "data/features", root / "models",
                     settings=params.featurize)
-    write_scene_folds(root / features_path("two"), root / folds_path("two"),
+    folds_at(root / features_path("two"), root / folds_path("two"),
                       schemes=list(params.cv.schemes), n_splits=int(params.cv.folds),
                       seed=int(params.cv.seed), scene="two")
     trained = {task: train_at(
@@ -106,7 +106,7 @@ def pipeline(tmp_path_factory, repo_params):
     # dvc.lock as DVC records the outputs the stack is loaded from (their md5s)
     (root / "dvc.lock").write_text(yaml.safe_dump({"stages": {"train": {"outs": [
         {"path": path.as_posix(), "md5": md5_file(root / path)} for path in outs]}}}))
-    exported = export_scene("two", root)
+    exported = export_at("two", root)
     report.report(
         report=Report(schemes=["stratified", "conditions"], plots_scheme="stratified", dpi=40,
                       page_dpi=30),

@@ -2,6 +2,6 @@
 dataset schema.
 
 Public: :mod:`~eskin.data.plan` (what a scene records), :mod:`~eskin.data.rawlog` (the
-append-only log), :func:`eskin.data.build.ingest` (the ingest stage's step),
+append-only log), :func:`eskin.data.ingest.ingest_contents` (a raw log into a dataset),
 :mod:`~eskin.data.importer`, and :mod:`~eskin.data.schema` (``read_dataset``,
 ``write_dataset``, ``contact_mask``)."""

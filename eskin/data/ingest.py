@@ -4,20 +4,20 @@ For each condition of the plan, the log's latest complete attempt on the
 current device (the last session's) gives the rows. A plan condition with no
 complete attempt is an error that says how to resume; lines of the log that
 break its format go to the quarantine (``bad_rows: quarantine``) or stop the
-ingest (``bad_rows: error``, the default) — never dropped silently.
+ingest (``bad_rows: error``, the default) — never dropped silently. Reads and writes
+nothing: the ingest step (:mod:`eskin.steps.ingest`) does.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from eskin.data.plan import ScenePlan
-from eskin.data.rawlog import LogContents, acquisition_sessions, read_log_if_any
-from eskin.data.schema import DatasetError, sha256_file
+from eskin.data.rawlog import LogContents, acquisition_sessions
+from eskin.data.schema import DatasetError
 from eskin.kinds import get_kind
 from eskin.skin import PAPER_SKIN, AnySkin
 
@@ -38,33 +38,33 @@ def check_policy(bad_rows: str) -> None:
         raise ValueError(f"ingest.bad_rows must be one of {BAD_ROW_POLICIES}, got {bad_rows!r}")
 
 
-def ingest_log(path: Path, plan: ScenePlan, *, bad_rows: str = "error") -> Ingested:
-    """Build the dataset of ``plan`` from the raw log at ``path``."""
+def ingest_contents(contents: LogContents, plan: ScenePlan, *, where: str, sha256: str,
+                    bad_rows: str = "error") -> Ingested:
+    """The dataset of ``plan`` from a raw log's parsed ``contents``
+    (:func:`eskin.data.rawlog.read_log`); ``where`` (the log's path) and its ``sha256`` go
+    into errors and the dataset's provenance. Reads nothing: the ingest step
+    (:func:`eskin.steps.ingest.ingest_log`) reads the log."""
     check_policy(bad_rows)
-    path = Path(path)
-    contents = read_log_if_any(path)
-    if contents is None:
-        raise DatasetError(f"{path}: no raw log; run `eskin acquire {plan.name}` first")
     if contents.bad_lines and bad_rows == "error":
         first = contents.bad_lines[0]
         raise DatasetError(f"{first} ({len(contents.bad_lines)} malformed line(s) in the raw "
                            "log). Set ingest.bad_rows: quarantine to set them aside.")
     quarantine = [{"source": str(b.path), "line": b.line_number, "reason": b.reason,
                    "text": b.text} for b in contents.bad_lines]
-    frame = _rows(contents, plan, path)
+    frame = _rows(contents, plan, where)
     last = acquisition_sessions(contents)[-1]
     metadata = {
         "scene": plan.name, "kind": plan.kind, "plan": plan.as_dict(),
         "device": last["device"], "simulator": last.get("simulator"),
         "source": {"kind": last.get("source"), "port": last.get("port"),
-                   "path": str(path), "sha256": sha256_file(path),
+                   "path": where, "sha256": sha256,
                    "sessions": sorted({s for s in frame["session"].unique()}),
                    "frames_rejected_on_link": contents.frames_rejected},
     }
     return Ingested(frame, metadata, quarantine, live_frames(contents, plan.skin))
 
 
-def _rows(contents: LogContents, plan: ScenePlan, path: Path) -> pd.DataFrame:
+def _rows(contents: LogContents, plan: ScenePlan, path: str) -> pd.DataFrame:
     sessions = acquisition_sessions(contents)
     if not sessions:
         raise DatasetError(f"{path}: the raw log has no acquisition session; run "

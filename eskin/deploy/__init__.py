@@ -2,5 +2,5 @@
 
 Public: :class:`eskin.deploy.stack.SkinStack` (a scene's models as one object;
 ``ExportedStack``: its ONNX),
-:func:`eskin.deploy.export.export_scene` (the export stage's step: ONNX),
+:func:`eskin.deploy.export.stack_to_onnx` (a stack as ONNX),
 :mod:`~eskin.deploy.live` (``eskin live``) and :mod:`~eskin.deploy.view` (its page)."""

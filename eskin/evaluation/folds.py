@@ -25,6 +25,7 @@ a task's rows with :func:`fold_splitter`, a scikit-learn splitter over their fol
 from __future__ import annotations
 
 import warnings
+from dataclasses import dataclass
 from itertools import islice
 from pathlib import Path
 
@@ -268,18 +269,23 @@ def fold_splitter(fold_of: np.ndarray, n_folds: int | None = None) -> FoldSplit:
     return FoldSplit(fold_of, n_folds)
 
 
-def write_scene_folds(features: Path, out: Path, *, schemes: list[str], n_splits: int,
-                      seed: int, scene: str) -> str:
-    """Every scheme's fold numbers for a scene's rows, drawn once (the folds stage): one
-    column per scheme, in ``schemes``' order, beside the row's trial (checked by
-    :func:`read_scene_folds`). Every task and model variant of the scene reads them. A
-    scheme that fell back (:func:`draw_folds`) says how in the file's ``fold_notes``
-    attribute (:func:`read_fold_notes`; absent where none did, so such files keep their
-    bytes) and in the returned line."""
-    from eskin.data.schema import dataset_kind, dataset_skin, read_dataset
+@dataclass(frozen=True)
+class SceneFolds:
+    """Every scheme's fold numbers for a scene's rows (:func:`draw_scene_folds`)."""
 
-    frame = read_dataset(features)
-    kind, skin = dataset_kind(features).name, dataset_skin(features)
+    # one column per scheme drawn, beside the row's trial; a scheme that fell back
+    # (:func:`draw_folds`) says how in ``attrs["fold_notes"]`` (absent where none did,
+    # so such files keep their bytes; :func:`read_fold_notes`)
+    table: pd.DataFrame
+    summary: str
+
+
+def draw_scene_folds(frame: pd.DataFrame, kind: str, skin: AnySkin, *, schemes: list[str],
+                     n_splits: int, seed: int, scene: str, where: str = "") -> SceneFolds:
+    """Every scheme's fold numbers for ``frame``'s rows, drawn once (the folds step,
+    :mod:`eskin.steps.folds`, writes them): one column per scheme, in ``schemes``' order,
+    beside the row's trial (checked by :func:`read_scene_folds`). Every task and model
+    variant of the scene reads them. ``where`` (the features' path) goes into errors."""
     columns = {"trial": frame["trial"].to_numpy()}
     notes: dict[str, str] = {}
     drawn = applicable_schemes(frame, kind, schemes)
@@ -287,23 +293,21 @@ def write_scene_folds(features: Path, out: Path, *, schemes: list[str], n_splits
         try:
             columns[scheme], note = draw_folds(frame, kind, scheme, n_splits, seed, skin=skin)
         except ValueError as err:
-            raise ValueError(f"scenes.{scene} ({features}): {err}") from None
+            raise ValueError(f"scenes.{scene} ({where}): {err}") from None
         if note:
             notes[scheme] = note
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
     table = pd.DataFrame(columns)
     if notes:
         table.attrs["fold_notes"] = notes
-    table.to_parquet(out, index=False)
     left = [s for s in schemes if s not in drawn]
-    return (f"{scene}: {n_splits} folds of {len(frame):,} rows, "
-            f"{len(np.unique(columns['trial'])):,} trials, for {', '.join(drawn)} CV"
-            + (f"; not {', '.join(left)}: a condition has only one trial (or a trial "
-               f"several conditions); scenes.{scene}.repeats: 2 or more allows it"
-               if left else "")
-            + "".join(f"; {' and '.join(s for s in notes if notes[s] == note)} CV {note}"
-                      for note in dict.fromkeys(notes.values())))
+    return SceneFolds(table, (
+        f"{scene}: {n_splits} folds of {len(frame):,} rows, "
+        f"{len(np.unique(columns['trial'])):,} trials, for {', '.join(drawn)} CV"
+        + (f"; not {', '.join(left)}: a condition has only one trial (or a trial "
+           f"several conditions); scenes.{scene}.repeats: 2 or more allows it"
+           if left else "")
+        + "".join(f"; {' and '.join(s for s in notes if notes[s] == note)} CV {note}"
+                  for note in dict.fromkeys(notes.values()))))
 
 
 def read_fold_notes(path: Path) -> dict[str, str]:

@@ -11,31 +11,19 @@
   calibration, not leakage.
 
 Each is a scikit-learn transformer; the fitted one is saved beside the
-features so that live inference applies exactly the same transform.
+features so that live inference applies exactly the same transform. This module reads
+and writes nothing: the featurize step (:mod:`eskin.steps.featurize`) does.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from pathlib import Path
-
-import joblib
 import numpy as np
 import pandas as pd
 from sklearn.base import BaseEstimator, TransformerMixin
 from sklearn.preprocessing import FunctionTransformer, StandardScaler
 from sklearn.utils.validation import check_is_fitted, validate_data
 
-from eskin.config.featurize import Featurize
-from eskin.data.schema import (
-    contact_mask,
-    dataset_kind,
-    dataset_skin,
-    md5_file,
-    read_dataset,
-    read_metadata,
-    write_dataset,
-)
+from eskin.data.schema import contact_mask
 from eskin.skin import AnySkin
 
 METHODS = ("raw", "standardise", "baseline")
@@ -103,39 +91,3 @@ def featurize(frame: pd.DataFrame, featurizer: TransformerMixin, skin: AnySkin) 
     out = frame.copy()
     out[skin.channels] = features
     return out
-
-
-@dataclass(frozen=True)
-class Featurized:
-    """What :func:`featurize_scene` wrote: the features and the fitted transform."""
-
-    scene: str
-    path: Path
-    transform_path: Path
-    rows: int
-    method: str
-    summary: str
-
-
-def featurize_scene(scene: str, processed_dir: Path, features_dir: Path, models_dir: Path, *,
-                    settings: Featurize) -> Featurized:
-    """``<processed>/<scene>.parquet`` → ``<features>/<scene>.parquet`` + the fitted
-    transform, with the ``featurize`` section (``settings``), on the skin the dataset was
-    taken on."""
-    source = Path(processed_dir) / f"{scene}.parquet"
-    if not source.exists():
-        raise FileNotFoundError(f"{source}: no dataset; run `dvc repro ingest@{scene}` first")
-    meta = read_metadata(source)
-    frame = read_dataset(source)
-    skin, kind = dataset_skin(source), dataset_kind(source)
-    method = settings.method
-    featurizer = fit_featurizer(method, frame, kind.name, skin)
-    out = Path(features_dir) / f"{scene}.parquet"
-    meta.update(featurize={"method": method},
-                dataset={"path": source.as_posix(), "md5": md5_file(source), "rows": len(frame)})
-    write_dataset(featurize(frame, featurizer, skin), kind.name, out, meta, skin=skin)
-    transform = Path(models_dir) / scene / "featurizer.joblib"
-    transform.parent.mkdir(parents=True, exist_ok=True)
-    joblib.dump(featurizer, transform)
-    return Featurized(scene, out, transform, len(frame), method,
-                      f"{scene}: {len(frame)} rows featurized ({method}) → {out}")
