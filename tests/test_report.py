@@ -599,3 +599,17 @@ def test_a_project_of_one_contact_scenes_still_has_its_pairs_directory(tmp_path)
     pairs_dir = tmp_path / "reports" / "pairs"
     report._score_pairs({"lab8": {"stretch": {}}}, {"lab8": {}}, pairs_dir, tmp_path / "scores")
     assert pairs_dir.is_dir() and not any(pairs_dir.iterdir())
+
+
+def test_every_kinds_figure_names_a_registered_drawer_and_a_typo_is_named():
+    """A kind's figure names its drawer (presentation.py); the report draws through the
+    registry, and a name nobody registered is one line naming the figure and the fix."""
+    from eskin.kinds import KINDS
+    from eskin.reporting import figures
+
+    for kind in KINDS.values():
+        for spec in presentation.figures(kind):
+            assert spec.draw in figures.DRAWERS, f"{kind.name}: {spec.id} names {spec.draw!r}"
+    typo = presentation.Figure(presentation.DETECTION, "detect", "", "detektion", ())
+    with pytest.raises(ValueError, match="'detektion'.*@drawer.*detection"):
+        report.draw(typo, pd.DataFrame(), PAPER_SKIN)

@@ -15,6 +15,7 @@ stop at 0.1 %, above this detector's errors).
 from __future__ import annotations
 
 import textwrap
+from collections.abc import Callable
 
 import matplotlib
 
@@ -40,6 +41,16 @@ STYLE = {"font.size": 10, "axes.titlesize": 10, "axes.labelsize": 10,
 COLUMN_IN = 3.5   # one column of the paper, inches
 PAGE_IN = 7.2     # both columns
 HEADING_SIZE = TEXT_PT  # the heading identify() writes: scene, task, scheme, n, score
+
+# The drawers a kind's figure may name (eskin/reporting/presentation.py Figure.draw), by
+# name: a new figure registers its function with @drawer, and the report draws through it.
+DRAWERS: dict[str, Callable[..., Figure]] = {}
+
+
+def drawer(function: Callable[..., Figure]) -> Callable[..., Figure]:
+    """Register ``function`` as a figure drawer, under its own name."""
+    DRAWERS[function.__name__] = function
+    return function
 
 
 def identify(fig: Figure, heading: str) -> None:
@@ -107,6 +118,7 @@ def _level_summary(true: pd.Series, predicted: pd.Series) -> pd.DataFrame:
     return predicted.groupby(_levels(true)).agg(["mean", "std"]).fillna(0.0)
 
 
+@drawer
 def stretch_parity(oof: pd.DataFrame) -> Figure:
     """Predicted against true λ: every prediction faint, mean ± std per level (paper Fig. 5).
 
@@ -194,6 +206,7 @@ def _spread_panel(ax, series: list, in_bins: bool = False) -> None:
     ax.legend(loc="upper left")
 
 
+@drawer
 def force_parity(oof: pd.DataFrame, target: str = "force", by: str | None = "stretch"
                  ) -> Figure:
     """Force (paper Fig. 6): left, predicted against true force, mean ± std per level, a
@@ -219,6 +232,7 @@ def _annotate_spread(ax, stats: pd.DataFrame) -> None:
                     in_layout=False)
 
 
+@drawer
 def two_force_parity(oof: pd.DataFrame) -> Figure:
     """Force parity of contact 1 and contact 2 side by side (paper Fig. 9), the std of
     each level written beside it (one series a panel: nothing to dodge)."""
@@ -230,6 +244,7 @@ def two_force_parity(oof: pd.DataFrame) -> Figure:
     return fig
 
 
+@drawer
 def total_force_parity(oof: pd.DataFrame) -> Figure:
     """The total force of two contacts, predicted against true: every prediction and the
     ideal line. A recording of one force sensor under both contacts is continuous, so
@@ -304,6 +319,7 @@ def share_label(name: str) -> str:
     return f"share of samples with this true {name.split()[-1]}"
 
 
+@drawer
 def confusion_grid(oof: pd.DataFrame, targets: list[str], names: list[str],
                    columns: int = 2, title: str | None = None) -> Figure:
     """Confusion matrices, counts and shares written in, colour the share of the samples
@@ -377,6 +393,7 @@ def _det_panel(ax, true: np.ndarray, pred: np.ndarray, score: np.ndarray | None)
 DETECTION_HEIGHT_IN = PAGE_IN / 2 + 0.9
 
 
+@drawer
 def detection(oof: pd.DataFrame) -> Figure:
     """Contact detection: confusion counts (ConfusionMatrixDisplay) and the DET curve on
     log axes with the model's operating point. At this accuracy the ROC curve is a

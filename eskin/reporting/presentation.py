@@ -36,8 +36,10 @@ FIGURE_IDS: tuple[str, ...] = (STRETCH_PARITY, FORCE_PARITY, LOCALISATION_CONFUS
 
 @dataclass(frozen=True)
 class Figure:
-    """One figure of a scene's report: drawn by ``draw`` (a function of
-    eskin.reporting.figures) from one task's out-of-fold predictions under one CV scheme.
+    """One figure of a scene's report: drawn by the drawer ``draw`` names (registered in
+    eskin.reporting.figures with ``@drawer``) from one task's out-of-fold predictions under
+    one CV scheme. A name, not the function: so this module imports no matplotlib, and
+    the tracking stage, which reads the headlines here, does not rerun on a drawing edit.
 
     ``scores`` are the (target, metric) pairs of the task's scores file the figure states
     in its heading beside the scene, task, scheme and n; the first is its headline."""

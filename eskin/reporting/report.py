@@ -56,7 +56,11 @@ def node_word(skin: AnySkin) -> str:
 def draw(figure: Figure, oof: pd.DataFrame, skin: AnySkin):
     """One of a kind's figures (eskin/kinds.py) from its task's out-of-fold predictions on
     ``skin``."""
-    build = getattr(fig, figure.draw)
+    build = fig.DRAWERS.get(figure.draw)
+    if build is None:
+        raise ValueError(f"figure {figure.id!r} ({figure.task}) is drawn by {figure.draw!r}, "
+                         "which eskin/reporting/figures.py does not register; register it "
+                         f"with @drawer, or name one of {', '.join(sorted(fig.DRAWERS))}")
     if figure.targets:
         return build(oof, list(figure.targets),
                      [f"{axis} {node_word(skin)}" for axis in figure.axis_labels],
