@@ -59,23 +59,17 @@ def train_at(scene: str, task: str, *, task_params: TaskModels | None, configura
                          folds=read_scene_folds(folds_path, frame),
                          fold_notes=read_fold_notes(folds_path), task_params=task_params,
                          configuration=configuration, cv=cv, log=log)
-    header = trained.header
-    if trained.status == "skipped":
-        if lineage_path is not None:
-            write_json({**header, "status": "skipped"}, lineage_path)
-        write_json({**header, "status": "skipped", "reason": trained.reason}, scores_path)
-        save_predictions(trained.predictions, predictions_path)
-        save_models(trained.models, model_path)
-        return trained
+    header, skipped = trained.header, trained.status == "skipped"
     save_models(trained.models, model_path)
-    # The model file's md5 (as in dvc.lock) links scores, DVC and the MLflow run.
-    header = {**header, "model_md5": md5_file(model_path)}
-    write_json({**header, **trained.scores}, scores_path)
+    if not skipped:  # the model file's md5 (as in dvc.lock) links scores, DVC and MLflow
+        header = {**header, "model_md5": md5_file(model_path)}
+    write_json({**header, "status": "skipped", "reason": trained.reason} if skipped
+               else {**header, **trained.scores}, scores_path)
     if lineage_path is not None:
-        write_json({**header, "status": "trained", "features_md5": md5_file(source)},
-                   lineage_path)
+        write_json({**header, "status": trained.status,
+                    **({} if skipped else {"features_md5": md5_file(source)})}, lineage_path)
     save_predictions(trained.predictions, predictions_path)
-    if record_path is not None:
+    if record_path is not None and not skipped:
         results = trained.results
         write_json({"model_md5": header["model_md5"],
                     "hyperparameters": trained.hyperparameters,
