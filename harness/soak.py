@@ -285,7 +285,7 @@ def _soak(written: dict, settings: Soak, workdir: Path, reference: pd.DataFrame,
         runs.append(out.strip())
         say(f"soak: {runs[-1]}")
     ingest_at(scene, soaked.scenes[scene], raw_dir, workdir / "data" / "processed",
-                 ingest=soaked.ingest)
+              ingest=soaked.ingest)
     frame = pd.read_parquet(workdir / "data" / "processed" / f"{scene}.parquet")
     fault_lines = fault_log.read_text().splitlines()
     counted = Counter(line.split("\t", 1)[0] for line in fault_lines)

@@ -378,7 +378,7 @@ def stress(params: Any, settings: Any, scene: str, features_path, out_dir, *, sc
                         board=params.sim_board, progress=False)
         ingest_at(scene, noisy, root / "raw", root / "processed", ingest=params.ingest)
         featurize_at(scene, root / "processed", root / "features", root / "models",
-                        settings=params.featurize)
+                     settings=params.featurize)
         frames[name] = read_dataset(root / "features" / f"{scene}.parquet")
     log(f"stress: {len(frames['default']):,} samples of {len(trials)} trials, "
         f"{int(settings.folds)}-fold conditions CV")

@@ -171,7 +171,7 @@ def ingest_step(params, scene: str, raw_dir: Path, processed_dir: Path):
 
     params = typed(params)
     return ingest_at(scene, params.scenes[scene], raw_dir, processed_dir,
-                        ingest=params.ingest)
+                     ingest=params.ingest)
 
 
 def featurize_step(params, scene: str, processed_dir: Path, features_dir: Path,
@@ -179,7 +179,7 @@ def featurize_step(params, scene: str, processed_dir: Path, features_dir: Path,
     from eskin.steps.featurize import featurize_at
 
     return featurize_at(scene, processed_dir, features_dir, models_dir,
-                           settings=typed(params).featurize)
+                        settings=typed(params).featurize)
 
 
 def train_step(params, scene: str, task: str, features_dir: Path, **kwargs):
@@ -191,8 +191,8 @@ def train_step(params, scene: str, task: str, features_dir: Path, **kwargs):
     params = typed(params)
     folds = kwargs.pop("folds_path", Path(features_dir).parent / "folds" / f"{scene}.parquet")
     folds_at(Path(features_dir) / f"{scene}.parquet", folds,
-                      schemes=list(params.cv.schemes), n_splits=int(params.cv.folds),
-                      seed=int(params.cv.seed), scene=scene)
+             schemes=list(params.cv.schemes), n_splits=int(params.cv.folds),
+             seed=int(params.cv.seed), scene=scene)
     return train_at(scene, task, task_params=getattr(params.train, task),
                        configuration=params.train.configuration, cv=params.cv,
                        features_dir=features_dir, folds_path=folds, **kwargs)

@@ -134,10 +134,10 @@ def run_pipeline(root, scene: str, frame: pd.DataFrame, skin, spec, params) -> d
                    "source": {"kind": "import", "path": "lab.csv", "sha256": "0" * 64}},
                   skin=skin)
     featurize_at(scene, root / "data/processed", root / "data/features", root / "models",
-                    settings=params.featurize)
+                 settings=params.featurize)
     folds_at(root / features_path(scene), root / folds_path(scene),
-                      schemes=list(params.cv.schemes), n_splits=int(params.cv.folds),
-                      seed=int(params.cv.seed), scene=scene)
+             schemes=list(params.cv.schemes), n_splits=int(params.cv.folds),
+             seed=int(params.cv.seed), scene=scene)
     trained = {}
     for task in TASK_NAMES:
         trained[task] = train_at(
@@ -455,13 +455,13 @@ def test_the_folds_file_keeps_the_fallback_for_the_scores_and_the_report(tmp_pat
     features = tmp_path / "features.parquet"
     write_dataset(frame, "single_force", features, {"kind": "single_force"}, skin=skin)
     said = folds_at(features, tmp_path / "paper.parquet", scene="lab",
-                             schemes=["stratified", "conditions"], n_splits=7, seed=1)
+                    schemes=["stratified", "conditions"], n_splits=7, seed=1)
     assert said == "lab: 7 folds of 280 rows, 70 trials, for stratified, conditions CV"
     assert read_fold_notes(tmp_path / "paper.parquet") == {}
     once = frame.groupby("trial").head(1)  # 4 rows a node, 6 at rest: fewer than 7 folds
     write_dataset(once, "single_force", features, {"kind": "single_force"}, skin=skin)
     said = folds_at(features, tmp_path / "once.parquet", scene="lab",
-                             schemes=["stratified", "conditions"], n_splits=7, seed=1)
+                    schemes=["stratified", "conditions"], n_splits=7, seed=1)
     notes = read_fold_notes(tmp_path / "once.parquet")
     assert set(notes) == {"stratified", "conditions"}
     assert said.endswith(f"; stratified and conditions CV {notes['stratified']}")
@@ -479,9 +479,9 @@ def test_training_on_fallen_back_folds_keeps_their_note_in_its_scores(params, tm
                    "source": {"kind": "import", "path": "lab.csv", "sha256": "0" * 64}},
                   skin=skin)
     featurize_at("lab", tmp_path / "data/processed", tmp_path / "data/features",
-                    tmp_path / "models", settings=params.featurize)
+                 tmp_path / "models", settings=params.featurize)
     folds_at(tmp_path / features_path("lab"), tmp_path / folds_path("lab"),
-                      schemes=["stratified", "conditions"], n_splits=7, seed=1, scene="lab")
+             schemes=["stratified", "conditions"], n_splits=7, seed=1, scene="lab")
     notes = read_fold_notes(tmp_path / folds_path("lab"))
     done = train_at("lab", "stretch", task_params=params.train.stretch,
                        configuration=params.train.configuration, cv=params.cv,

@@ -344,8 +344,8 @@ def test_an_interrupted_training_stage_says_it_kept_nothing(small_params, tmp_pa
     featurize_step(params, "single_force", tmp_path / "acquired" / "processed",
                    root / "data" / "features", root / "models")
     folds_at(root / "data" / "features" / "single_force.parquet",
-                      root / folds_path("single_force"), schemes=params["cv"]["schemes"],
-                      n_splits=10, seed=params["cv"]["seed"], scene="single_force")
+             root / folds_path("single_force"), schemes=params["cv"]["schemes"],
+             n_splits=10, seed=params["cv"]["seed"], scene="single_force")
     env = {**os.environ, "PYTHONPATH": str(ROOT)}  # the stages package
     subprocess.run([sys.executable, "-m", "stages.settings"], cwd=root, env=env, check=True,
                    capture_output=True, timeout=120)

@@ -121,13 +121,13 @@ def test_a_scene_recorded_once_is_not_scored_under_trials_and_says_why(recorded,
                                          r"at least twice \(scenes.<scene>.repeats: 2\)"):
         assign_folds(once, "single_force", "trials", 10, 42, skin=PAPER_SKIN)
     said = folds_at(root / "repeats_1" / "single_force.parquet",
-                             tmp_path / "once.parquet", schemes=["stratified", "trials"],
-                             n_splits=5, seed=42, scene="single_force")
+                    tmp_path / "once.parquet", schemes=["stratified", "trials"],
+                    n_splits=5, seed=42, scene="single_force")
     assert "for stratified CV; not trials: a condition has only one trial" in said
     assert list(pd.read_parquet(tmp_path / "once.parquet").columns) == ["trial", "stratified"]
     said = folds_at(root / "repeats_2" / "single_force.parquet",
-                             tmp_path / "twice.parquet", schemes=["conditions", "trials"],
-                             n_splits=10, seed=42, scene="single_force")
+                    tmp_path / "twice.parquet", schemes=["conditions", "trials"],
+                    n_splits=10, seed=42, scene="single_force")
     assert said.endswith("for conditions, trials CV")
 
 

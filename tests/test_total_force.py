@@ -92,10 +92,10 @@ def pipeline(tmp_path_factory, repo_params):
     acquire_step(params, "two", root / "data/raw/two")
     ingested = ingest_step(params, "two", root / "data/raw/two", root / "data/processed")
     featurize_at("two", root / "data/processed", root / "data/features", root / "models",
-                    settings=params.featurize)
+                 settings=params.featurize)
     folds_at(root / features_path("two"), root / folds_path("two"),
-                      schemes=list(params.cv.schemes), n_splits=int(params.cv.folds),
-                      seed=int(params.cv.seed), scene="two")
+             schemes=list(params.cv.schemes), n_splits=int(params.cv.folds),
+             seed=int(params.cv.seed), scene="two")
     trained = {task: train_at(
         "two", task, task_params=getattr(params.train, task),
         configuration=params.train.configuration, cv=params.cv,
