@@ -67,9 +67,9 @@ def lock_problem(path: Path) -> str | None:
     two marks of a write cut short that DVC cannot see. A cut mid-line still parses
     and passes DVC's schema (a hash cut short is still a string): it is told by its
     last line, which DVC's dumper always ends. A cut at a line's end, by the stages
-    after it that are gone, as the last commit's lock names them (DVC adds and
-    rewrites a lock's stages, never drops one: a stage gone from dvc.yaml stays in
-    the lock until `dvc remove`)."""
+    after it that are gone, as the last commit's lock names them, and dvc.yaml still
+    does (DVC adds and rewrites a lock's stages, never drops one; a stage gone from
+    dvc.yaml may be taken out of the lock by hand, or by `dvc remove`)."""
     import yaml
 
     problem = dvc_problem(path)
@@ -80,10 +80,27 @@ def lock_problem(path: Path) -> str | None:
         return "is cut short: it ends mid-line"
     lost = sorted(committed_stages(path) - set(yaml.load(text, Loader=yaml.CSafeLoader)
                                                .get("stages") or {}))
+    if lost:  # rare: only then is the pipeline read, for a stage since removed from it
+        defined = pipeline_stages(path)
+        lost = [name for name in lost if defined is None or name in defined]
     if lost:
         return (f"is cut short: {len(lost)} of the stages the last commit's {path.name} "
                 f"records are gone ({', '.join(lost[:2])}{', ...' if len(lost) > 2 else ''})")
     return None
+
+
+def pipeline_stages(path: Path) -> set[str] | None:
+    """The stages the dvc.yaml beside the lock file at ``path`` defines, as DVC names them
+    (``train@single_force``); None where DVC cannot read it."""
+    from dvc.dvcfile import load_file
+    from dvc.exceptions import DvcException
+    from dvc.repo import Repo
+
+    try:
+        with Repo(str(path.parent), uninitialized=True) as repo:
+            return set(load_file(repo, str(path.with_name("dvc.yaml"))).stages.keys())
+    except (DvcException, OSError):
+        return None
 
 
 def committed_stages(path: Path) -> set[str]:

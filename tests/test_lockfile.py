@@ -32,8 +32,10 @@ def run(args: list[str], cwd: Path) -> None:
 
 @pytest.fixture
 def committed(tmp_path):
-    """A git repository whose last commit holds the project's own dvc.lock (25 stages)."""
-    (tmp_path / "dvc.lock").write_bytes((ROOT / "dvc.lock").read_bytes())
+    """A git repository whose last commit holds the project's own dvc.lock, beside its
+    dvc.yaml and params.yaml (which the stages' names come from)."""
+    for name in ("dvc.lock", "dvc.yaml", "params.yaml"):
+        (tmp_path / name).write_bytes((ROOT / name).read_bytes())
     for args in (["git", "init", "-q"], ["git", "add", "dvc.lock"], ["git", "commit", "-qm", "l"]):
         run(args, tmp_path)
     return tmp_path
@@ -74,6 +76,23 @@ def test_a_cut_at_a_line_end_is_told_by_the_stages_gone(committed):
     assert lock_problem(committed / "dvc.lock") == (
         f"is cut short: {stages - 1} of the stages the last commit's dvc.lock records are gone "
         f"({', '.join(sorted(set(yaml.safe_load(text)['stages']) - {first})[:2])}, ...)")
+
+
+def test_a_stage_removed_from_dvc_yaml_and_from_the_lock_is_no_cut(committed):
+    """DVC never drops a stage from the lock; one taken out by hand, after it left
+    dvc.yaml (a stage renamed, a scene removed), is no sign of a cut. The same lock,
+    cut there while dvc.yaml still defines the stage, is."""
+    text = (ROOT / "dvc.lock").read_text()
+    document = yaml.safe_load(text)
+    gone = "export@two_force"
+    assert gone in document["stages"]
+    del document["stages"][gone]
+    (committed / "dvc.lock").write_text(yaml.safe_dump(document, sort_keys=False))
+    assert lock_problem(committed / "dvc.lock").startswith("is cut short: 1 of the stages")
+    pipeline = yaml.safe_load((committed / "dvc.yaml").read_text())
+    pipeline["stages"]["export"]["foreach"] = ["single_force"]
+    (committed / "dvc.yaml").write_text(yaml.safe_dump(pipeline, sort_keys=False))
+    assert lock_problem(committed / "dvc.lock") is None
 
 
 def test_commands_on_the_pipeline_refuse_a_damaged_lock_the_device_tools_do_not(
