@@ -438,16 +438,20 @@ def build_parser() -> argparse.ArgumentParser:
     featurize.set_defaults(run=_learning_step)
     train = _command(
         commands, "train", "write the settings and draw a scene's folds, then "
-        "cross-validate and refit one task (train.<task> of params.yaml) into the workspace, "
-        "as the pipeline's settings, folds and train stages do; logs nothing to MLflow",
+        "cross-validate and refit a task (train.<task> of params.yaml), or every task, into "
+        "the workspace, as the pipeline's settings, folds and train stages do, keeping a "
+        "task trained from the same features, folds, settings and code; logs nothing to "
+        "MLflow",
         _examples(("eskin train single_force force", "its scores, predictions and model"),
-                  note="dvc repro trains every task in its train stages, then its last stage,\n"
+                  ("eskin train single_force", "every task of the scene, as its stage does"),
+                  note="dvc repro trains every scene in its train stage, then its last stage,\n"
                   "track, logs them to MLflow (eskin compare shows them)."),
         interrupted=STEP_NOT_KEPT)
     train.add_argument("scene", help="a scene of params.yaml, e.g. single_force")
-    train.add_argument("task", choices=TASK_NAMES,
-                       help="a task (train.<task> in params.yaml); one a scene's data cannot "
-                       "support is skipped, with the reason in its scores file")
+    train.add_argument("task", choices=TASK_NAMES, nargs="?",
+                       help="a task (train.<task> in params.yaml; every task if left out); "
+                       "one a scene's data cannot support is skipped, with the reason in its "
+                       "scores file")
     train.add_argument("--params", type=Path, default=Path("params.yaml"), help=PARAMS_HELP)
     train.set_defaults(run=_learning_step)
 

@@ -72,7 +72,9 @@ PLAIN = ["python", "-m", "harness.plain_fits"]
 # A headline label of the report, edited: (file, text, replacement), the first occurrence
 LABEL_EDIT = ("eskin/reporting/presentation.py", 'Headline("stretch R²"',
               'Headline("stretch R² (edited)"')
-TRAIN_STAGE = re.compile(r"^train@(.+)-([a-z_]+)$")
+TRAIN_STAGE = re.compile(r"^train@(.+)-([a-z_]+)$")  # a revision with a stage per task
+# the line the train step prints for a task it trained (not for one it kept or skipped)
+TRAINED = re.compile(r"^(\S+)/([a-z_]+) \[[^\]]*\]: ")
 # a force hyperparameter of the single-force scene's default model, in both revisions'
 # params.yaml (54c14f9's and after)
 KNOB = "train.force.physics_profile.max_iter=150"
@@ -142,6 +144,7 @@ def timed_run(args: list[str], project: Path, *, timeout: float, log=print) -> d
     command = shlex.join(args)
     started = time.perf_counter()
     marks: list[tuple[str, float]] = []
+    trained: list[str] = []
     tail: list[str] = []
     # its own process group: at the deadline, DVC and the stage it runs are killed together
     # (the stage holds the output pipe open)
@@ -159,6 +162,9 @@ def timed_run(args: list[str], project: Path, *, timeout: float, log=print) -> d
                 if found:
                     marks.append((found.group(1), time.perf_counter() - started))
                     log(f"  {marks[-1][1]:6.1f} s  {found.group(1)}")
+                task = TRAINED.match(line)
+                if task:
+                    trained.append(f"{task.group(1)}/{task.group(2)}")
                 tail = (tail + [line.rstrip()])[-20:]
         finally:
             deadline.cancel()
@@ -171,7 +177,7 @@ def timed_run(args: list[str], project: Path, *, timeout: float, log=print) -> d
     if code != 0:
         raise RuntimeError(f"{project}: {command} exited {code}:\n" + "\n".join(tail))
     ends = [t for _, t in marks[1:]] + [total] * bool(marks)  # a command not DVC's: none
-    return {"seconds": total,
+    return {"seconds": total, "trained": trained,
             "stages": {name: end - start for (name, start), end in zip(marks, ends, strict=True)}}
 
 
@@ -259,9 +265,12 @@ def compare_scores(baseline: dict[str, dict], current: dict[str, dict]) -> dict[
             for name in dict.fromkeys([*baseline, *current])}
 
 
-def retrained(stages: dict[str, float]) -> list[str]:
-    """The scene/task pairs of the training stages among ``stages`` (DVC's names)."""
-    return [f"{m.group(1)}/{m.group(2)}" for m in map(TRAIN_STAGE.match, stages) if m]
+def retrained(run: dict) -> list[str]:
+    """The scene/task pairs ``run`` (:func:`timed_run`) trained: its training stages'
+    names in a revision with a stage per task, else the tasks the train step said it
+    trained (a scene's stage keeps the tasks it need not train)."""
+    named = [f"{m.group(1)}/{m.group(2)}" for m in map(TRAIN_STAGE.match, run["stages"]) if m]
+    return named or list(run.get("trained", []))
 
 
 def plain_fits(project: Path, plain: list[str], tasks: list[str] | None, *, timeout: float,
@@ -315,7 +324,7 @@ def measure_revision(project: Path, *, knob: str, stage: list[str], timeout: flo
     out["experiment"] = timed_experiment(project, knob, timeout=timeout / 3, log=log)
     if plain is not None:
         out["plain_experiment"] = plain_fits(
-            project, plain, retrained(out["experiment"]["stages"]), timeout=timeout, log=log)
+            project, plain, retrained(out["experiment"]), timeout=timeout, log=log)
     log(f"  {shlex.join(stage)} × {FIXED_COST_RUNS} …")
     out["fixed_cost"] = fixed_cost(project, stage, timeout=300, log=log)
     if edit is not None:

@@ -1,5 +1,7 @@
-"""DVC stage: features and folds of a scene, and the model its settings name → one task's
-scores, predictions, models, and the run's record for the tracking stage."""
+"""DVC stage: features and folds of a scene, and the models its settings name → each
+task's scores, predictions, models, and the run's record for the tracking stage (a task
+trained from the same inputs and code is kept). ``python -m stages.train <scene> <task>``:
+that task alone."""
 
 import sys
 
@@ -7,4 +9,4 @@ from eskin.errors import run_friendly
 from eskin.steps.train import run as main
 
 if __name__ == "__main__":
-    sys.exit(run_friendly(lambda: print(main(sys.argv[1], sys.argv[2]))))
+    sys.exit(run_friendly(lambda: print(main(*sys.argv[1:3]))))

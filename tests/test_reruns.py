@@ -15,7 +15,7 @@ import pytest
 from tests.conftest import copy_small_pipeline, run_checked
 
 # (file edited, what the edit is, the stages it may mark: by name, without the
-# foreach key, so ``train`` stands for every train@<scene>-<task>)
+# foreach key, so ``train`` stands for every train@<scene>)
 EDITS = [
     ("eskin/reporting/presentation.py", "a headline label or a figure's caption",
      {"report", "track"}),
@@ -29,7 +29,7 @@ ACQUIRE = "acquire"
 
 
 def stale_stages(root, env) -> set[str]:
-    """The stages whose deps `dvc status` finds changed, by name (``train@a-b`` → train)."""
+    """The stages whose deps `dvc status` finds changed, by name (``train@a`` → train)."""
     status = json.loads(run_checked(["dvc", "status", "--json"], root, env).stdout or "{}")
     return {address.split("@")[0] for address in status}
 
@@ -74,3 +74,37 @@ def test_nothing_of_learning_or_reporting_reruns_an_acquisition():
         reached = sorted(str(p.relative_to(ROOT)) for p in declared_code(deps)
                          if any(p.is_relative_to(d) for d in downstream))
         assert not reached, f"{address} depends on {reached}"
+
+
+@pytest.mark.starts
+def test_a_knob_trains_only_its_task_and_a_cv_setting_that_moves_no_result_trains_none(
+        pipeline_copy):
+    """A scene's tasks train in one stage, which keeps a task trained from the same
+    features, folds, settings and code: a hyperparameter of one task's model refits that
+    task alone, and `cv.n_jobs` (folds in parallel: the same results) refits nothing.
+    Last in the module: it leaves the copy on other params."""
+    import yaml
+
+    root, env = pipeline_copy
+    params = yaml.safe_load((root / "params.yaml").read_text())
+    chosen = json.loads((root / "reports/settings/single_force/force.json").read_text())
+    model = chosen["train"]["model"]
+    knob = next(k for k, v in chosen["train"][model].items()
+                if isinstance(v, int) and not isinstance(v, bool) and k != "seed")
+    params["train"]["force"][model][knob] = chosen["train"][model][knob] + 1
+    (root / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    said = run_checked(["dvc", "repro"], root, env)
+    out = said.stdout + said.stderr
+    assert "Running stage 'train@single_force'" in out
+    assert "Running stage 'train@two_force'" not in out, "its settings did not change"
+    for task in ("stretch", "detect", "localise"):
+        assert f"single_force/{task}: kept" in out, out
+    assert "single_force/force: kept" not in out and "single_force/force [" in out
+
+    params["cv"]["n_jobs"] = 1 + int(params["cv"]["n_jobs"] == 1)
+    (root / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    said = run_checked(["dvc", "repro"], root, env)
+    out = said.stdout + said.stderr
+    assert "Running stage 'train@single_force'" in out and "Running stage 'train@two_force'" in out
+    assert out.count(": kept") == 8, out
+    assert stale_stages(root, env) == set()

@@ -237,7 +237,14 @@ def test_dvc_yaml_trains_every_task_of_the_catalog():
     from eskin.catalog import TASK_NAMES
 
     pipeline = yaml.safe_load((ROOT / "dvc.yaml").read_text())
-    assert tuple(pipeline["stages"]["train"]["matrix"]["task"]) == TASK_NAMES
+    stage = pipeline["stages"]["train"]["do"]
+    outs = [next(iter(out)) if isinstance(out, dict) else out for out in stage["outs"]]
+    named = [path.rsplit("/", 1)[1].split(".")[0] for path in outs]
+    assert tuple(dict.fromkeys(named)) == TASK_NAMES
+    assert [named.count(task) for task in TASK_NAMES] == [4] * len(TASK_NAMES)
+    # each kept in place for the step to keep (persist): DVC would otherwise remove them
+    assert all(isinstance(out, dict) and next(iter(out.values()))["persist"]
+               for out in stage["outs"])
 
 
 # ------------------------------------------------------------------ params: declared = read

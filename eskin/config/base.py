@@ -52,7 +52,7 @@ SECTION_FILES: dict[str, Path] = {
 }
 
 
-# A scene name becomes a DVC stage name (acquire@<scene>, train@<scene>-<task>), a
+# A scene name becomes a DVC stage name (acquire@<scene>, train@<scene>), a
 # directory and an MLflow tag: letters, digits and underscores, starting with a letter.
 SCENE_NAME = r"^[A-Za-z][A-Za-z0-9_]*$"
 

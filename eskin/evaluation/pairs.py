@@ -182,7 +182,7 @@ def score_scene_pairs(scene: str, predictions: Mapping[str, pd.DataFrame],
     for task in ("localise",) if kind.total_force else ("localise", "force"):
         if task not in predictions:
             raise FileNotFoundError(f"{scene}/{task}: no predictions; run "
-                                    f"`dvc repro train@{scene}-{task}`")
+                                    f"`dvc repro train@{scene}`")
         frames[task] = predictions[task]
     if any(frame.empty for frame in frames.values()):
         skipped = [task for task, frame in frames.items() if frame.empty]

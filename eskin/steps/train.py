@@ -1,19 +1,28 @@
-"""Features and folds of a scene, and the model its settings name → one task's scores,
+"""Features and folds of a scene, and the models its settings name → each task's scores,
 predictions, models, and the run's record for the tracking stage.
+
+A scene's tasks train in one process (the scene's train stage). A task is kept, not
+trained again, when its features, folds, settings and code are those its lineage file
+says it was trained from (:func:`task_inputs`): a knob of one task's model, or a CV
+setting that changes no result (``cv.n_jobs``), refits only what it changes.
 
 :func:`train_at` reads and writes; the training between is
 :func:`eskin.learning.train.train_task`, which does neither."""
 
 from __future__ import annotations
 
+import functools
+import hashlib
+import json
 import os
 import socket
 import sys
 import time
 from collections.abc import Callable
+from modulefinder import ModuleFinder
 from pathlib import Path
 
-from eskin.catalog import FEATURES_DIR, settings_path, task_outputs
+from eskin.catalog import FEATURES_DIR, TASK_NAMES, settings_path, task_outputs
 from eskin.config.base import DEFAULT_PARAMS, load_params, sections
 from eskin.config.cv import CV
 from eskin.config.scenes import Scenes, get_scene
@@ -25,20 +34,93 @@ from eskin.learning.saved import save_models
 from eskin.learning.settings import read_settings
 from eskin.learning.train import Trained, train_task
 
+INPUTS = ("code_md5", "features_md5", "folds_md5", "settings_md5")
 
-def run(scene: str, task: str, params_path: Path | str = DEFAULT_PARAMS) -> str:
+
+def run(scene: str, task: str | None = None, params_path: Path | str = DEFAULT_PARAMS) -> str:
+    """Train ``task`` of ``scene``, or every task (the stage), each unless kept."""
     params = load_params(sections(scenes=Scenes, cv=CV), params_path)
     get_scene(params, scene, params_path)
-    task_params, configuration = read_settings(settings_path(scene, task), scene, task)
-    return train_at(scene, task, task_params=task_params, configuration=configuration,
-                    cv=params.cv, features_dir=FEATURES_DIR,
-                    **task_outputs(scene, task)).summary
+    said = []
+    for name in (task,) if task else TASK_NAMES:
+        outputs = task_outputs(scene, name)
+        inputs = task_inputs(FEATURES_DIR / f"{scene}.parquet", outputs["folds_path"],
+                             settings_path(scene, name))
+        if kept(inputs, outputs):
+            said.append(f"{scene}/{name}: kept, trained from these features, folds, settings "
+                        f"and code ({outputs['lineage_path']})")
+            continue
+        task_params, configuration = read_settings(settings_path(scene, name), scene, name)
+        said.append(train_at(scene, name, task_params=task_params, configuration=configuration,
+                             cv=params.cv, features_dir=FEATURES_DIR, inputs=inputs,
+                             **outputs).summary)
+    return "\n".join(said)
+
+
+@functools.cache
+def code_files() -> tuple[Path, ...]:
+    """The code a task's training runs: this module and every eskin module it imports, at
+    any depth and inside functions (:mod:`modulefinder` reads their bytecode and runs
+    nothing); the files the train stage lists in dvc.yaml (a test compares the two)."""
+    finder = _EskinModules(path=[str(_ROOT)])
+    finder.run_script(__file__)
+    return tuple(sorted({Path(module.__file__).resolve() for module in finder.modules.values()
+                         if module.__file__}))
+
+
+def code_md5() -> str:
+    """The md5 of :func:`code_files`, each by its path under the package's parent, so that
+    the same code gives the same md5 in any checkout."""
+    digest = hashlib.md5()
+    for path in code_files():
+        digest.update(path.relative_to(_ROOT).as_posix().encode() + b"\0")
+        digest.update(hashlib.md5(path.read_bytes()).hexdigest().encode() + b"\n")
+    return digest.hexdigest()
+
+
+_ROOT = Path(__file__).resolve().parents[2]  # the directory that holds the eskin package
+
+
+class _EskinModules(ModuleFinder):
+    """A module finder that follows eskin's own imports only."""
+
+    def import_module(self, partname, fqname, parent):
+        if fqname.split(".")[0] != "eskin":
+            return None
+        return super().import_module(partname, fqname, parent)
+
+
+def task_inputs(features: Path, folds: Path, settings: Path) -> dict[str, str]:
+    """What a task is trained from: the md5s of its code (:func:`code_md5`), its scene's
+    features and folds, and its settings file. Recorded in its lineage file."""
+    for path, stage in ((features, "featurize"), (folds, "folds"), (settings, "settings")):
+        if not Path(path).exists():
+            raise FileNotFoundError(f"{path}: missing; run `dvc repro {stage}"
+                                    f"{'' if stage == 'settings' else '@' + Path(path).stem}` "
+                                    "first")
+    return {"code_md5": code_md5(), "features_md5": md5_file(features),
+            "folds_md5": md5_file(folds), "settings_md5": md5_file(settings)}
+
+
+def kept(inputs: dict[str, str], outputs: dict[str, Path]) -> bool:
+    """Whether a task's outputs are all there and its lineage says it was trained from
+    ``inputs``."""
+    lineage = outputs.get("lineage_path")
+    if lineage is None or not all(Path(outputs[name]).exists() for name in
+                                  ("lineage_path", "scores_path", "predictions_path",
+                                   "model_path")):
+        return False
+    try:
+        recorded = json.loads(Path(lineage).read_text())
+    except (OSError, ValueError):
+        return False
+    return all(recorded.get(name) == inputs[name] for name in INPUTS)
 
 
 def train_at(scene: str, task: str, *, task_params: TaskModels | None, configuration: str,
              cv: CV, features_dir: Path, folds_path: Path, scores_path: Path,
              predictions_path: Path, model_path: Path, lineage_path: Path | None = None,
-             record_path: Path | None = None,
+             record_path: Path | None = None, inputs: dict[str, str] | None = None,
              log: Callable[[str], None] = lambda message: print(message, file=sys.stderr,
                                                                 flush=True)) -> Trained:
     """One task trained on the features in ``features_dir`` and the folds at
@@ -46,9 +128,10 @@ def train_at(scene: str, task: str, *, task_params: TaskModels | None, configura
     the paths say (:func:`eskin.catalog.task_outputs` names the pipeline's).
 
     ``lineage_path`` (uncached in dvc.yaml, which turns DVC's run cache off for the
-    stage): what trained the model. ``record_path`` (not a DVC output, so its times never
-    reach dvc.lock): when and how long it ran, and each fold's scores, for the tracking
-    stage (:mod:`eskin.tracking.runs`) to log; a task DVC reused has none."""
+    stage): what trained the model, and from what (``inputs``, :func:`task_inputs`).
+    ``record_path`` (not a DVC output, so its times never reach dvc.lock): when and how
+    long it ran, and each fold's scores, for the tracking stage (:mod:`eskin.tracking.runs`)
+    to log; a task kept has none."""
     started, started_at = time.perf_counter(), time.time()
     source = Path(features_dir) / f"{scene}.parquet"
     if not source.exists():
@@ -66,7 +149,7 @@ def train_at(scene: str, task: str, *, task_params: TaskModels | None, configura
     write_json({**header, "status": "skipped", "reason": trained.reason} if skipped
                else {**header, **trained.scores}, scores_path)
     if lineage_path is not None:
-        write_json({**header, "status": trained.status,
+        write_json({**header, "status": trained.status, **(inputs or {}),
                     **({} if skipped else {"features_md5": md5_file(source)})}, lineage_path)
     save_predictions(trained.predictions, predictions_path)
     if record_path is not None and not skipped:
