@@ -13,8 +13,7 @@ from eskin.config.base import DEFAULT_PARAMS, load_params, sections
 from eskin.config.ingest import Ingest
 from eskin.config.scenes import ImportedScene, Scene, Scenes, get_scene, scene_skin
 from eskin.data.importer import find_import, import_recording, import_to_dataset
-from eskin.data.ingest import Ingested as LogIngested
-from eskin.data.ingest import ingest_contents, live_frames
+from eskin.data.ingest import Ingested, ingest_contents, live_frames
 from eskin.data.plan import ScenePlan, plan_from_params
 from eskin.data.rawlog import LOG_NAME, read_log_if_any
 from eskin.data.schema import DatasetError, sha256_file, write_dataset, write_quarantine
@@ -27,7 +26,7 @@ def run(scene: str, params_path: Path | str = DEFAULT_PARAMS) -> str:
                      PROCESSED_DIR, ingest=params.ingest).summary
 
 
-def ingest_log(path: Path, plan: ScenePlan, *, bad_rows: str = "error") -> LogIngested:
+def ingest_log(path: Path, plan: ScenePlan, *, bad_rows: str = "error") -> Ingested:
     """The dataset of ``plan`` from the raw log at ``path`` (not yet written)."""
     path = Path(path)
     contents = read_log_if_any(path)
@@ -38,7 +37,7 @@ def ingest_log(path: Path, plan: ScenePlan, *, bad_rows: str = "error") -> LogIn
 
 
 @dataclass(frozen=True)
-class Ingested:
+class IngestedFiles:
     """What :func:`ingest_at` wrote: the dataset (``rows`` rows), the quarantine CSV
     (``quarantined`` rows) and the live-recorded frames (``live_frames`` of them)."""
 
@@ -53,7 +52,7 @@ class Ingested:
 
 
 def ingest_at(name: str, scene: Scene, raw_dir: Path, processed_dir: Path, *,
-              ingest: Ingest) -> Ingested:
+              ingest: Ingest) -> IngestedFiles:
     """Raw data of scene ``name`` (its params section ``scene``) →
     ``<processed_dir>/<name>.parquet``, its quarantine CSV and the frames recorded live
     (``<name>.live.parquet``), with the ``ingest`` section (its ``bad_rows`` unless the
@@ -87,7 +86,7 @@ def ingest_at(name: str, scene: Scene, raw_dir: Path, processed_dir: Path, *,
     if len(live):
         note += (f"; {len(live)} live-recorded frame(s) of {live['session'].nunique()} "
                  f"session(s) → {live_path(processed_dir, name)}")
-    return Ingested(name, out, int(rows), quarantine_path, len(quarantine),
+    return IngestedFiles(name, out, int(rows), quarantine_path, len(quarantine),
                     live_path(processed_dir, name), len(live),
                     f"{name}: {rows} rows → {out}{note}")
 
