@@ -1,5 +1,6 @@
 """Single- and two-force learning: folds, tasks, models, metrics, determinism."""
 
+import contextlib
 import json
 
 import numpy as np
@@ -353,6 +354,57 @@ def test_folds_give_the_same_predictions_on_every_joblib_backend(backend, projec
                                 n_jobs=2)
     pd.testing.assert_frame_equal(result.predictions, reference.predictions)
     assert result.per_fold == reference.per_fold
+
+
+def test_folds_left_when_a_cluster_loses_their_shared_data_run_after_it_is_sent_again(
+        project, monkeypatch, capsys):
+    """A Dask cluster that loses the data the folds share (its last copy on a killed worker:
+    FutureCancelledError, "already forgotten") gets it again, and the folds not yet done
+    run; the predictions are those of a sweep that lost nothing. A cluster that keeps
+    losing it is an error after SHARED_DATA_SENDS sends."""
+    from distributed.client import FutureCancelledError
+    from joblib import Parallel
+
+    from eskin.evaluation import crossval
+
+    frame, kind = features(project), "single_force"
+    task_ = get_task(kind, "force")
+    folds = assign_folds(frame, kind, "conditions", 4, 0, skin=PAPER_SKIN)
+    estimator = build_model("force", "hist_gradient_boosting",
+                            {"max_iter": 20, "learning_rate": 0.1, "seed": 0})
+
+    def sweep():
+        with parallel_backend("sequential"):
+            return cross_validate(task_, frame, folds, estimator, "conditions", PAPER_SKIN,
+                                  n_jobs=2, probe=False)
+
+    reference = sweep()
+    sends, asked = [], []
+
+    class Losing:  # as a cluster: the folds' outcomes, then the data lost
+        def __init__(self, *args, **kwargs):
+            self.parallel = Parallel(n_jobs=1, return_as="generator")
+
+        def __call__(self, calls):
+            calls = list(calls)
+            asked.append(len(calls))
+            for i, outcome in enumerate(self.parallel(calls)):
+                if i == losing["at"] and losing["times"]:
+                    losing["times"] -= 1
+                    raise FutureCancelledError("batch-1", "already forgotten")
+                yield outcome
+
+    monkeypatch.setattr(crossval, "Parallel", Losing)
+    monkeypatch.setattr(crossval, "_shared_with_cluster",
+                        lambda *data: sends.append(1) or contextlib.ExitStack())
+    losing = {"at": 2, "times": 1}  # lost once, after two folds
+    result = sweep()
+    pd.testing.assert_frame_equal(result.predictions, reference.predictions)
+    assert asked == [4, 2] and len(sends) == 2  # the two folds left, after a second send
+    assert "lost the data the folds share" in capsys.readouterr().err
+    losing.update(at=0, times=crossval.SHARED_DATA_SENDS)  # lost at every send
+    with pytest.raises(FutureCancelledError):
+        sweep()
 
 
 @pytest.mark.heavy  # starts a loky pool

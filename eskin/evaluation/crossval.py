@@ -13,6 +13,7 @@ import sys
 import time
 from collections import Counter
 from collections.abc import Callable, Mapping
+from concurrent.futures import CancelledError
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
@@ -62,6 +63,10 @@ def pool_pays(fold_s: float, remaining: int, n_jobs: int) -> bool:
     return fold_s * remaining * (1 - 1 / n_jobs) > POOL_STARTS_S
 
 
+# How many times a sweep sends the data its folds share to a Dask cluster that loses it
+# (:func:`_shared_with_cluster`): a worker killed now and then is survived, a cluster that
+# keeps losing it is an error.
+SHARED_DATA_SENDS = 3
 DASK_CONNECT_S = 30        # a lab cluster that does not answer in this long is an error
 NO_WORKERS_S = 120         # a local cluster's task with no worker left fails after this long
 
@@ -115,7 +120,12 @@ def _dask_client():
 def _shared_with_cluster(*data):
     """Under the dask backend, ``data`` sent to every worker before the folds (joblib's
     ``scatter``, broadcast): a fold whose worker dies runs on another that has it. Left
-    to joblib, each would be scattered to one worker, and lost with it."""
+    to joblib, each would be scattered to one worker, and lost with it.
+
+    Dask's Active Memory Manager (on by default) still trims the copies, every 2 s, to
+    the workers that have folds waiting for them: a worker killed then may hold the last
+    one, and the folds left fail ("already forgotten"). :func:`cross_validate` then sends
+    the data again and runs the folds left (:data:`SHARED_DATA_SENDS`)."""
     from joblib.parallel import get_active_backend
 
     backend, _ = get_active_backend()
@@ -220,9 +230,8 @@ def cross_validate(task: Task, frame: pd.DataFrame, folds: np.ndarray, estimator
     # position in the splitter, and takes its rows from it: not its index arrays): the
     # targets as one frame, not a dict, which joblib would send with every task.
     target_frame = pd.DataFrame(targets)
-    with (_shared_with_cluster(X, target_frame, splitter),
-          tqdm(total=len(splits), desc=progress, unit="fold", disable=progress is None,
-               file=sys.stderr, leave=False) as bar):
+    with tqdm(total=len(splits), desc=progress, unit="fold", disable=progress is None,
+              file=sys.stderr, leave=False) as bar:
         outcomes: list[FoldOutcome] = []
         later = estimator  # what the folds after the first fit
         probing = probe and n_jobs != 1
@@ -242,13 +251,24 @@ def cross_validate(task: Task, frame: pd.DataFrame, folds: np.ndarray, estimator
                                                           target_frame, splitter, k, binary))
                         bar.update()
         pooled = len(outcomes) < len(splits) and n_jobs != 1
-        if len(outcomes) < len(splits):
-            for outcome in Parallel(n_jobs=n_jobs, return_as="generator")(
-                    delayed(_fit_predict_fold)(later, X, channels, target_frame, splitter, k,
-                                               binary)
-                    for k in range(len(outcomes), len(splits))):
-                outcomes.append(outcome)
-                bar.update()
+        for send in range(1, SHARED_DATA_SENDS + 1):
+            if len(outcomes) == len(splits):
+                break
+            shared = _shared_with_cluster(X, target_frame, splitter)
+            try:
+                with shared:
+                    for outcome in Parallel(n_jobs=n_jobs, return_as="generator")(
+                            delayed(_fit_predict_fold)(later, X, channels, target_frame,
+                                                       splitter, k, binary)
+                            for k in range(len(outcomes), len(splits))):
+                        outcomes.append(outcome)
+                        bar.update()
+            except CancelledError as err:  # the cluster lost the data the folds share
+                if isinstance(shared, contextlib.nullcontext) or send == SHARED_DATA_SENDS:
+                    raise
+                print(f"{progress or 'cross-validation'}: the Dask cluster lost the data the "
+                      f"folds share ({err}); sending it again for the {len(splits) - len(outcomes)}"
+                      " fold(s) left", file=sys.stderr, flush=True)
 
     score: Callable = metrics.SCORERS[task.scorer]
     predictions = data.drop(columns=channels).assign(fold=fold_of)
