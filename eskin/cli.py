@@ -351,7 +351,7 @@ def build_parser() -> argparse.ArgumentParser:
         interrupted=RECEIVED_KEPT)
     ingest = _command(
         commands, "ingest", "build data/processed/<scene>.parquet from the scene's raw data "
-        "(the ingest stage of dvc repro)",
+        "(the ingest step of dvc repro's prepare stage)",
         _examples(("eskin ingest single_force", "→ data/processed/single_force.parquet")),
         interrupted=STEP_NOT_KEPT)
     for sub in (acquire, ingest):
@@ -430,7 +430,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     featurize = _command(
         commands, "featurize", "build data/features/<scene>.parquet and the fitted transform "
-        "(featurize.method; the featurize stage of dvc repro)",
+        "(featurize.method; the featurize step of dvc repro's prepare stage)",
         _examples(("eskin featurize single_force", "→ data/features/single_force.parquet")),
         interrupted=STEP_NOT_KEPT)
     featurize.add_argument("scene", help="a scene of params.yaml, e.g. single_force")

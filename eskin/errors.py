@@ -26,6 +26,8 @@ STAGE_NOT_KEPT = ("this stage's outputs are not recorded in dvc.lock (any it wro
 TRACK_KEPT = ("the task runs logged so far stay in MLflow, the one it was logging "
               "incomplete and marked FAILED; dvc.lock does not record this stage: "
               "`dvc repro` runs it again")
+TASKS_KEPT = ("the tasks it finished are kept, and `dvc repro` runs it again for the "
+              "rest (this stage's outputs are not recorded in dvc.lock until then)")
 STEP_NOT_KEPT = "what it writes at its end may be missing or incomplete: run it again"
 NOTHING_CHANGED = "nothing was changed"
 STOPPED = "it stopped before it finished"  # a command that says nothing of its own

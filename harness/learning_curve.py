@@ -254,7 +254,7 @@ def gap_check(frame: pd.DataFrame, rep: np.ndarray, params: Params, document: di
 
 
 def _featurized(frame: pd.DataFrame, params: Params, kind: str, skin) -> pd.DataFrame:
-    """``frame`` with the pipeline's features, fitted on all of it, as the featurize stage
+    """``frame`` with the pipeline's features, fitted on all of it, as the featurize step
     fits them on the whole dataset before any fold is drawn."""
     return featurize(frame, fit_featurizer(params.featurize.method, frame, kind, skin), skin)
 

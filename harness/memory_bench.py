@@ -1,7 +1,7 @@
 """Import memory benchmark (``make bench``): peak memory of importing a large CSV.
 
 For each size it writes a valid single-force CSV in the paper's layout, then
-imports it (``import_to_dataset``, the ingest stage's code) in a fresh process
+imports it (``import_to_dataset``, the ingest step's code) in a fresh process
 and reads that process's peak resident memory. The baseline is a second fresh
 process that imports the same modules and reads nothing, run by the same
 code: the import's own memory is the difference, stated as a ratio to the

@@ -5,8 +5,8 @@ that task alone."""
 
 import sys
 
-from eskin.errors import run_friendly
+from eskin.errors import TASKS_KEPT, run_friendly
 from eskin.steps.train import run as main
 
 if __name__ == "__main__":
-    sys.exit(run_friendly(lambda: print(main(*sys.argv[1:3]))))
+    sys.exit(run_friendly(lambda: print(main(*sys.argv[1:3])), interrupted=TASKS_KEPT))

@@ -448,7 +448,7 @@ def test_folds_fall_back_to_none_where_no_stratum_holds_a_row_a_fold():
 
 
 def test_the_folds_file_keeps_the_fallback_for_the_scores_and_the_report(tmp_path):
-    """The folds stage's line and file say how a scheme fell back; the results page says
+    """The folds step's line and file say how a scheme fell back; the results page says
     it from the scores; a scene that stratifies by node writes no note."""
     skin = Skin(4, 4)
     frame = row_column_dataset(skin, [1, 2, 3, 4], [1, 2, 3, 4])
@@ -471,7 +471,7 @@ def test_the_folds_file_keeps_the_fallback_for_the_scores_and_the_report(tmp_pat
 
 
 def test_training_on_fallen_back_folds_keeps_their_note_in_its_scores(params, tmp_path):
-    """The scores file and the training's line carry the folds stage's note."""
+    """The scores file and the training's line carry the folds step's note."""
     skin = Skin(4, 4)
     once = row_column_dataset(skin, [1, 2, 3, 4], [1, 2, 3, 4]).groupby("trial").head(1)
     write_dataset(once, "single_force", tmp_path / processed_path("lab"),

@@ -25,6 +25,7 @@ from eskin.errors import (
     RECEIVED_KEPT,
     STAGE_NOT_KEPT,
     STEP_NOT_KEPT,
+    TASKS_KEPT,
     TRACK_KEPT,
 )
 from eskin.tracking import compare
@@ -47,8 +48,8 @@ COMMANDS = {
 
 # Every stage that takes a scene (python -m stages.<module> <scene> ...), by its main().
 STAGES = {
-    "acquire": (TYPO,), "ingest": (TYPO,), "featurize": (TYPO,), "train": (TYPO, "force"),
-    "folds": (TYPO,), "export": (TYPO,), "bench": ("summary", TYPO),
+    "acquire": (TYPO,), "prepare": (TYPO,), "train": (TYPO, "force"),
+    "export": (TYPO,), "bench": ("summary", TYPO),
     "soak": (TYPO,),
     "stress": (TYPO,), "live_latency": (TYPO,), "dask_scaling": (TYPO,),
     "learning_curve": (TYPO,), "plan_check": (TYPO,),
@@ -288,10 +289,9 @@ def test_a_mistyped_registered_model_is_one_line_with_the_closest(tmp_path):
 # ------------------------------------------------------------------ Ctrl-C
 
 # Every stage of the pipeline (dvc.yaml), and what a Ctrl-C leaves of it.
-PIPELINE_STAGES = {"acquire": RECEIVED_KEPT, "track": TRACK_KEPT,
+PIPELINE_STAGES = {"acquire": RECEIVED_KEPT, "track": TRACK_KEPT, "train": TASKS_KEPT,
                    **{stage: STAGE_NOT_KEPT for stage in (
-                       "ingest", "featurize", "folds", "settings", "train", "export",
-                       "report")}}
+                       "prepare", "settings", "export", "report")}}
 
 
 def test_every_pipeline_stage_is_in_the_ctrl_c_table():
@@ -324,10 +324,11 @@ def test_each_stage_says_what_a_ctrl_c_kept_of_it(stage, monkeypatch):
 
 
 @pytest.mark.heavy
-def test_an_interrupted_training_stage_says_it_kept_nothing(small_params, tmp_path):
-    """The train stage, on a small scene, stopped by SIGINT while it cross-validates:
-    exit 130, one line saying that nothing of it is kept (and nothing was written), not
-    the acquisition's "everything received so far is on disk"."""
+def test_an_interrupted_training_stage_says_what_it_kept(small_params, tmp_path):
+    """The train stage, on a small scene, stopped by SIGINT while it cross-validates a
+    task: exit 130, one line saying that the tasks it finished are kept and the rest run
+    again (nothing of this one was written), not the acquisition's "everything received
+    so far is on disk"."""
     import select
     import signal
     import time
@@ -366,7 +367,7 @@ def test_an_interrupted_training_stage_says_it_kept_nothing(small_params, tmp_pa
     _, rest = stage.communicate(timeout=120)
     stderr = (said + rest).decode()
     assert stage.returncode == 130, stderr
-    assert stderr.endswith(f"eskin: interrupted; {STAGE_NOT_KEPT}\n"), stderr
+    assert stderr.endswith(f"eskin: interrupted; {TASKS_KEPT}\n"), stderr
     assert stderr.count("eskin:") == 1, stderr
     assert "everything received" not in stderr and "Traceback" not in stderr, stderr
     assert not (root / model_path("single_force", "force")).exists()

@@ -162,7 +162,7 @@ def test_a_second_force_model_is_a_second_mlflow_run_on_the_same_dataset(scratch
         assert column in shown, (column, shown)
     # The dataset version DVC records is the digest MLflow carries.
     lock = yaml.safe_load((root / "dvc.lock").read_text())
-    outs = lock["stages"]["ingest@single_force"]["outs"]
+    outs = lock["stages"]["prepare@single_force"]["outs"]
     assert digest in {o["md5"] for o in outs}
 
 

@@ -3,7 +3,7 @@ the checks every scene passes before any acquisition starts.
 
 It reads its params sections, calls the library, and writes its outputs: the same
 code runs under ``dvc repro`` and by hand. (Ingest is :mod:`eskin.steps.ingest`, so that
-the ingest stage does not depend on the acquisition's code.)
+the prepare stage does not depend on the acquisition's code.)
 """
 
 from __future__ import annotations

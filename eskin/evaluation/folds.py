@@ -317,14 +317,14 @@ def read_fold_notes(path: Path) -> dict[str, str]:
 
 
 def read_scene_folds(path: Path, frame: pd.DataFrame) -> dict[str, np.ndarray]:
-    """The fold numbers of ``frame``'s rows by scheme, as the folds stage drew them for
+    """The fold numbers of ``frame``'s rows by scheme, as the folds step drew them for
     these very rows (same count, same trials, in order)."""
     path = Path(path)
     if not path.exists():
-        raise FileNotFoundError(f"{path}: no folds; run `dvc repro folds@{path.stem}` first")
+        raise FileNotFoundError(f"{path}: no folds; run `dvc repro prepare@{path.stem}` first")
     folds = pd.read_parquet(path)
     if len(folds) != len(frame) or not np.array_equal(folds["trial"].to_numpy(),
                                                       frame["trial"].to_numpy()):
         raise ValueError(f"{path}: its {len(folds):,} rows are not the features' "
-                         f"{len(frame):,} rows in order; run `dvc repro folds@{path.stem}`")
+                         f"{len(frame):,} rows in order; run `dvc repro prepare@{path.stem}`")
     return {scheme: folds[scheme].to_numpy() for scheme in folds.columns if scheme != "trial"}

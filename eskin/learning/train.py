@@ -56,7 +56,7 @@ def train_task(scene: str, task_name: str, frame: pd.DataFrame, *, meta: dict[st
                log: Callable[[str], None] = lambda message: print(message, file=sys.stderr,
                                                                   flush=True)) -> Trained:
     """Cross-validate one task on the scene's folds (``folds``: scheme → its folds, as the
-    folds stage drew them; ``fold_notes``: where a scheme fell back from its strata), then
+    folds step drew them; ``fold_notes``: where a scheme fell back from its strata), then
     refit on all rows; nothing is read or written (:mod:`eskin.steps.train` does both).
     ``frame`` is the features of the skin ``skin``, of the kind ``data_kind`` (a
     total-force variant's, where its labels say so), ``meta`` their metadata. A model that

@@ -131,7 +131,7 @@ def skipped(scores: Mapping[str, Mapping]) -> list[tuple[str, str]]:
 
 def fold_notes(scores: Mapping[str, Mapping]) -> list[tuple[str, str]]:
     """(scheme, note) of each CV scheme whose folds fell back from the node strata (the
-    folds stage's ``fold_notes``, which every task of the scene carries alike)."""
+    folds step's ``fold_notes``, which every task of the scene carries alike)."""
     notes: dict[str, str] = {}
     for document in scores.values():
         notes.update(document.get("fold_notes") or {})

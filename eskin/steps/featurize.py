@@ -52,7 +52,7 @@ def featurize_at(scene: str, processed_dir: Path, features_dir: Path, models_dir
     taken on."""
     source = Path(processed_dir) / f"{scene}.parquet"
     if not source.exists():
-        raise FileNotFoundError(f"{source}: no dataset; run `dvc repro ingest@{scene}` first")
+        raise FileNotFoundError(f"{source}: no dataset; run `dvc repro prepare@{scene}` first")
     meta = read_metadata(source)
     frame = read_dataset(source)
     skin, kind = dataset_skin(source), dataset_kind(source)

@@ -1,6 +1,6 @@
 """data/raw/<scene>/ → data/processed/<scene>.parquet (+ quarantine CSV and the frames
 recorded live): the ingest step, shared by the DVC stage and the ``eskin`` command line.
-(It is not in :mod:`eskin.acquisition`, so that the ingest stage does not depend on the
+(It is not in :mod:`eskin.acquisition`, so that the prepare stage does not depend on the
 acquisition's code.)"""
 
 from __future__ import annotations

@@ -93,7 +93,7 @@ class _EskinModules(ModuleFinder):
 def task_inputs(features: Path, folds: Path, settings: Path) -> dict[str, str]:
     """What a task is trained from: the md5s of its code (:func:`code_md5`), its scene's
     features and folds, and its settings file. Recorded in its lineage file."""
-    for path, stage in ((features, "featurize"), (folds, "folds"), (settings, "settings")):
+    for path, stage in ((features, "prepare"), (folds, "prepare"), (settings, "settings")):
         if not Path(path).exists():
             raise FileNotFoundError(f"{path}: missing; run `dvc repro {stage}"
                                     f"{'' if stage == 'settings' else '@' + Path(path).stem}` "
@@ -124,7 +124,7 @@ def train_at(scene: str, task: str, *, task_params: TaskModels | None, configura
              log: Callable[[str], None] = lambda message: print(message, file=sys.stderr,
                                                                 flush=True)) -> Trained:
     """One task trained on the features in ``features_dir`` and the folds at
-    ``folds_path`` (every scheme drawn once by the folds stage), its outputs written where
+    ``folds_path`` (every scheme drawn once by the folds step), its outputs written where
     the paths say (:func:`eskin.catalog.task_outputs` names the pipeline's).
 
     ``lineage_path`` (uncached in dvc.yaml, which turns DVC's run cache off for the
@@ -135,7 +135,7 @@ def train_at(scene: str, task: str, *, task_params: TaskModels | None, configura
     started, started_at = time.perf_counter(), time.time()
     source = Path(features_dir) / f"{scene}.parquet"
     if not source.exists():
-        raise FileNotFoundError(f"{source}: no features; run `dvc repro featurize@{scene}` first")
+        raise FileNotFoundError(f"{source}: no features; run `dvc repro prepare@{scene}` first")
     frame = read_dataset(source)
     trained = train_task(scene, task, frame, meta=read_metadata(source),
                          skin=dataset_skin(source), data_kind=dataset_kind(source),
@@ -148,9 +148,6 @@ def train_at(scene: str, task: str, *, task_params: TaskModels | None, configura
         header = {**header, "model_md5": md5_file(model_path)}
     write_json({**header, "status": "skipped", "reason": trained.reason} if skipped
                else {**header, **trained.scores}, scores_path)
-    if lineage_path is not None:
-        write_json({**header, "status": trained.status, **(inputs or {}),
-                    **({} if skipped else {"features_md5": md5_file(source)})}, lineage_path)
     save_predictions(trained.predictions, predictions_path)
     if record_path is not None and not skipped:
         results = trained.results
@@ -163,4 +160,8 @@ def train_at(scene: str, task: str, *, task_params: TaskModels | None, configura
                                            "predict_seconds": r.predict_seconds}
                                 for r in results},
                     "per_fold": {r.scheme: r.per_fold for r in results}}, record_path)
+    if lineage_path is not None:  # last: a task is kept by it (:func:`kept`), so a Ctrl-C
+        # before it leaves the task to be trained again, never kept half-written
+        write_json({**header, "status": trained.status, **(inputs or {}),
+                    **({} if skipped else {"features_md5": md5_file(source)})}, lineage_path)
     return trained

@@ -112,7 +112,7 @@ def reproduce(name: str, version: str | None = None, *, root: Path = Path("."),
     saved = versioned_file(root, model_path(scene, task_name), model_md5, f"model {name}")
     model = load_models(saved, model_md5)[target]
     params = run.data.params
-    # As the folds stage drew them: cv.schemes less any the data do not allow.
+    # As the folds step drew them: cv.schemes less any the data do not allow.
     schemes = applicable_schemes(frame, kind, parse_param(params["cv.schemes"]))
     out: dict[str, Any] = {"model": name, "version": entry.version, "run": entry.run_id,
                            "features": str(path), "features md5": tags["eskin.features_md5"],
