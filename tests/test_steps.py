@@ -35,8 +35,8 @@ def test_the_commands_and_the_stages_write_the_same_bytes(tmp_path):
                  ["train", scene, task]):
         done = eskin(args, by_command)
         assert done.returncode == 0, f"eskin {' '.join(args)}: {done.stdout}\n{done.stderr}"
-    for module, args in (("acquire", [scene]), ("ingest", [scene]), ("featurize", [scene]),
-                         ("settings", []), ("folds", [scene]), ("train", [scene, task])):
+    for module, args in (("acquire", [scene]), ("prepare", [scene]), ("settings", []),
+                         ("train", [scene, task])):
         run_stage(module, *args, cwd=by_stage)
     written = [f"data/raw/{scene}/acquisition.log", f"data/processed/{scene}.parquet",
                features_path(scene), folds_path(scene), settings_path(scene, task),

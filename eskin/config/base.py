@@ -381,15 +381,20 @@ def validating():
         _recording[0] = was
 
 
+_TRACED_READS: dict[Path, set[str]] = {}  # by trace file: every load of it in this process
+
+
 def _traced(params: Schema, path: Path, trace_dir: str) -> Schema:
-    reads: set[str] = set()
-    # one file per params file loaded (a bench stage loads two)
+    # one file per params file loaded (a bench stage loads two), holding what every load
+    # of it in this process read (a stage that runs several steps loads it once a step)
     out = Path(trace_dir) / f"params-read-{os.getpid()}-{str(path).replace(os.sep, '_')}.json"
+    if out not in _TRACED_READS:
+        reads = _TRACED_READS[out] = set()
 
-    def write() -> None:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(json.dumps({"argv": sys.argv, "file": str(path),
-                                   "reads": sorted(reads)}))
+        def write() -> None:
+            out.parent.mkdir(parents=True, exist_ok=True)
+            out.write_text(json.dumps({"argv": sys.argv, "file": str(path),
+                                       "reads": sorted(reads)}))
 
-    atexit.register(write)
-    return _TracedModel(params, "", reads)  # type: ignore[return-value]
+        atexit.register(write)
+    return _TracedModel(params, "", _TRACED_READS[out])  # type: ignore[return-value]
