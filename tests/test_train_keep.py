@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import json
 
-from eskin.steps.train import code_files, code_md5, kept, task_inputs
+from eskin.steps.train import code_files, code_md5, kept, scene_inputs, task_inputs
 from tests.test_stage_deps import ROOT, closure, implicit_init
 
 
@@ -19,8 +19,8 @@ def outputs(tmp_path):
 def inputs_at(tmp_path):
     for name in ("features.parquet", "folds.parquet", "settings.json"):
         (tmp_path / name).write_bytes(name.encode())
-    return task_inputs(tmp_path / "features.parquet", tmp_path / "folds.parquet",
-                       tmp_path / "settings.json")
+    return task_inputs(tmp_path / "settings.json",
+                       scene_inputs(tmp_path / "features.parquet", tmp_path / "folds.parquet"))
 
 
 def test_a_task_is_kept_only_when_its_lineage_records_these_inputs_and_its_outputs_are_there(
@@ -40,8 +40,8 @@ def test_a_task_is_kept_only_when_its_lineage_records_these_inputs_and_its_outpu
 def test_a_changed_settings_file_changes_the_inputs(tmp_path):
     before = inputs_at(tmp_path)
     (tmp_path / "settings.json").write_text('{"max_iter": 150}')
-    after = task_inputs(tmp_path / "features.parquet", tmp_path / "folds.parquet",
-                        tmp_path / "settings.json")
+    after = task_inputs(tmp_path / "settings.json",
+                        scene_inputs(tmp_path / "features.parquet", tmp_path / "folds.parquet"))
     assert {k for k in before if before[k] != after[k]} == {"settings_md5"}
     assert before["code_md5"] == code_md5()
 

@@ -87,8 +87,8 @@ def ingest_at(name: str, scene: Scene, raw_dir: Path, processed_dir: Path, *,
         note += (f"; {len(live)} live-recorded frame(s) of {live['session'].nunique()} "
                  f"session(s) → {live_path(processed_dir, name)}")
     return IngestedFiles(name, out, int(rows), quarantine_path, len(quarantine),
-                    live_path(processed_dir, name), len(live),
-                    f"{name}: {rows} rows → {out}{note}")
+                         live_path(processed_dir, name), len(live),
+                         f"{name}: {rows} rows → {out}{note}")
 
 
 def _import(name: str, scene: ImportedScene, raw_dir: Path, out: Path, bad_rows: str

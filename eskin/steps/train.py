@@ -22,7 +22,7 @@ from collections.abc import Callable
 from modulefinder import ModuleFinder
 from pathlib import Path
 
-from eskin.catalog import FEATURES_DIR, TASK_NAMES, settings_path, task_outputs
+from eskin.catalog import FEATURES_DIR, TASK_NAMES, folds_path, settings_path, task_outputs
 from eskin.config.base import DEFAULT_PARAMS, load_params, sections
 from eskin.config.cv import CV
 from eskin.config.scenes import Scenes, get_scene
@@ -42,10 +42,10 @@ def run(scene: str, task: str | None = None, params_path: Path | str = DEFAULT_P
     params = load_params(sections(scenes=Scenes, cv=CV), params_path)
     get_scene(params, scene, params_path)
     said = []
+    shared = scene_inputs(FEATURES_DIR / f"{scene}.parquet", folds_path(scene))
     for name in (task,) if task else TASK_NAMES:
         outputs = task_outputs(scene, name)
-        inputs = task_inputs(FEATURES_DIR / f"{scene}.parquet", outputs["folds_path"],
-                             settings_path(scene, name))
+        inputs = task_inputs(settings_path(scene, name), shared)
         if kept(inputs, outputs):
             said.append(f"{scene}/{name}: kept, trained from these features, folds, settings "
                         f"and code ({outputs['lineage_path']})")
@@ -90,16 +90,24 @@ class _EskinModules(ModuleFinder):
         return super().import_module(partname, fqname, parent)
 
 
-def task_inputs(features: Path, folds: Path, settings: Path) -> dict[str, str]:
-    """What a task is trained from: the md5s of its code (:func:`code_md5`), its scene's
-    features and folds, and its settings file. Recorded in its lineage file."""
-    for path, stage in ((features, "prepare"), (folds, "prepare"), (settings, "settings")):
-        if not Path(path).exists():
-            raise FileNotFoundError(f"{path}: missing; run `dvc repro {stage}"
-                                    f"{'' if stage == 'settings' else '@' + Path(path).stem}` "
-                                    "first")
-    return {"code_md5": code_md5(), "features_md5": md5_file(features),
-            "folds_md5": md5_file(folds), "settings_md5": md5_file(settings)}
+def scene_inputs(features: Path, folds: Path) -> dict[str, str]:
+    """What every task of a scene is trained from: the md5s of the code
+    (:func:`code_md5`) and of the scene's features and folds."""
+    return {"code_md5": code_md5(), "features_md5": _md5_of(features, "prepare"),
+            "folds_md5": _md5_of(folds, "prepare")}
+
+
+def task_inputs(settings: Path, scene: dict[str, str]) -> dict[str, str]:
+    """What a task is trained from: its scene's inputs (:func:`scene_inputs`) and the md5
+    of its settings file. Recorded in its lineage file."""
+    return {**scene, "settings_md5": _md5_of(settings, "settings")}
+
+
+def _md5_of(path: Path, stage: str) -> str:
+    if not Path(path).exists():
+        raise FileNotFoundError(f"{path}: missing; run `dvc repro {stage}"
+                                f"{'' if stage == 'settings' else '@' + Path(path).stem}` first")
+    return md5_file(path)
 
 
 def kept(inputs: dict[str, str], outputs: dict[str, Path]) -> bool:
@@ -162,6 +170,8 @@ def train_at(scene: str, task: str, *, task_params: TaskModels | None, configura
                     "per_fold": {r.scheme: r.per_fold for r in results}}, record_path)
     if lineage_path is not None:  # last: a task is kept by it (:func:`kept`), so a Ctrl-C
         # before it leaves the task to be trained again, never kept half-written
-        write_json({**header, "status": trained.status, **(inputs or {}),
-                    **({} if skipped else {"features_md5": md5_file(source)})}, lineage_path)
+        lineage = {**header, "status": trained.status, **(inputs or {})}
+        if not skipped and "features_md5" not in lineage:  # hashed once, where inputs say
+            lineage["features_md5"] = md5_file(source)
+        write_json(lineage, lineage_path)
     return trained
