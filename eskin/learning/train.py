@@ -91,11 +91,12 @@ def train_task(scene: str, task_name: str, frame: pd.DataFrame, *, meta: dict[st
     n_jobs = int(cv.n_jobs)
     with parallel_backend(cv.backend):
         for scheme, scheme_folds in folds.items():
-            # the first scheme's first fold decides whether a pool pays (crossval.pool_pays)
+            # each scheme's first fold decides whether a pool pays (crossval.pool_pays): a
+            # scheme's folds differ in size from another's, and a fold run here gets the
+            # threads a worker would, wherever it runs (issue 55)
             results.append(cross_validate(
-                task, frame, scheme_folds, estimator, scheme, skin, probe=not results,
-                n_jobs=n_jobs if not results or results[0].pooled else 1,
-                progress=f"{scene}/{task_name} [{model_name}] {scheme} CV"))
+                task, frame, scheme_folds, estimator, scheme, skin, probe=True,
+                n_jobs=n_jobs, progress=f"{scene}/{task_name} [{model_name}] {scheme} CV"))
     log(f"{scene}/{task_name} [{model_name}]: refitting on all {len(frame):,} rows …")
     models = fit_final(task, frame, estimator, skin)
     scores: dict[str, Any] = {"status": "trained", "rows": int(task.rows(frame).sum()),
