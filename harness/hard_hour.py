@@ -304,7 +304,8 @@ def render(scene: str, result: dict[str, Any]) -> str:
     else:
         spread = [f"x {_spread(cv, 'x_accuracy', 100, ' %')}",
                   f"y {_spread(cv, 'y_accuracy', 100, ' %')}"]
-    spread.append(f"force MAE {_spread(cv, 'force_mae', 1, ' N')}")
+    spread.append(f"force MAE{'' if pairs else ' on pressed rows'} "
+                  f"{_spread(cv, 'force_mae', 1, ' N')}")
     lines += ["", "Conditions CV (mean ± fold SD): " + ", ".join(spread) + ". "
               f"Frames scored: a press's first {GRACE_MS} ms, and a release's, are not "
               "(the longest phantom counts from the release's first frame). "

@@ -23,6 +23,7 @@ from harness.hard_hour import (
     score_hard,
     table_of,
 )
+from harness.live_hour import batch_cv_scores, pressed_force_mae
 from harness.params import HardHour
 
 REST_MM = 101.0  # params.yaml's acquire.rest_length_mm
@@ -167,3 +168,35 @@ def test_the_readme_quotes_the_benchs_table_as_written():
 def test_the_readme_markers_hold_a_table():
     readme = Path(ROOT / "README.md").read_text(encoding="utf-8")
     assert quoted_in_readme(readme).startswith("| part |")
+
+
+def test_live_force_is_set_beside_the_pressed_rows_cv_error_not_every_rows():
+    # Two folds; untouched rows (true force 0) predicted right, pressed rows 0.4 N off in
+    # fold 0 and 0.6 N in fold 1; a row no fold tested (NaN) is left out. Over every row
+    # the MAE is half that: live, which scores pressed frames, would look twice as bad.
+    rows = []
+    for fold, error in ((0, 0.4), (1, 0.6)):
+        rows += [{"scheme": "conditions", "fold": fold, "force_true": 0.0, "force_pred": 0.0}] * 4
+        rows += [{"scheme": "conditions", "fold": fold, "force_true": 3.0,
+                  "force_pred": 3.0 + error}] * 4
+        rows += [{"scheme": "stratified", "fold": fold, "force_true": 3.0, "force_pred": 9.0}]
+    rows.append({"scheme": "conditions", "fold": -1, "force_true": 3.0, "force_pred": np.nan})
+    predictions = pd.DataFrame(rows)
+    assert pressed_force_mae(predictions) == pytest.approx([0.5, 0.1])
+    every_row = predictions[(predictions["scheme"] == "conditions")
+                            & predictions["force_pred"].notna()]
+    assert (every_row["force_pred"] - every_row["force_true"]).abs().mean() == pytest.approx(0.25)
+    assert pressed_force_mae(predictions.drop(columns="force_true")) is None
+    assert pressed_force_mae(predictions[predictions["force_true"] == 0]) is None
+
+
+def test_the_benchs_cv_force_is_the_pressed_rows_of_the_scenes_predictions(tmp_path):
+    scores, predictions = tmp_path / "scores", tmp_path / "predictions"
+    (scores / "s").mkdir(parents=True)
+    (predictions / "s").mkdir(parents=True)
+    (scores / "s" / "force.json").write_text(  # every row's MAE: not what live is set beside
+        '{"conditions": {"force": {"mae": 0.25, "mae_std": 0.05}}}')
+    pd.DataFrame({"scheme": ["conditions"] * 4, "fold": [0, 0, 1, 1],
+                  "force_true": [0.0, 2.0, 0.0, 2.0], "force_pred": [0.0, 2.5, 0.0, 2.3]}
+                 ).to_parquet(predictions / "s" / "force.parquet")
+    assert batch_cv_scores("s", scores, predictions)["force_mae"] == pytest.approx([0.4, 0.1])
