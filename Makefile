@@ -159,9 +159,10 @@ check: setup
 
 # Two workers, a test file each (its module fixtures, servers and scratch projects stay
 # in one process): most of a pipeline test is starting Python processes on one core.
-# Then, on a quiet machine, the tests marked `alone` (a Dask worker killed mid-sweep:
-# under two workers' load, Dask cancelled the sweep for "lost dependencies" once in three
-# runs; the cause is not found yet).
+# Then, on a quiet machine, the tests marked `alone`, which time the machine: a Dask
+# worker killed mid-fold (under load the sweep can end before the kill lands; its old
+# flake, Dask's memory manager dropping the data the folds share, is survived since
+# cd4049e), and live counting on a real-time board.
 test: setup browser firmware postgres sshd
 	mkdocs build --strict --quiet
 	pytest -q -n 2 --dist loadfile -m "not alone" --durations=15
