@@ -315,8 +315,10 @@ def write_skipped_import(directory: Path, scene: str, title: str) -> None:
 def batch_cv_scores(scene: str, scores_dir: Path = SCORES_DIR,
                     predictions_dir: Path = PREDICTIONS_DIR) -> dict[str, Any]:
     """The trained stack's conditions-CV scores (mean ± fold sd), to set the live ones
-    beside: location from the localise task's scores, a one-contact force on the pressed
-    rows of its predictions (:func:`pressed_force_mae`); a two-contact scene's pairs from
+    beside. A one-contact scene's from its tasks' predictions (:func:`cv_scores_of`): x
+    and y right, and the force error on pressed rows; and the same on its light edge and
+    corner presses alone, under ``light_edges`` (:func:`light_edge_rows`), which the
+    harder hour's parts of such presses are set beside. A two-contact scene's pairs from
     where the report writes them."""
     out: dict[str, Any] = {}
     pairs = scores_path(scene, PAIRS)
@@ -325,38 +327,69 @@ def batch_cv_scores(scene: str, scores_dir: Path = SCORES_DIR,
         for name in ("pair_accuracy", "force_mae"):
             if name in held_out:
                 out[name] = [round(held_out[name], 4), round(held_out[f"{name}_std"], 4)]
-    path = scores_dir / scene / "localise.json"
-    if path.exists():
-        held_out = json.loads(path.read_text()).get("conditions", {})
-        for target in ("x", "y"):
-            if target in held_out:
-                out[f"{target}_accuracy"] = [round(held_out[target]["accuracy"], 4),
-                                             round(held_out[target]["accuracy_std"], 4)]
-    force = predictions_dir / scene / "force.parquet"
-    if force.exists():
-        pressed = pressed_force_mae(pd.read_parquet(force))
-        if pressed is not None:
-            out["force_mae"] = pressed
+    localise, force = (predictions_dir / scene / f"{task}.parquet"
+                       for task in ("localise", "force"))
+    localised = pd.read_parquet(localise) if localise.exists() else None
+    weighed = pd.read_parquet(force) if force.exists() else None
+    out.update(cv_scores_of(localised, weighed))
+    light = cv_scores_of(localised, weighed, light_edge_rows)
+    if light:
+        out[LIGHT_EDGES] = light
     return out
 
 
-def pressed_force_mae(predictions: pd.DataFrame,
-                      scheme: str = "conditions") -> list[float] | None:
-    """A one-contact force task's MAE under ``scheme`` on its pressed rows (true force
-    above 0), mean and SD over folds. Live scores force on pressed frames; the task's own
-    MAE (scores/<scene>/force.json) also counts its untouched rows, whose force of 0 is
-    near-free (single_force: 0.254 N over all rows, 0.335 N over the pressed ones), and
-    set beside it a live press looked worse than it was. None without such rows."""
-    if "force_true" not in predictions:
-        return None
-    rows = predictions[(predictions["scheme"] == scheme) & (predictions["force_true"] > 0)
-                       & predictions["force_pred"].notna()]
-    if rows.empty:
-        return None
-    error = (rows["force_pred"].astype(float) - rows["force_true"]).abs()
-    per_fold = error.groupby(rows["fold"]).mean()
-    # the fold SD as the training scores give it (eskin.evaluation.metrics: ddof 0)
-    return [round(float(per_fold.mean()), 4), round(float(per_fold.std(ddof=0)), 4)]
+LIGHT_EDGES = "light_edges"  # batch_cv's key of the light edge and corner presses' scores
+
+
+def light_edge_rows(predictions: pd.DataFrame) -> pd.Series:
+    """The rows of a one-contact task's predictions pressed at the plan's lightest force on
+    an edge or corner node (its first or last row or column): the harder hour's light
+    edge and long presses, whose batch scores are below the average press's (single_force,
+    conditions CV: x right on 95.4 % of them, 99.1 % of all presses)."""
+    force = predictions["force"]
+    pressed = force > 0
+    if not pressed.any() or not {"x", "y"} <= set(predictions):
+        return pd.Series(False, index=predictions.index)
+    x, y = predictions["x"], predictions["y"]
+    on_edge = (x.isin([x[pressed].min(), x[pressed].max()])
+               | y.isin([y[pressed].min(), y[pressed].max()]))
+    return pressed & (force == force[pressed].min()) & on_edge
+
+
+def cv_scores_of(localised: pd.DataFrame | None, weighed: pd.DataFrame | None,
+                 rows: Callable[[pd.DataFrame], pd.Series] | None = None,
+                 scheme: str = "conditions") -> dict[str, list[float]]:
+    """A one-contact stack's CV scores under ``scheme`` as live scores its own, each mean
+    and SD over folds (the SD as the training scores give it: ddof 0): x and y right, from
+    the localise task's predictions ``localised``; the force error on pressed rows (true
+    force above 0), from the force task's ``weighed``. The force task's own MAE
+    (scores/<scene>/force.json) also counts its untouched rows, whose force of 0 is
+    near-free (single_force: 0.254 N over every row, 0.338 N over the pressed ones): set
+    beside it, a live press looked worse than it was. ``rows``: the rows kept (a mask of
+    a frame of predictions); a task without predictions, or a two-contact task, is left
+    out."""
+    def kept(frame: pd.DataFrame, predicted: str) -> pd.DataFrame:
+        frame = frame[(frame["scheme"] == scheme) & frame[predicted].notna()]
+        return frame[rows(frame)] if rows is not None else frame
+
+    def spread(per_row: pd.Series, folds: pd.Series) -> list[float]:
+        per_fold = per_row.groupby(folds).mean()
+        return [round(float(per_fold.mean()), 4), round(float(per_fold.std(ddof=0)), 4)]
+
+    out: dict[str, list[float]] = {}
+    if localised is not None and {"x_pred", "y_pred"} <= set(localised):
+        found = kept(localised, "x_pred")
+        if not found.empty:
+            for axis in ("x", "y"):
+                out[f"{axis}_accuracy"] = spread(found[f"{axis}_pred"] == found[f"{axis}_true"],
+                                                 found["fold"])
+    if weighed is not None and "force_true" in weighed:
+        pressed = kept(weighed, "force_pred")
+        pressed = pressed[pressed["force_true"] > 0]
+        if not pressed.empty:
+            out["force_mae"] = spread((pressed["force_pred"].astype(float)
+                                       - pressed["force_true"]).abs(), pressed["fold"])
+    return out
 
 
 def render(scene: str, result: dict[str, Any]) -> str:

@@ -18,12 +18,13 @@ from harness.hard_hour import (
     WHOLE,
     edge_presses,
     hard_script,
+    mixed_reference,
     quoted_in_readme,
     render,
     score_hard,
     table_of,
 )
-from harness.live_hour import batch_cv_scores, pressed_force_mae
+from harness.live_hour import LIGHT_EDGES, batch_cv_scores, cv_scores_of, light_edge_rows
 from harness.params import HardHour
 
 REST_MM = 101.0  # params.yaml's acquire.rest_length_mm
@@ -182,21 +183,79 @@ def test_live_force_is_set_beside_the_pressed_rows_cv_error_not_every_rows():
         rows += [{"scheme": "stratified", "fold": fold, "force_true": 3.0, "force_pred": 9.0}]
     rows.append({"scheme": "conditions", "fold": -1, "force_true": 3.0, "force_pred": np.nan})
     predictions = pd.DataFrame(rows)
-    assert pressed_force_mae(predictions) == pytest.approx([0.5, 0.1])
+    assert cv_scores_of(None, predictions) == {"force_mae": pytest.approx([0.5, 0.1])}
     every_row = predictions[(predictions["scheme"] == "conditions")
                             & predictions["force_pred"].notna()]
     assert (every_row["force_pred"] - every_row["force_true"]).abs().mean() == pytest.approx(0.25)
-    assert pressed_force_mae(predictions.drop(columns="force_true")) is None
-    assert pressed_force_mae(predictions[predictions["force_true"] == 0]) is None
+    assert cv_scores_of(None, predictions.drop(columns="force_true")) == {}
+    assert cv_scores_of(None, predictions[predictions["force_true"] == 0]) == {}
 
 
-def test_the_benchs_cv_force_is_the_pressed_rows_of_the_scenes_predictions(tmp_path):
-    scores, predictions = tmp_path / "scores", tmp_path / "predictions"
-    (scores / "s").mkdir(parents=True)
-    (predictions / "s").mkdir(parents=True)
-    (scores / "s" / "force.json").write_text(  # every row's MAE: not what live is set beside
-        '{"conditions": {"force": {"mae": 0.25, "mae_std": 0.05}}}')
-    pd.DataFrame({"scheme": ["conditions"] * 4, "fold": [0, 0, 1, 1],
-                  "force_true": [0.0, 2.0, 0.0, 2.0], "force_pred": [0.0, 2.5, 0.0, 2.3]}
-                 ).to_parquet(predictions / "s" / "force.parquet")
-    assert batch_cv_scores("s", scores, predictions)["force_mae"] == pytest.approx([0.4, 0.1])
+def predictions_of(rows: list[tuple[int, float, float, float, float, float]]) -> pd.DataFrame:
+    """Conditions-CV predictions of a 10 x 10 skin's localise and force tasks, in one
+    frame: (fold, x, y, force, x predicted, force predicted) a row; y is read right."""
+    frame = pd.DataFrame(rows, columns=["fold", "x", "y", "force", "x_pred", "force_pred"])
+    return frame.assign(scheme="conditions", x_true=frame["x"], y_true=frame["y"],
+                        y_pred=frame["y"], force_true=frame["force"])
+
+
+def test_the_light_edge_parts_are_set_beside_the_batchs_light_edge_presses(tmp_path):
+    # Light (1.29 N) presses on edge and corner nodes: x right on half of them; heavier or
+    # inner presses: always. The light edge class is judged by its own batch scores.
+    predictions = predictions_of([
+        (0, 1, 5, 1.29, 2, 1.29), (0, 10, 10, 1.29, 10, 1.29),  # light, edge: one wrong
+        (1, 5, 1, 1.29, 4, 1.79), (1, 1, 1, 1.29, 1, 1.29),     # light, edge: one wrong
+        (0, 5, 5, 1.29, 5, 1.29), (1, 1, 5, 3.25, 1, 3.25),     # light inner, heavy edge
+        (0, 6, 6, 5.21, 6, 5.21), (1, 6, 6, 5.21, 6, 5.21),
+        (0, 0, 0, 0.0, np.nan, 0.0), (1, 0, 0, 0.0, np.nan, 0.0)])  # untouched
+    assert light_edge_rows(predictions).tolist() == [True] * 4 + [False] * 6
+    light = cv_scores_of(predictions, predictions, light_edge_rows)
+    assert light["x_accuracy"] == [0.5, 0.0] and light["y_accuracy"] == [1.0, 0.0]
+    assert light["force_mae"] == pytest.approx([0.125, 0.125])  # fold 0: 0 N, fold 1: 0.25 N
+    (tmp_path / "s").mkdir()
+    predictions.to_parquet(tmp_path / "s" / "localise.parquet")
+    predictions.to_parquet(tmp_path / "s" / "force.parquet")
+    cv = batch_cv_scores("s", tmp_path, tmp_path)
+    assert cv["x_accuracy"] == pytest.approx([0.75, 0.0]) and cv[LIGHT_EDGES] == light
+
+
+def test_a_light_edge_part_is_judged_against_its_class_and_the_rest_against_all(settings):
+    frame = frame_of([
+        ("light_edges", "press", True, 100, [True] * 100),
+        ("light_edges", "untouched", False, 100, [False] * 100),
+        ("taps", "tap", True, 100, [True] * 100),
+        ("taps", "untouched", False, 100, [False] * 100),
+    ])
+    frame["x"] = np.where(np.arange(len(frame)) % 10 == 0, 5.0, frame["x"])  # 90 % right
+    cv = {**CV, LIGHT_EDGES: {"x_accuracy": [0.9, 0.02], "y_accuracy": [0.9, 0.02],
+                              "force_mae": [0.5, 0.1]}}
+    parts = score_hard(frame, cv, settings.targets)["parts"]
+    assert parts["light_edges"]["verdicts"]["location"] is True   # beside the class's 90 %
+    assert parts["taps"]["verdicts"]["location"] is False         # beside every press's
+    assert parts[WHOLE]["verdicts"]["location"] is False
+    without = score_hard(frame, CV, settings.targets)["parts"]["light_edges"]
+    assert without["verdicts"]["location"] is False  # no class scores: every press's
+    table = render("single_force", {"scene": "single_force", **score_hard(
+        frame, cv, settings.targets), "script": "a test"})
+    assert "light edge and long press parts are set beside (the whole script: each part's, " \
+           "weighted by the frames it located): x 90 ± 2 %" in table
+
+
+def test_the_whole_script_is_set_beside_the_mix_of_its_parts_references(settings):
+    # 91 located frames of light edge presses (class: 90 % right) and 291 of taps (every
+    # press: 99 %): the whole's reference is their mean weighted by those frames.
+    frame = frame_of([
+        ("light_edges", "press", True, 100, [True] * 100),
+        ("taps", "tap", True, 300, [True] * 300),
+    ])
+    cv = {**CV, LIGHT_EDGES: {"x_accuracy": [0.9, 0.02], "y_accuracy": [0.9, 0.02],
+                              "force_mae": [0.5, 0.1]}}
+    parts = score_hard(frame, cv, settings.targets)["parts"]
+    assert parts["light_edges"]["located_frames"] == 91
+    assert parts["taps"]["located_frames"] == 291
+    mixed = mixed_reference({p: parts[p] for p in ("light_edges", "taps")}, cv)
+    assert mixed["x_accuracy"] == pytest.approx([(91 * 0.9 + 291 * 0.99) / 382,
+                                                 (91 * 0.02 + 291 * 0.005) / 382], abs=1e-4)
+    assert mixed["force_mae"] == pytest.approx([(91 * 0.5 + 291 * 0.25) / 382,
+                                                (91 * 0.1 + 291 * 0.035) / 382], abs=1e-4)
+    assert mixed_reference({"untouched": {"located_frames": 0}}, cv) == cv
