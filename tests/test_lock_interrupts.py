@@ -115,7 +115,8 @@ def test_both_arms_on_the_same_seeded_ctrl_cs(root):
     assert result["after"]["counts"]["whole"] == 2  # make repro's way never damages it
     # 130: DVC stopped; 0: the run ended first; -SIGINT: the Ctrl-C came while Python
     # was still starting the wrapper, or already ending it (DVC not running either way)
-    assert all(run["exit"] in (0, 130, -signal.SIGINT) for run in result["after"]["runs"])
+    exits = [run["exit"] for run in result["after"]["runs"]]
+    assert all(code in (0, 130, -signal.SIGINT) for code in exits), exits  # which, if not
     cuts = result["cuts"]
     assert cuts["cuts"] == 40 and cuts["write_calls"] > 40
     assert cuts["dvc_rejects"] + cuts["eskin_only"] + cuts["untold"] == 40
