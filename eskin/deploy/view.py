@@ -515,6 +515,12 @@ class LiveView:
         except ValueError as err:
             raise PressRefused(400, str(err)) from None
         with self._changed:
+            # The start tare's record can reach the view a batch before the first estimate
+            # (a batch ending on the tare's last frame), and the page shows the tare done:
+            # a press sent in between waits for that estimate instead of being refused.
+            self._changed.wait_for(lambda: self._state["estimate"] is not None
+                                   or self._state["taring"] or self._state["tare"] is None,
+                                   timeout=wait_s)
             if self._state["estimate"] is None or self._state["taring"]:
                 raise PressRefused(409, "the tare is under way: keep the skin untouched, "
                                    "and press once the view shows frames")
