@@ -73,7 +73,8 @@ PLAIN = ["python", "-m", "harness.plain_fits"]
 LABEL_EDIT = ("eskin/reporting/presentation.py", 'Headline("stretch R²"',
               'Headline("stretch R² (edited)"')
 TRAIN_STAGE = re.compile(r"^train@(.+)-([a-z_]+)$")  # a revision with a stage per task
-# the line the train step prints for a task it trained (not for one it kept or skipped)
+# the lines the train step prints for a task it trained (its refit, then its scores; none
+# for a task it kept or skipped)
 TRAINED = re.compile(r"^(\S+)/([a-z_]+) \[[^\]]*\]: ")
 # a force hyperparameter of the single-force scene's default model, in both revisions'
 # params.yaml (54c14f9's and after)
@@ -162,9 +163,7 @@ def timed_run(args: list[str], project: Path, *, timeout: float, log=print) -> d
                 if found:
                     marks.append((found.group(1), time.perf_counter() - started))
                     log(f"  {marks[-1][1]:6.1f} s  {found.group(1)}")
-                task = TRAINED.match(line)
-                if task:
-                    trained.append(f"{task.group(1)}/{task.group(2)}")
+                trained.extend(trained_tasks([line]))
                 tail = (tail + [line.rstrip()])[-20:]
         finally:
             deadline.cancel()
@@ -177,7 +176,7 @@ def timed_run(args: list[str], project: Path, *, timeout: float, log=print) -> d
     if code != 0:
         raise RuntimeError(f"{project}: {command} exited {code}:\n" + "\n".join(tail))
     ends = [t for _, t in marks[1:]] + [total] * bool(marks)  # a command not DVC's: none
-    return {"seconds": total, "trained": trained,
+    return {"seconds": total, "trained": list(dict.fromkeys(trained)),
             "stages": {name: end - start for (name, start), end in zip(marks, ends, strict=True)}}
 
 
@@ -263,6 +262,13 @@ def compare_scores(baseline: dict[str, dict], current: dict[str, dict]) -> dict[
                               <= baseline[name]["std"])
                    if name in baseline and name in current else None}
             for name in dict.fromkeys([*baseline, *current])}
+
+
+def trained_tasks(lines: list[str]) -> list[str]:
+    """The scene/task pairs the train step's ``lines`` say it trained, each once (it
+    prints two lines for each: the yardstick fitted a task twice when both counted)."""
+    return list(dict.fromkeys(f"{m.group(1)}/{m.group(2)}" for m in map(TRAINED.match, lines)
+                              if m))
 
 
 def retrained(run: dict) -> list[str]:

@@ -284,15 +284,16 @@ def test_a_floor_that_reruns_more_stages_than_it_has_is_one_clear_error(tmp_path
 
 
 def test_the_tasks_retrained_are_read_from_the_stages_or_from_what_a_scenes_stage_said():
-    from harness.repro_speed import TRAINED, retrained
+    from harness.repro_speed import retrained, trained_tasks
 
     # a revision with a stage per task: the stages' names say it
     assert retrained({"stages": {"settings": 1.0, "train@one-force": 9.0}}) == ["one/force"]
     # a scene's stage: the lines it printed for the tasks it trained, not those it kept
     lines = ["single_force/stretch: kept, trained from these features, folds, settings and code",
+             "single_force/force [physics_profile]: refitting on all 4,000 rows …",
              "single_force/force [physics_profile]: stratified force r2 0.993±0.001",
              "two_force/stretch: skipped — stretch regression needs two or more stretch levels",
              "single_force/force [physics_profile] conditions CV:  10%|█  | 1/10"]
-    trained = [f"{m.group(1)}/{m.group(2)}" for m in map(TRAINED.match, lines) if m]
-    assert trained == ["single_force/force"]
+    trained = trained_tasks(lines)
+    assert trained == ["single_force/force"]  # once: the yardstick fits what it is given
     assert retrained({"stages": {"train@single_force": 9.0}, "trained": trained}) == trained
