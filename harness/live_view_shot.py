@@ -2,12 +2,14 @@
 
 :func:`sustained_press_on_the_view` runs the live loop on the simulated board's stream
 (faster than real time, :func:`eskin.device.simulate.accelerated_stream`) into a
-:class:`~eskin.deploy.view.LiveView`, presses a weight for ``press_s`` of board time, and
-holds there while headless Chromium reads the page and takes its picture; then the weight
-is lifted and the page's re-tare button is clicked, and the page must show the tare the
-live loop took on request. ``tests/test_live_ghosts.py`` runs it on the small test stack;
-``python -m harness.live_view_shot`` on the workspace's stack writes
-docs/screenshots/live_sustained_press.png (docs/live.md).
+:class:`~eskin.deploy.view.LiveView`, presses one weight or several for ``press_s`` of
+board time, and holds there while headless Chromium reads the page and takes its
+picture; then the weights are lifted and the page's re-tare button is clicked, and the
+page must show the tare the live loop took on request. ``tests/test_live_ghosts.py``
+runs it on the small test stack; ``python -m harness.live_view_shot [scene]`` on the
+workspace's stack writes docs/screenshots/live_sustained_press.png for a one-contact
+scene (a 2-minute press) and docs/screenshots/live_two_contacts.png for a two-contact
+one (two weights for 10 s; docs/live.md).
 """
 
 from __future__ import annotations
@@ -26,11 +28,16 @@ from eskin.device.simulate import accelerated_stream, live_board
 WAIT_S = 60.0  # each wait on the other side (the loop, or the page) has this deadline
 
 
+Press = tuple[int, int, float]  # node x, node y, newtons
+
+
 def sustained_press_on_the_view(stack, params, browser, path: Path, *,
-                                press: tuple[int, int, float] = (5, 5, 5.2136),
+                                presses: list[Press] | None = None,
                                 press_s: float = 120.0) -> dict[str, Any]:
     """What the page showed at the end of the press (its texts), and after the re-tare
-    button was clicked (``tared``); the picture is written to ``path``."""
+    button was clicked (``tared``); the picture is written to ``path``. ``presses``: the
+    weights, placed at once (by default one of 5.2 N on node (5, 5))."""
+    presses = presses or [(5, 5, 5.2136)]
     board = live_board(params, stack.skin)
     period_ms = int(params.sim_board.frame_period_ms)
     at_end, lifted, done = threading.Event(), threading.Event(), threading.Event()
@@ -53,8 +60,8 @@ def sustained_press_on_the_view(stack, params, browser, path: Path, *,
                     view.show(record)
                     estimates += "seq" in record
                     if pressed_at is None and estimates >= 50:
-                        x, y, newtons = press
-                        board.handle(f"SIM PRESS {x} {y} {newtons} 100".encode())
+                        for x, y, newtons in presses:
+                            board.handle(f"SIM PRESS {x} {y} {newtons} 100".encode())
                         pressed_at = estimates
                     elif pressed_at is not None and lifted_at is None \
                             and estimates >= pressed_at + pressed_frames:
@@ -81,9 +88,10 @@ def sustained_press_on_the_view(stack, params, browser, path: Path, *,
                 raise TimeoutError("the live loop never reached the press's end")
             if failure:
                 raise failure[0]
-            x, y, _ = press
+            # the page lists contacts in the stack's order: row-major, as the scene's
+            placed = "; ".join(f"x {x}, y {y}" for x, y, _ in sorted(presses))
             page.wait_for_function(
-                f"document.getElementById('location').textContent === 'x {x}, y {y}'",
+                f"document.getElementById('location').textContent === '{placed}'",
                 timeout=WAIT_S * 1000)
             shown = {name: page.inner_text(f"#{name}")
                      for name in ("contact", "location", "force", "stretch", "drift")}
@@ -112,15 +120,21 @@ def main() -> int:
     from eskin.config.base import load_params
     from eskin.config.params import Params
     from eskin.deploy.stack import ExportedStack
+    from eskin.kinds import get_kind
     from tests.conftest import headless_chromium
 
     params = load_params(Params)
     scene = sys.argv[1] if len(sys.argv) > 1 else next(iter(params.scenes))
     stack = ExportedStack.from_file(stack_path(scene))
-    path = Path("docs/screenshots/live_sustained_press.png")
+    if get_kind(stack.kind).contacts == 1:
+        path, presses, press_s = Path("docs/screenshots/live_sustained_press.png"), None, 120.0
+    else:  # two of the plan's nodes and forces
+        path = Path("docs/screenshots/live_two_contacts.png")
+        presses, press_s = [(1, 10, 3.2536), (10, 1, 5.2136)], 10.0
     with contextlib.ExitStack() as resources:
         browser = resources.enter_context(headless_chromium())
-        shown = sustained_press_on_the_view(stack, params, browser, path)
+        shown = sustained_press_on_the_view(stack, params, browser, path, presses=presses,
+                                            press_s=press_s)
     print(f"{path}: {shown}")
     return 0
 
