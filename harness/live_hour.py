@@ -8,8 +8,10 @@ hand press does; one sustained press; stretch changes. The board is the one `esk
 :func:`eskin.device.simulate.accelerated_stream`'s batches as the live loop reads them; the
 stack is the workspace's exported one (models/<scene>/stack.onnx), with params.yaml's
 ``live`` knobs. A one-contact scene is scored on phantoms, misses, location and force
-(:func:`score`); a two-contact stack reports two contacts on every frame and detects none,
-so its pressed frames are scored as the batch pairs are (:func:`score_pairs`).
+(:func:`score`); a two-contact scene's pressed frames are scored as the batch pairs are
+(:func:`score_pairs`), and, where its stack counts contacts (a scene recorded with
+``contact_counts``), its phantoms and misses as a one-contact scene's; a stack trained on
+pairs alone reports two contacts on every frame, and detects none.
 """
 
 from __future__ import annotations
@@ -255,13 +257,18 @@ def score(frame: pd.DataFrame, batch_scores: dict[str, Any]) -> dict[str, Any]:
 
 
 def score_pairs(frame: pd.DataFrame, batch_scores: dict[str, Any]) -> dict[str, Any]:
-    """A two-contact scene's hour: its stack reports two contacts on every frame (it
-    detects none), so only the pressed frames are scored, as the batch pairs are
+    """A two-contact scene's hour: its pressed frames scored as the batch pairs are
     (:mod:`eskin.evaluation.pairs`: a pair right as a set, each contact's force against
-    the force predicted for the contact matched to it)."""
+    the force predicted for the contact matched to it); where its stack counts contacts,
+    also phantoms (untouched frames it counted any on), misses (pressed frames it counted
+    none on) and the count on pressed frames (the script presses pairs). A stack trained
+    on pairs alone reports two on every frame: those are None."""
     from eskin.evaluation.pairs import CONTACTS, pair_outcomes, pair_scores
 
     pressed = frame[frame["pressed"] & (frame["since_ms"] >= GRACE_MS)]
+    untouched = frame[~frame["pressed"] & (frame["since_ms"] >= GRACE_MS)]
+    counts = "contacts" in frame and bool(frame["contacts"].notna().any())
+    contact = frame["contact"].fillna(False).astype(bool) if counts else None
     named = pd.DataFrame({
         **{f"{a}{i}_true": pressed[f"true_{a}{i}"].astype(float) for a in ("x", "y", "force")
            for i in CONTACTS},
@@ -281,6 +288,11 @@ def score_pairs(frame: pd.DataFrame, batch_scores: dict[str, Any]) -> dict[str, 
         "force_mae_n": _round(scores.get("force_mae")),
         "sustained_pair_accuracy": _round(sustained_scores.get("pair_accuracy")),
         "sustained_force_mae_n": _round(sustained_scores.get("force_mae")),
+        "counts_contacts": counts,
+        "untouched_frames": len(untouched),
+        "phantom_share": _share(contact[untouched.index]) if counts else None,
+        "missed_share": _share(~contact[pressed.index]) if counts else None,
+        "counted_two_share": _share(pressed["contacts"] == 2) if counts else None,
         "onnx_latency_ms_median": round(frame.attrs["single_frame_seconds"][0] * 1000, 3),
         "onnx_batch_ms_median": round(float(np.median(frame.attrs["batch_seconds"])) * 1000, 3),
         "batch_cv": batch_scores,
@@ -453,7 +465,14 @@ def _render_pairs(scene: str, result: dict[str, Any]) -> str:
     def spread(name, scale=1.0, unit=""):
         return _spread(result["batch_cv"], name, scale, unit, prefix="conditions CV ")
 
+    counted = bool(result.get("counts_contacts"))
     rows = [
+        ("phantom contacts, untouched frames", pct(result["phantom_share"]), "≤ 0.1 %"),
+        ("missed contacts, pressed frames after 100 ms", pct(result["missed_share"]),
+         "≤ 1 %"),
+        ("counted two, pressed frames", pct(result["counted_two_share"]), ""),
+    ] if counted else []
+    rows += [
         ("pairs right (both contacts, as a set), pressed frames",
          pct(result["pair_accuracy"]), spread("pair_accuracy", 100, " %")),
         ("contacts right", pct(result["contact_accuracy"]), ""),
@@ -465,10 +484,15 @@ def _render_pairs(scene: str, result: dict[str, Any]) -> str:
     ]
     lines = [f"# Live hour: {scene}, {result['hours']} h of board time, "
              f"{result['frames']} frames", "",
+             "Two contacts, counted: the stack says how many press (its scene was "
+             "recorded with contact_counts), and a frame it counts none on is untouched."
+             if counted else
              "Two contacts: the stack reports two on every frame and detects none, so "
              "phantoms and misses are not scored; the pressed frames are.", "",
              "| | live | batch |", "|---|---|---|"]
     lines += [f"| {name} | {value} | {target} |" for name, value, target in rows]
-    lines += ["", f"{result['pressed_frames']} pressed frames scored (a press's first "
-              f"{GRACE_MS} ms is not); script: " + result["script"] + "."]
+    scored = (f"{result['untouched_frames']} untouched and " if counted else "") + \
+        f"{result['pressed_frames']} pressed frames scored"
+    lines += ["", f"{scored} (a press's first {GRACE_MS} ms, and a release's, are not); "
+              "script: " + result["script"] + "."]
     return "\n".join(lines)

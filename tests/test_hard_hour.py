@@ -259,3 +259,52 @@ def test_the_whole_script_is_set_beside_the_mix_of_its_parts_references(settings
     assert mixed["force_mae"] == pytest.approx([(91 * 0.5 + 291 * 0.25) / 382,
                                                 (91 * 0.1 + 291 * 0.035) / 382], abs=1e-4)
     assert mixed_reference({"untouched": {"located_frames": 0}}, cv) == cv
+
+
+def pair_frame(counted: bool) -> pd.DataFrame:
+    """A two-contact live hour's frames at 12 ms: 20 untouched (the 10th to 20th scored,
+    after the release's 100 ms), then a pair (1, 10) + (10, 1) at 3 and 5 N for 20 frames,
+    placed right from the 10th; a counting stack counts a phantom on the last untouched
+    frame and none on the pair's 11th frame."""
+    rows = []
+    for i in range(40):
+        pressed, since = i >= 20, 12 * (i % 20)
+        placed = pressed and since >= 100
+        contacts = (2 if placed and i != 30 else 1 if i == 19 else 0) if counted else 2
+        rows.append({
+            "t_ms": 12 * i, "since_ms": since, "pressed": pressed, "kind": "press",
+            "contact": contacts > 0 if counted else np.nan,
+            "contacts": contacts if counted else np.nan,
+            "x1": 1.0 if contacts == 2 else np.nan, "y1": 10.0 if contacts == 2 else np.nan,
+            "force1": 3.1 if contacts == 2 else np.nan,
+            "x2": 10.0 if contacts == 2 else np.nan, "y2": 1.0 if contacts == 2 else np.nan,
+            "force2": 4.9 if contacts == 2 else np.nan,
+            "true_x1": 1.0 if pressed else 0.0, "true_y1": 10.0 if pressed else 0.0,
+            "true_force1": 3.0 if pressed else 0.0,
+            "true_x2": 10.0 if pressed else 0.0, "true_y2": 1.0 if pressed else 0.0,
+            "true_force2": 5.0 if pressed else 0.0})
+    frame = pd.DataFrame(rows)
+    frame.attrs.update(single_frame_seconds=[0.0004], batch_seconds=[0.001])
+    return frame
+
+
+def test_a_counting_two_contact_stack_is_scored_on_phantoms_and_misses_in_the_live_hour():
+    from harness.live_hour import render as render_hour
+    from harness.live_hour import score_pairs
+
+    counted = score_pairs(pair_frame(counted=True), {"pair_accuracy": [0.91, 0.025]})
+    # scored: untouched frames 10-20 (11), one a phantom; the pair's 10-20 (11), one
+    # counted none
+    assert counted["counts_contacts"] and counted["untouched_frames"] == 11
+    assert counted["pressed_frames"] == 11
+    assert counted["phantom_share"] == pytest.approx(1 / 11, abs=1e-5)
+    assert counted["missed_share"] == pytest.approx(1 / 11, abs=1e-5)
+    assert counted["counted_two_share"] == pytest.approx(10 / 11, abs=1e-5)
+    assert counted["pair_accuracy"] == pytest.approx(10 / 11, abs=1e-5)
+    table = render_hour("two_force", {**counted, "script": "a test"})
+    assert "| phantom contacts, untouched frames | 9.09 % | ≤ 0.1 % |" in table
+    assert "Two contacts, counted" in table
+    # a stack trained on pairs alone: two on every frame, phantoms and misses not scored
+    paired = score_pairs(pair_frame(counted=False), {})
+    assert not paired["counts_contacts"] and paired["phantom_share"] is None
+    assert "phantom contacts" not in render_hour("two_force", {**paired, "script": "a test"})
