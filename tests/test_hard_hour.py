@@ -262,27 +262,38 @@ def test_the_whole_script_is_set_beside_the_mix_of_its_parts_references(settings
 
 
 def pair_frame(counted: bool) -> pd.DataFrame:
-    """A two-contact live hour's frames at 12 ms: 20 untouched (the 10th to 20th scored,
-    after the release's 100 ms), then a pair (1, 10) + (10, 1) at 3 and 5 N for 20 frames,
-    placed right from the 10th; a counting stack counts a phantom on the last untouched
-    frame and none on the pair's 11th frame."""
+    """A two-contact live hour's frames at 12 ms, each segment 20 frames, the 10th to 20th
+    scored (after a press's or a release's 100 ms): untouched, then a pair (1, 10) +
+    (10, 1) at 3 and 5 N, then (6, 6) alone at 3 N (a counting plan's presses), each
+    placed right from its 10th frame. A counting stack counts a phantom on the last
+    untouched frame, none on the pair's 11th frame, and two on the single press's 12th; a
+    stack of pairs alone counts nothing and places two on every frame."""
     rows = []
-    for i in range(40):
-        pressed, since = i >= 20, 12 * (i % 20)
-        placed = pressed and since >= 100
-        contacts = (2 if placed and i != 30 else 1 if i == 19 else 0) if counted else 2
+    for i in range(60):
+        segment, since = i // 20, 12 * (i % 20)
+        pair, single = segment == 1, segment == 2
+        placed = segment > 0 and since >= 100
+        if counted:
+            contacts = (0 if not placed or i == 30 else 2 if pair or i == 51 else 1) \
+                if i != 19 else 1
+        else:
+            contacts = 2
+        first = (1.0, 10.0, 3.1) if pair else (6.0, 6.0, 3.1) if single and placed \
+            else (1.0, 10.0, 1.0)
+        second = (10.0, 1.0, 4.9)
         rows.append({
-            "t_ms": 12 * i, "since_ms": since, "pressed": pressed, "kind": "press",
+            "t_ms": 12 * i, "since_ms": since, "pressed": segment > 0, "kind": "press",
             "contact": contacts > 0 if counted else np.nan,
             "contacts": contacts if counted else np.nan,
-            "x1": 1.0 if contacts == 2 else np.nan, "y1": 10.0 if contacts == 2 else np.nan,
-            "force1": 3.1 if contacts == 2 else np.nan,
-            "x2": 10.0 if contacts == 2 else np.nan, "y2": 1.0 if contacts == 2 else np.nan,
-            "force2": 4.9 if contacts == 2 else np.nan,
-            "true_x1": 1.0 if pressed else 0.0, "true_y1": 10.0 if pressed else 0.0,
-            "true_force1": 3.0 if pressed else 0.0,
-            "true_x2": 10.0 if pressed else 0.0, "true_y2": 1.0 if pressed else 0.0,
-            "true_force2": 5.0 if pressed else 0.0})
+            **{f"{a}1": v if contacts >= 1 else np.nan
+               for a, v in zip(("x", "y", "force"), first, strict=True)},
+            **{f"{a}2": v if contacts == 2 else np.nan
+               for a, v in zip(("x", "y", "force"), second, strict=True)},
+            "true_x1": 1.0 if pair else 6.0 if single else np.nan,
+            "true_y1": 10.0 if pair else 6.0 if single else np.nan,
+            "true_force1": 3.0 if segment else 0.0,
+            "true_x2": 10.0 if pair else np.nan, "true_y2": 1.0 if pair else np.nan,
+            "true_force2": 5.0 if pair else np.nan if single else 0.0})
     frame = pd.DataFrame(rows)
     frame.attrs.update(single_frame_seconds=[0.0004], batch_seconds=[0.001])
     return frame
@@ -293,18 +304,20 @@ def test_a_counting_two_contact_stack_is_scored_on_phantoms_and_misses_in_the_li
     from harness.live_hour import score_pairs
 
     counted = score_pairs(pair_frame(counted=True), {"pair_accuracy": [0.91, 0.025]})
-    # scored: untouched frames 10-20 (11), one a phantom; the pair's 10-20 (11), one
-    # counted none
+    # scored: 11 frames of each segment; a phantom on 1 of 11 untouched; the pair counted
+    # none once, the single press two once: 2 of 22 pressed frames counted wrong
     assert counted["counts_contacts"] and counted["untouched_frames"] == 11
-    assert counted["pressed_frames"] == 11
+    assert (counted["pressed_frames"], counted["pair_frames"]) == (22, 11)
     assert counted["phantom_share"] == pytest.approx(1 / 11, abs=1e-5)
-    assert counted["missed_share"] == pytest.approx(1 / 11, abs=1e-5)
-    assert counted["counted_two_share"] == pytest.approx(10 / 11, abs=1e-5)
+    assert counted["missed_share"] == pytest.approx(1 / 22, abs=1e-5)
+    assert counted["count_right_share"] == pytest.approx(20 / 22, abs=1e-5)
+    # pairs on the pair's frames only, as the batch pairs are scored
     assert counted["pair_accuracy"] == pytest.approx(10 / 11, abs=1e-5)
     table = render_hour("two_force", {**counted, "script": "a test"})
     assert "| phantom contacts, untouched frames | 9.09 % | ≤ 0.1 % |" in table
     assert "Two contacts, counted" in table
     # a stack trained on pairs alone: two on every frame, phantoms and misses not scored
-    paired = score_pairs(pair_frame(counted=False), {})
+    paired = score_pairs(pair_frame(counted=False).iloc[:40], {})
     assert not paired["counts_contacts"] and paired["phantom_share"] is None
+    assert paired["pair_accuracy"] == 1.0
     assert "phantom contacts" not in render_hour("two_force", {**paired, "script": "a test"})
