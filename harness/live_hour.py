@@ -39,7 +39,8 @@ from eskin.kinds import KINDS
 
 # What a stack may estimate, scored per frame where it does: whether a contact presses,
 # each kind's positions and forces, the stretch.
-ESTIMATES = ["contact", *dict.fromkeys(column for kind in KINDS.values()
+# what live says of a frame, where the stack says it ("contacts": a counting two-contact one)
+ESTIMATES = ["contact", "contacts", *dict.fromkeys(column for kind in KINDS.values()
                                        for column in (*kind.node_columns, *kind.force_columns)),
              "stretch"]
 GRACE_MS = 100  # a press's first 100 ms (and a release's) are not scored: hysteresis' time

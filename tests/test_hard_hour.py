@@ -321,3 +321,15 @@ def test_a_counting_two_contact_stack_is_scored_on_phantoms_and_misses_in_the_li
     assert not paired["counts_contacts"] and paired["phantom_share"] is None
     assert paired["pair_accuracy"] == 1.0
     assert "phantom contacts" not in render_hour("two_force", {**paired, "script": "a test"})
+
+
+@pytest.mark.parametrize("kind", ["single_force", "two_force"])
+def test_the_hours_keep_every_estimate_a_stack_says_but_its_probability(kind):
+    # the live hour's frames hold what live said of each frame; a counting stack's count
+    # was left out once, and its hour was scored as a stack that counts nothing
+    from eskin.kinds import get_kind
+    from harness.live_hour import ESTIMATES
+
+    for counted in (False, True):
+        said = set(get_kind(kind).stack_outputs(counted=counted)) - {"contact_probability"}
+        assert said <= set(ESTIMATES)
