@@ -496,7 +496,7 @@ def _render_pairs(scene: str, result: dict[str, Any]) -> str:
              if counted else
              "Two contacts: the stack reports two on every frame and detects none, so "
              "phantoms and misses are not scored; the pressed frames are.", "",
-             "| | live | batch |", "|---|---|---|"]
+             "| | live | target or batch |", "|---|---|---|"]
     lines += [f"| {name} | {value} | {target} |" for name, value, target in rows]
     scored = (f"{result['untouched_frames']} untouched and " if counted else "") + \
         f"{result['pressed_frames']} pressed frames scored ({result['pair_frames']} of " \

@@ -315,7 +315,7 @@ def test_a_counting_two_contact_stack_is_scored_on_phantoms_and_misses_in_the_li
     assert counted["pair_accuracy"] == pytest.approx(10 / 11, abs=1e-5)
     table = render_hour("two_force", {**counted, "script": "a test"})
     assert "| phantom contacts, untouched frames | 9.09 % | ≤ 0.1 % |" in table
-    assert "Two contacts, counted" in table
+    assert "Two contacts, counted" in table and "| | live | target or batch |" in table
     # a stack trained on pairs alone: two on every frame, phantoms and misses not scored
     paired = score_pairs(pair_frame(counted=False).iloc[:40], {})
     assert not paired["counts_contacts"] and paired["phantom_share"] is None
