@@ -91,7 +91,7 @@ QUOTED_OUTPUTS = ("reports/scores/*/*.json", "reports/pairs/*.json", "reports/me
 # the run of that commit. A new one is added here, so that each is seen.
 HISTORY = {
     ("getting-started.md", "4a4d39e"), ("getting-started.md", "c00665b"),
-    ("benchmark.md", "5662b67"), ("benchmark.md", "a04e336"),
+    ("benchmark.md", "5662b67"), ("benchmark.md", "a04e336"), ("benchmark.md", "47c6cc5"),
     ("benchmark.md", "6452867"), ("benchmark.md", "004a3ca"), ("benchmark.md", "9510804"),
     ("benchmark.md", "894f906"), ("benchmark.md", "cf46b9c"), ("benchmark.md", "7de7013"),
     ("benchmark.md", "486b34c"), ("results.md", "486b34c"),
@@ -100,7 +100,7 @@ HISTORY = {
     ("simulator.md", "486b34c"), ("stress.md", "fec03be"),
     ("benchmark.md", "71ad41d"), ("benchmark.md", "a73c8ac"), ("benchmark.md", "4d2acf5"),
     ("learning.md", "3c4916e"), ("benchmark.md", "f8eb704"), ("live.md", "7ce2c8f"),
-    ("live.md", "bd50136"), ("live.md", "e839d46"),
+    ("live.md", "bd50136"), ("live.md", "e839d46"), ("live.md", "b4596a0"),
 }
 # Typed decimals that equal an output's value by coincidence: not that measurement.
 NOT_MEASURED = {
@@ -108,6 +108,7 @@ NOT_MEASURED = {
     ("results.md", "0.771"): "the paper's own two-contact force R²",
     ("benchmark.md", "0.001"): "the bound's convergence threshold, a setting",
     ("hostile-input.md", "0.002"): "a soak's reset and vanish fault rates, settings",
+    ("reports.md", "0.056"): "a label's text sized in a figure cell, not a score",
 }
 HISTORY_MARK = re.compile(r"[Hh]istory\*{0,2},?\s+at\s+([0-9a-f]{7,12})\b")
 DECIMAL = re.compile(r"(?<![\w.])(\d+\.\d{3,4})(?![\d])")
