@@ -147,11 +147,22 @@ def test_a_changed_simulator_parameter_reacquires_everything(clean_run, tmp_path
 
 def test_two_force_scene_follows_its_documented_plan(small_params, tmp_path):
     _, frame = acquire_and_ingest(small_params, tmp_path, scene="two_force")
-    assert len(frame) == 36 * 2 * 2 * 5  # pairs of the 9 nodes × force1 × force2 × samples
-    first = frame["x1"] * 100 + frame["y1"]
-    second = frame["x2"] * 100 + frame["y2"]
+    # docs/scenes.md: the pairs of the 9 nodes × force1 × force2 × samples, then (its
+    # contact_counts: [0, 1, 2]) each node alone at each force, and the untouched skin
+    # once per force, × samples
+    # (an untouched condition names a weight it does not place, as single force's node 0)
+    pairs = frame[frame["x2"] > 0]
+    alone = frame[(frame["x1"] > 0) & (frame["x2"] == 0)]
+    untouched = frame[frame["x1"] == 0]
+    assert (len(pairs), len(alone), len(untouched)) == (36 * 2 * 2 * 5, 9 * 2 * 5, 2 * 5)
+    assert len(frame) == len(pairs) + len(alone) + len(untouched)
+    first = pairs["x1"] * 100 + pairs["y1"]
+    second = pairs["x2"] * 100 + pairs["y2"]
     assert (first < second).all(), "contact 1 comes first in row-major order"
-    assert set(frame["x1"]) | set(frame["x2"]) == {1, 6, 10}
+    assert set(pairs["x1"]) | set(pairs["x2"]) == {1, 6, 10}
+    # an absent contact comes last, at node 0; the untouched skin has none
+    assert (alone[["x2", "y2"]] == 0).all(axis=None) and set(alone["x1"]) == {1, 6, 10}
+    assert (untouched[["y1", "x2", "y2"]] == 0).all(axis=None)
     assert (frame["stretch"] == 1.0).all()
 
 
@@ -325,7 +336,8 @@ def test_a_skin_of_another_size_is_acquired_over_the_pty_into_its_own_dataset(
         assert change.iloc[:rows].idxmax() == f"cx{rows}"
         assert change.iloc[rows:].idxmax() == f"cy{columns}"
     else:
-        assert set(frame["x2"]) <= {1, 9, 16} and frame["y2"].max() == columns
+        # the pairs on its nodes; an absent second contact (a counting plan) at node 0
+        assert set(frame["x2"]) <= {0, 1, 9, 16} and frame["y2"].max() == columns
 
 
 def test_a_board_source_on_a_channel_array_is_refused_before_any_acquisition(repo_params):

@@ -686,7 +686,8 @@ MISTAKES = {
                     "'import'"),
     "import with no file": (("scenes", "two_force", "source"), "import",
                             "scenes.two_force: an import scene's labels come from its files, "
-                            "not a plan: remove stretches, forces, samples, nodes_x, nodes_y; "
+                            "not a plan: remove stretches, forces, samples, nodes_x, nodes_y, "
+                            "contact_counts; "
                             "set import.path to the files"),
     "serial with no port": (("scenes", "two_force", "source"), "serial",
                             "scenes.two_force: source is 'serial' but port is unset"),
