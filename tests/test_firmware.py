@@ -280,8 +280,10 @@ def test_a_scene_of_params_yaml_is_acquired_from_the_firmware(small_params, tmp_
     from tests.conftest import write_params
 
     rows, columns = (10, 10) if skin is None else (skin["rows"], skin["columns"])
+    # pairs only (the paper's plan): the emulator's time goes to what this test is about
     small_params["scenes"]["two_force"].update(
-        forces=[5.2136], nodes_x=[1, rows], nodes_y=[1, columns], samples=4)
+        forces=[5.2136], nodes_x=[1, rows], nodes_y=[1, columns], samples=4,
+        contact_counts=[2])
     if skin is not None:
         small_params["scenes"]["two_force"]["skin"] = skin
     small_params["cv"]["folds"] = 2

@@ -107,9 +107,10 @@ def test_dvc_metrics_show_lists_the_headline_metrics(scratch):
     scores = json.loads((root / "reports/scores/single_force/stretch.json").read_text())
     assert one["stretch"] == scores["conditions"]["stretch"]["r2"]
     assert set(one) == {"stretch", "force", "contact", "x", "y"}  # no pairs: one contact
-    assert set(files["reports/metrics/two_force.json"]) == {"pairs", "pair_force"}
+    # the default two_force scene counts its contacts (contact_counts): the count's too
+    assert set(files["reports/metrics/two_force.json"]) == {"contacts", "pairs", "pair_force"}
     headline = json.loads((root / "reports/metrics.json").read_text())
-    assert set(headline["two_force"]) == {"force", "localise", "pairs"}
+    assert set(headline["two_force"]) == {"detect", "force", "localise", "pairs"}
     assert set(headline["two_force"]["pairs"]) == {"pair_accuracy", "ghost_share", "force_r2"}
     table = run_checked(["dvc", "metrics", "show"], root, {**env, "COLUMNS": "120"}).stdout
     assert "pair_force" in table and "contact" in table
@@ -235,7 +236,8 @@ def test_dvc_plots_draw_offline_in_headless_chromium(scratch):
         }""")
     assert not errors, errors
     assert [url for url in requested if not url.startswith("file:")] == []
-    assert plots == 11, plots  # 4 parity panels, 7 confusion matrices (small scenes)
+    # 4 parity panels, 8 confusion matrices (small scenes; two_force counts its contacts)
+    assert plots == 12, plots
     for panel in ("single_force: stretch λ", "single_force: force (N)",
                   "two_force: force of contact 2 (N)", "single_force: contact",
                   "two_force: y terminal of contact 1"):
@@ -298,10 +300,11 @@ def test_a_repro_groups_its_task_runs_under_one_pipeline_run(scratch):
     runs = mlflow.search_runs(experiment_names=["eskin"],
                               filter_string="tags.`eskin.kind` = 'task' and "
                                             "tags.`eskin.dvc_experiment` = ''")
-    # Four single-force tasks; two-force force and localise (stretch and detect skip).
+    # Four single-force tasks; two-force detect (it counts), force and localise (stretch
+    # skips: one stretch level).
     assert sorted(runs["tags.eskin.scene"] + "/" + runs["tags.eskin.task"]) == [
         *(f"single_force/{t}" for t in ("detect", "force", "localise", "stretch")),
-        "two_force/force", "two_force/localise"]
+        "two_force/detect", "two_force/force", "two_force/localise"]
     assert runs["tags.mlflow.parentRunId"].nunique() == 1
     # The UI: the training view, runs named by scene, task, model and variant, and
     # durations that are the training's (the run starts when the step did).
@@ -317,7 +320,8 @@ def test_a_repro_groups_its_task_runs_under_one_pipeline_run(scratch):
     assert (seconds >= runs["metrics.wall_seconds"] - 0.01).all()
     assert parent.info.end_time >= runs["end_time"].max().timestamp() * 1000 - 1
     # Artifacts go through the server: predictions and models come back from it.
-    run_id = runs[runs["tags.eskin.task"] == "detect"].iloc[0]["run_id"]
+    run_id = runs[(runs["tags.eskin.task"] == "detect")
+                  & (runs["tags.eskin.scene"] == "single_force")].iloc[0]["run_id"]
     listed = {a.path for a in mlflow.MlflowClient().list_artifacts(run_id, "predictions")}
     assert listed == {"predictions/oof_stratified.parquet", "predictions/oof_conditions.parquet"}
     # A run's headline metric is the mean over folds, as in the metrics file; the
@@ -579,8 +583,9 @@ def test_queued_experiments_run_two_at_a_time_and_compare_side_by_side(scratch, 
     assert table.loc["q-logistic", "train.detect.model"] == "logistic"
     assert table.loc["q-ridge", "train.stretch.model"] == "ridge"
     assert table.loc["force-rf", "train.force.model.single_force"] == "random_forest"
-    # runs that trained: the detector of each of the two scenes
-    assert table.loc["q-logistic", "runs"] == 2 and table.loc["q-logistic", "run time s"] > 0
+    # runs not reused: the detector of each of the two scenes (two_force's counts its
+    # contacts) and the two-force pairs' scores run
+    assert table.loc["q-logistic", "runs"] == 3 and table.loc["q-logistic", "run time s"] > 0
     assert 0.5 < table.loc["q-logistic", "contact acc"] <= 1
     assert -1 < table.loc["force-rf", "force R²"] <= 1
     printed = eskin_cli(["compare", "--scheme", "stratified"], root, env).stdout

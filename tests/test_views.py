@@ -103,10 +103,13 @@ def test_metrics_show_is_a_row_a_scene_that_fits_120_columns(experiment):
     one, two = by_scene[f"{METRICS_DIR}/single_force.json"], by_scene[
         f"{METRICS_DIR}/two_force.json"]
     assert {k for k, v in one.items() if v != "-"} == {"stretch", "force", "contact", "x", "y"}
-    assert {k for k, v in two.items() if v != "-"} == {"pairs", "pair_force"}
+    # the default two_force scene counts its contacts (contact_counts): the count's too
+    assert {k for k, v in two.items() if v != "-"} == {"contacts", "pairs", "pair_force"}
     written = json.loads((root / METRICS_DIR / "two_force.json").read_text())
     pairs = json.loads((root / scores_path("two_force", PAIRS)).read_text())
-    assert written == {"pairs": pairs["conditions"]["pair_accuracy"],
+    counted = json.loads((root / scores_path("two_force", "detect")).read_text())
+    assert written == {"contacts": counted["conditions"]["contacts"]["accuracy"],
+                       "pairs": pairs["conditions"]["pair_accuracy"],
                        "pair_force": pairs["conditions"]["force_r2"]}
 
     listing = shown(["dvc", "metrics", "diff", "--all"], root, env)
