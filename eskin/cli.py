@@ -592,7 +592,7 @@ def _plan(args: argparse.Namespace) -> int:
     from eskin.config.scenes import get_scene
     from eskin.tracking import planning
 
-    get_scene(load_params(Params), args.scene)
+    scene = get_scene(load_params(Params), args.scene)
     name, equals, value = args.target.partition("=")
     try:
         wanted = float(value) if equals else None
@@ -602,7 +602,17 @@ def _plan(args: argparse.Namespace) -> int:
         raise ValueError(f"--target {args.target!r}: give it as <task>_<metric>=<value>, "
                          "e.g. force_r2=0.95")
     settings = load_params(sections(BENCH_PARAMS, learning_curve=LearningCurve)).learning_curve
-    curves = planning.read_curves(learning_curve_path(args.scene), args.scene)
+    path = learning_curve_path(args.scene)
+    curves = planning.read_curves(path, args.scene)
+    if scene.source != "import":  # curves of another plan answer for that plan, not this one
+        from eskin.data.plan import plan_from_params
+
+        conditions = len(plan_from_params(args.scene, scene).conditions)
+        if curves.get("conditions") != conditions:
+            print(f"eskin plan: warning: {path} was measured on {curves.get('conditions')} "
+                  f"conditions of {args.scene}; its plan in params.yaml has {conditions} now, "
+                  f"so these answers are the old plan's; rerun `cd bench && dvc repro "
+                  f"learning_curve@{args.scene}` (make bench)", file=sys.stderr)
     print(planning.describe(planning.plan(curves, name.strip(), wanted, settings), settings))
     return 0
 

@@ -310,7 +310,15 @@ def test_eskin_plan_answers_from_the_benchs_curves_and_refuses_bad_targets(proje
            "over 3 held-out draws (90% of new recordings) reaches it. Record `repeats: 1` " \
            "and train on all of it; to score it under `trials` CV record `repeats: 2`" \
            in said.stdout
-    assert "303 trials, 909 frames" in said.stdout
+    assert "303 trials, 909 frames" in said.stdout and "warning" not in said.stderr
+    # curves measured on another plan of the scene (params.yaml's has changed since)
+    (out / f"{SCENE}.json").write_text(json.dumps({**curves, "conditions": 250}))
+    stale = eskin(["plan", SCENE, "--target", f"force_r2={first - 0.01:.4f}"], root)
+    assert stale.returncode == 0 and "repeats: 1" in stale.stdout  # answered, and warned:
+    assert (f"was measured on 250 conditions of {SCENE}; its plan in params.yaml has 303 "
+            f"now, so these answers are the old plan's; rerun `cd bench && dvc repro "
+            f"learning_curve@{SCENE}` (make bench)") in stale.stderr
+    (out / f"{SCENE}.json").write_text(json.dumps(curves))
     bad = eskin(["plan", SCENE, "--target", "force_r2"], root)
     assert bad.returncode == 1
     assert bad.stderr.strip().splitlines()[-1].endswith(
