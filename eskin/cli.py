@@ -609,7 +609,7 @@ def _plan(args: argparse.Namespace) -> int:
 
         conditions = len(plan_from_params(args.scene, scene).conditions)
         if curves.get("conditions") != conditions:
-            print(f"eskin plan: warning: {path} was measured on {curves.get('conditions')} "
+            print(f"eskin: warning: {path} was measured on {curves.get('conditions')} "
                   f"conditions of {args.scene}; its plan in params.yaml has {conditions} now, "
                   f"so these answers are the old plan's; rerun `cd bench && dvc repro "
                   f"learning_curve@{args.scene}` (make bench)", file=sys.stderr)
