@@ -24,20 +24,17 @@ from typing import Any
 from eskin.deploy.live import live_estimates
 from eskin.deploy.view import LiveView
 from eskin.device.simulate import accelerated_stream, live_board
+from harness.live_hour import Press
 
 WAIT_S = 60.0  # each wait on the other side (the loop, or the page) has this deadline
 
 
-Press = tuple[int, int, float]  # node x, node y, newtons
-
-
 def sustained_press_on_the_view(stack, params, browser, path: Path, *,
-                                presses: list[Press] | None = None,
+                                press: Press = ((5, 5, 5.2136),),
                                 press_s: float = 120.0) -> dict[str, Any]:
     """What the page showed at the end of the press (its texts), and after the re-tare
-    button was clicked (``tared``); the picture is written to ``path``. ``presses``: the
-    weights, placed at once (by default one of 5.2 N on node (5, 5))."""
-    presses = presses or [(5, 5, 5.2136)]
+    button was clicked (``tared``); the picture is written to ``path``.
+    ``press``: the weights, placed at once."""
     board = live_board(params, stack.skin)
     period_ms = int(params.sim_board.frame_period_ms)
     at_end, lifted, done = threading.Event(), threading.Event(), threading.Event()
@@ -60,7 +57,7 @@ def sustained_press_on_the_view(stack, params, browser, path: Path, *,
                     view.show(record)
                     estimates += "seq" in record
                     if pressed_at is None and estimates >= 50:
-                        for x, y, newtons in presses:
+                        for x, y, newtons in press:
                             board.handle(f"SIM PRESS {x} {y} {newtons} 100".encode())
                         pressed_at = estimates
                     elif pressed_at is not None and lifted_at is None \
@@ -89,7 +86,7 @@ def sustained_press_on_the_view(stack, params, browser, path: Path, *,
             if failure:
                 raise failure[0]
             # the page lists contacts in the stack's order: row-major, as the scene's
-            placed = "; ".join(f"x {x}, y {y}" for x, y, _ in sorted(presses))
+            placed = "; ".join(f"x {x}, y {y}" for x, y, _ in sorted(press))
             page.wait_for_function(
                 f"document.getElementById('location').textContent === '{placed}'",
                 timeout=WAIT_S * 1000)
@@ -127,13 +124,14 @@ def main() -> int:
     scene = sys.argv[1] if len(sys.argv) > 1 else next(iter(params.scenes))
     stack = ExportedStack.from_file(stack_path(scene))
     if get_kind(stack.kind).contacts == 1:
-        path, presses, press_s = Path("docs/screenshots/live_sustained_press.png"), None, 120.0
+        path = Path("docs/screenshots/live_sustained_press.png")
+        press, press_s = ((5, 5, 5.2136),), 120.0
     else:  # two of the plan's nodes and forces
         path = Path("docs/screenshots/live_two_contacts.png")
-        presses, press_s = [(1, 10, 3.2536), (10, 1, 5.2136)], 10.0
+        press, press_s = ((1, 10, 3.2536), (10, 1, 5.2136)), 10.0
     with contextlib.ExitStack() as resources:
         browser = resources.enter_context(headless_chromium())
-        shown = sustained_press_on_the_view(stack, params, browser, path, presses=presses,
+        shown = sustained_press_on_the_view(stack, params, browser, path, press=press,
                                             press_s=press_s)
     print(f"{path}: {shown}")
     return 0

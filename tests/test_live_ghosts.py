@@ -224,7 +224,7 @@ def test_the_view_during_a_sustained_press_and_its_re_tare_button(params, onnx, 
     re-tare button clicked: the live loop takes a tare on request, and the page says so."""
     with headless_chromium() as browser:
         shown = sustained_press_on_the_view(onnx, params, browser, tmp_path / "view.png",
-                                            presses=[(5, 5, 3.2536)])
+                                            press=((5, 5, 3.2536),))
     assert shown["contact"].startswith("touch (p = ")
     assert shown["location"] == "x 5, y 5"
     assert abs(float(shown["force"].removesuffix(" N")) - 3.2536) < 1.0
