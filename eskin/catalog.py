@@ -44,18 +44,18 @@ FEATURES_DIR = Path("data/features")
 FOLDS_DIR = Path("data/folds")
 MODELS_DIR = Path("models")
 # Every scene's and task's headline scores, `<scene>.<task>.<target>.<score>` (the report
-# stage writes it; the tracking stage logs it as the pipeline run's scores).
+# stage writes it; the publish stage logs it as the pipeline run's scores).
 METRICS = Path("reports/metrics.json")
 # DVC's metrics: a file a scene, `<scene>.json`, one headline number a question (a target
 # of one contact; two contacts' as a set), so `dvc metrics show` is a row a scene that
 # fits 120 columns and `dvc exp show` a short column a score.
 SCENE_METRICS_DIR = Path("reports/metrics")
 # What each training run did and when (not a DVC output: its times would change dvc.lock);
-# the tracking stage logs it to MLflow.
+# the publish stage logs it to MLflow.
 RUNS_DIR = Path("reports/runs")
-# The tracking stage's output: what it logged to MLflow, by content only (no run ids, no
+# The publish stage's output: what it logged to MLflow, by content only (no run ids, no
 # times), so its hash in dvc.lock is the same on every machine. Ignored by git: a fresh
-# clone lacks it, so DVC runs the tracking stage there once, and never twice.
+# clone lacks it, so DVC runs the publish stage there once, and never twice.
 TRACKED = RUNS_DIR / "tracked.json"
 SCORES_DIR = Path("reports/scores")
 PREDICTIONS_DIR = Path("reports/predictions")
@@ -68,9 +68,12 @@ LINEAGE_DIR = Path("reports/lineage")
 SETTINGS_DIR = Path("reports/settings")
 FIGURES_DIR = Path("reports/figures")
 PLOTS_DIR = Path("reports/plots")
-# Figures already drawn, by a key of their data and drawing code (the report stage's
+# Figures already drawn, by a key of their data and drawing code (the publish stage's
 # cache: not a DVC output, ignored by git; removing it costs only the drawing)
 FIGURE_CACHE = Path(".cache/figures")
+# What each scene's stack was exported from (the train stage keeps a stack made from the
+# same models, dataset and code): not a DVC output, ignored by git
+EXPORT_CACHE = Path(".cache/export")
 BENCH_DIR = Path("reports/benchmark")
 BOUND_DIR = Path("bench/bound")  # in bench/'s own DVC project, so in DVC's cache (not git)
 LEARNING_CURVE_DIR = Path("reports/learning_curve")
@@ -105,7 +108,7 @@ def featurizer_path(scene: str) -> Path:
 
 def run_record_path(scene: str, task: str) -> Path:
     """When a task's training ran, for how long, and its scores per fold (the train stage
-    writes it, the tracking stage reads it; ignored by git and DVC)."""
+    writes it, the publish stage reads it; ignored by git and DVC)."""
     return RUNS_DIR / scene / f"{task}.json"
 
 

@@ -686,7 +686,7 @@ def _pipeline_step(args: argparse.Namespace) -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     # before any command imports MLflow: its INFO lines are not a command's output
-    # (eskin/tracking/runs.py says the same for the tracking stage)
+    # (eskin/tracking/runs.py says the same for the publish stage)
     os.environ.setdefault("MLFLOW_LOGGING_LEVEL", "WARNING")
     logging.basicConfig(level=logging.DEBUG if args.debug else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")

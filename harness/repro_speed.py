@@ -65,7 +65,7 @@ RUNNING = re.compile(r"^Running stage '([^']+)'")
 # of the same tasks; for the repro, plus the repro's own acquisition stages), at most
 TARGETS = {"repro": 1.5, "experiment": 2.0}
 # ... and a headline label edited: only these stages stale, rerun in at most this long (s)
-LABEL_EDIT_STAGES = ("report", "track")
+LABEL_EDIT_STAGES = ("publish",)
 LABEL_EDIT_SECONDS = 5.0
 # The yardstick (harness/plain_fits.py), given the scene/task pairs to fit (none: all)
 PLAIN = ["python", "-m", "harness.plain_fits"]

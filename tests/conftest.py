@@ -331,7 +331,7 @@ def copy_small_pipeline(small_pipeline: Path, root: Path, tracking_uri: str, *,
                         track: bool = True) -> dict:
     """A copy at ``root`` of the built small pipeline (its git and DVC repositories, cache
     and workspace, and the params its stages noted reading), logging to MLflow at
-    ``tracking_uri``; with ``track``, its tracking stage run again there, which logs the
+    ``tracking_uri``; with ``track``, its publish stage run again there, which logs the
     pipeline as its first `dvc repro` did. Returns the environment its commands run in."""
     shutil.copytree(small_pipeline, root, symlinks=True, dirs_exist_ok=True,
                     # DVC's locks and state, and the build's MLflow artifacts: not the copy's
@@ -341,7 +341,7 @@ def copy_small_pipeline(small_pipeline: Path, root: Path, tracking_uri: str, *,
     shutil.copytree(params_trace_dir(small_pipeline), params_trace_dir(root))
     env = project_env(root, tracking_uri)
     if track:
-        run_checked(["dvc", "repro", "--force", "--single-item", "track"], root, env)
+        run_checked(["dvc", "repro", "--force", "--single-item", "publish"], root, env)
     return env
 
 

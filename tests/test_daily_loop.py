@@ -124,12 +124,12 @@ def two_experiments(tmp_path_factory, small_pipeline):
     root = tmp_path_factory.mktemp("daily_loop")
     env = copy_small_pipeline(small_pipeline, root,
                               f"sqlite:///{root.parent / 'daily_loop.db'}", track=False)
-    # The tracking stage logs the runs eskin compare reads: the first experiment is the
+    # The publish stage logs the runs eskin compare reads: the first experiment is the
     # reproduced pipeline, logged again by it; the second retrains only the force tasks.
-    run_checked(["dvc", "exp", "run", "-n", "per-kind", "--force", "--single-item", "track"],
+    run_checked(["dvc", "exp", "run", "-n", "per-kind", "--force", "--single-item", "publish"],
                 root, env)
     run_checked(["dvc", "exp", "run", "-n", "all-kinds", "-S",
-                 "train.force.model=hist_gradient_boosting", "track"], root, env)
+                 "train.force.model=hist_gradient_boosting", "publish"], root, env)
     return root, env
 
 

@@ -3,7 +3,7 @@
 Synthetic stacks built to reach every converter and its corners: ties between terminals
 (which peak TopK picks), rows with fewer than two peaks, NaN readings (the trees' missing
 branch), a tree that is a single leaf, two and three classes, each featurizer. The stacks
-trained on the simulated skin are checked by the export stage itself (tests of the
+trained on the simulated skin are checked by the train stage's export itself (tests of the
 pipeline) and live in tests/test_live.py.
 """
 

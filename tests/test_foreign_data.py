@@ -134,8 +134,7 @@ def test_every_scene_gets_its_stages_from_params_alone(project):
     root, env, *_ = project
     listed = run(["dvc", "stage", "list", "--name-only"], root, env).stdout.split()
     for scene in ("lab_single", "lab_pairs", "board_day1"):
-        assert {f"acquire@{scene}", f"prepare@{scene}",
-                f"export@{scene}"} <= set(listed)
+        assert {f"acquire@{scene}", f"prepare@{scene}"} <= set(listed)
         assert f"train@{scene}" in listed
     assert not [s for s in listed if "single_force" in s or "two_force" in s], listed
 

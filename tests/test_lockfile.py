@@ -84,13 +84,13 @@ def test_a_stage_removed_from_dvc_yaml_and_from_the_lock_is_no_cut(committed):
     cut there while dvc.yaml still defines the stage, is."""
     text = (ROOT / "dvc.lock").read_text()
     document = yaml.safe_load(text)
-    gone = "export@two_force"
+    gone = "train@two_force"
     assert gone in document["stages"]
     del document["stages"][gone]
     (committed / "dvc.lock").write_text(yaml.safe_dump(document, sort_keys=False))
     assert lock_problem(committed / "dvc.lock").startswith("is cut short: 1 of the stages")
     pipeline = yaml.safe_load((committed / "dvc.yaml").read_text())
-    pipeline["stages"]["export"]["foreach"] = ["single_force"]
+    pipeline["stages"]["train"]["foreach"] = ["single_force"]
     (committed / "dvc.yaml").write_text(yaml.safe_dump(pipeline, sort_keys=False))
     assert lock_problem(committed / "dvc.lock") is None
 

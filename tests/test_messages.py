@@ -49,7 +49,7 @@ COMMANDS = {
 # Every stage that takes a scene (python -m stages.<module> <scene> ...), by its main().
 STAGES = {
     "acquire": (TYPO,), "prepare": (TYPO,), "train": (TYPO, "force"),
-    "export": (TYPO,), "bench": ("summary", TYPO),
+    "bench": ("summary", TYPO),
     "soak": (TYPO,),
     "stress": (TYPO,), "live_latency": (TYPO,), "dask_scaling": (TYPO,),
     "learning_curve": (TYPO,), "plan_check": (TYPO,),
@@ -289,9 +289,8 @@ def test_a_mistyped_registered_model_is_one_line_with_the_closest(tmp_path):
 # ------------------------------------------------------------------ Ctrl-C
 
 # Every stage of the pipeline (dvc.yaml), and what a Ctrl-C leaves of it.
-PIPELINE_STAGES = {"acquire": RECEIVED_KEPT, "track": TRACK_KEPT, "train": TASKS_KEPT,
-                   **{stage: STAGE_NOT_KEPT for stage in (
-                       "prepare", "settings", "export", "report")}}
+PIPELINE_STAGES = {"acquire": RECEIVED_KEPT, "publish": TRACK_KEPT, "train": TASKS_KEPT,
+                   **{stage: STAGE_NOT_KEPT for stage in ("prepare", "settings")}}
 
 
 def test_every_pipeline_stage_is_in_the_ctrl_c_table():

@@ -1,4 +1,4 @@
-"""A new user's first `dvc repro`: the tracking stage runs where the MLflow store is new,
+"""A new user's first `dvc repro`: the publish stage runs where the MLflow store is new,
 even though dvc.lock (from git) already holds its deps, and a second `dvc repro` logs
 nothing twice."""
 
@@ -34,8 +34,9 @@ def test_a_clone_with_the_lock_and_an_empty_store_logs_once(small_pipeline, tmp_
     assert run_checked(["git", "status", "--porcelain"], root, env).stdout == ""
 
     first = run_checked(["dvc", "repro"], root, env).stdout
-    assert "Running stage 'track'" in first, first
-    # only the tracking stage ran: every other output was already what the lock says
+    assert "Running stage 'publish'" in first, first
+    # only the views ran (the report again, then the tracking): every other output was
+    # already what the lock says
     assert first.count("Running stage") == 1, first
     logged = _runs(uri)
     kinds = sorted(run.data.tags["eskin.kind"] for run in logged)
@@ -51,7 +52,7 @@ def test_a_clone_with_the_lock_and_an_empty_store_logs_once(small_pipeline, tmp_
 
 def test_an_empty_store_after_tracking_names_the_command_that_fills_it(small_pipeline,
                                                                       tmp_path):
-    # The user deleted mlflow.db after a repro: `dvc repro` would skip the tracking stage,
+    # The user deleted mlflow.db after a repro: `dvc repro` would skip the publish stage,
     # so the error names the one that runs it.
     root = tmp_path / "used"
     env = copy_small_pipeline(small_pipeline, root, f"sqlite:///{tmp_path / 'gone.db'}",
@@ -59,6 +60,6 @@ def test_an_empty_store_after_tracking_names_the_command_that_fills_it(small_pip
     answer = run_checked(["eskin", "compare"], root, env, ok=False)
     assert answer.returncode == 1
     told = answer.stderr.strip().splitlines()
-    assert len(told) == 1 and "`dvc repro --force --single-item track`" in told[0], told
-    run_checked(["dvc", "repro", "--force", "--single-item", "track"], root, env)
+    assert len(told) == 1 and "`dvc repro --force --single-item publish`" in told[0], told
+    run_checked(["dvc", "repro", "--force", "--single-item", "publish"], root, env)
     assert run_checked(["eskin", "compare"], root, env).returncode == 0

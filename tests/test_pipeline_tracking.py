@@ -49,9 +49,9 @@ def scratch(tmp_path_factory, small_pipeline, lab):
 
 @needs_chromium
 def test_the_link_the_tracking_stage_prints_shows_the_headline_scores(scratch):
-    """The link `dvc repro`'s tracking stage prints opens MLflow's runs table (on the real
+    """The link `dvc repro`'s publish stage prints opens MLflow's runs table (on the real
     server) with each headline score as a column named with its CV scheme, and the
-    variants newest first. First in the module: the tracking stage, run again on the
+    variants newest first. First in the module: the publish stage, run again on the
     workspace as the fixture left it, logs nothing new (a later test's `dvc exp run`
     leaves the workspace on the experiment's params, which a plain repro would log as a
     variant of its own)."""
@@ -63,7 +63,7 @@ def test_the_link_the_tracking_stage_prints_shows_the_headline_scores(scratch):
     mlflow.set_tracking_uri(env["MLFLOW_TRACKING_URI"])
     before = len(mlflow.search_runs(experiment_names=["eskin"],
                                     filter_string="tags.`eskin.kind` = 'task'"))
-    printed = run(["dvc", "repro", "--force", "--single-item", "track"], root, env)
+    printed = run(["dvc", "repro", "--force", "--single-item", "publish"], root, env)
     link = next(word for word in printed.split() if word.startswith("http"))
     assert "viewStateShareKey=" in link, printed
     written = json.loads((root / "reports" / "metrics.json").read_text())
@@ -249,7 +249,7 @@ def test_dvc_plots_draw_offline_in_headless_chromium(scratch):
 @needs_chromium
 def test_the_mlflow_ui_opens_on_the_training_runs_and_shows_their_figures(scratch,
                                                                           monkeypatch):
-    """The links eskin prints (the report stage's, `make lab-server`'s), opened in headless
+    """The links eskin prints (the publish stage's, `make lab-server`'s), opened in headless
     Chromium on the real server: MLflow 3's UI shows the training view (it picks the view
     from the URL, else the browser's last choice, GenAI by default), run names say scene,
     task, model and variant, the duration is the training's, the figures are artifacts."""
@@ -662,7 +662,7 @@ def test_another_plan_is_a_second_dataset_version_and_the_audit_shows_both(scrat
 
 
 def test_postgres_gone_mid_run_fails_the_stage_in_one_line_naming_the_server(scratch, lab):
-    """The lab's PostgreSQL stops while the tracking stage starts (the only stage that
+    """The lab's PostgreSQL stops while the publish stage starts (the only stage that
     talks to MLflow): it ends, exit 1, with one line naming the tracking URI, within the
     tries eskin allows MLflow's client (not its default minutes). Runs that a killed
     stage left open are marked FAILED by the next (tests/test_stale_runs.py). Once the
@@ -672,7 +672,7 @@ def test_postgres_gone_mid_run_fails_the_stage_in_one_line_naming_the_server(scr
     root, env = scratch
     database, tracking = lab
     started = time.monotonic()
-    stage = subprocess.Popen([sys.executable, "-m", "stages.track"], cwd=root, env=env,
+    stage = subprocess.Popen([sys.executable, "-m", "stages.publish"], cwd=root, env=env,
                              text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     time.sleep(0.5)  # importing: nothing logged yet
     database.stop()
@@ -685,6 +685,6 @@ def test_postgres_gone_mid_run_fails_the_stage_in_one_line_naming_the_server(scr
     assert len(errors) == 1 and f"MLflow tracking at {tracking.uri} failed" in errors[0], stderr
     assert "while logging the pipeline" in errors[0]
     assert "Traceback" not in stderr and time.monotonic() - started < 120
-    run_checked([sys.executable, "-m", "stages.track"], root, env)
+    run_checked([sys.executable, "-m", "stages.publish"], root, env)
     found = mlflow.search_runs(experiment_names=["eskin"])
     assert "RUNNING" not in set(found["status"])

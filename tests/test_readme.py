@@ -66,10 +66,10 @@ def test_a_fresh_clone_runs_the_readme_after_make_repro(tmp_path):
                            capture_output=True, timeout=1800)
     assert repro.returncode == 0, repro.stdout[-3000:] + repro.stderr[-3000:]
     log = repro.stdout + repro.stderr
-    assert "Running stage 'track'" in log and "pipeline up to date" in log
+    assert "Running stage 'publish'" in log and "pipeline up to date" in log
     link = re.search(r"http://127\.0\.0\.1:5000/\S+", log).group(0)
     readme = (clone / "README.md").read_text()
-    assert link in readme, f"the README's link is not the one the track stage printed: {link}"
+    assert link in readme, f"the README's link is not the one the publish stage printed: {link}"
 
     import mlflow
     client = mlflow.MlflowClient(tracking_uri=f"sqlite:///{clone / 'mlflow.db'}")

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 from conftest import ROOT, run_checked
 
-# A pipeline's logging, as the tracking stage does it: a pipeline run and an artifact on
+# A pipeline's logging, as the publish stage does it: a pipeline run and an artifact on
 # it (here a figure as its page), in the project's own store (the code under test:
 # PYTHONPATH).
 LOG_REPORT = """\

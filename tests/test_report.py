@@ -390,7 +390,7 @@ def model_links(page: str) -> dict[str, tuple[str, str]]:
 
 
 def test_each_models_md5_links_to_the_mlflow_runs_that_carry_it(built):
-    """The report is written before the tracking stage: no run id, so a model's link is
+    """The report is written before the publish stage: no run id, so a model's link is
     the experiment's runs table filtered by the model's md5 tag, on the UI's runs route
     (from the experiment's, the UI redirects there and drops the filter), sorted by name
     (sorted by date, the UI nests a task run, closed, under its pipeline run)."""
@@ -415,8 +415,8 @@ def test_each_models_md5_links_to_the_mlflow_runs_that_carry_it(built):
 @pytest.mark.starts
 def test_a_models_link_opens_the_mlflow_ui_on_its_runs_alone(built, mlflow_server,
                                                               monkeypatch, tmp_path):
-    """On a real `mlflow server`, the experiment found as the report stage finds it, runs
-    logged as the tracking stage logs them (a pipeline run, a task run under it per model):
+    """On a real `mlflow server`, the experiment found as the publish stage finds it, runs
+    logged as the publish stage logs them (a pipeline run, a task run under it per model):
     the page's link of a model, clicked in headless Chromium, lists the runs of that
     model's md5 and no other (the fixture's force models of both scenes share theirs)."""
     import mlflow
@@ -592,7 +592,7 @@ def test_the_figure_cache_redraws_only_the_figures_whose_data_changed(tmp_path):
 
 
 def test_a_project_of_one_contact_scenes_still_has_its_pairs_directory(tmp_path):
-    """reports/pairs is the report stage's DVC output: DVC refuses a stage whose output is
+    """reports/pairs is the publish stage's DVC output: DVC refuses a stage whose output is
     missing, so the directory is made (empty) where no scene has two contacts — as a lab
     with one-contact skins only found (`dvc repro`: "output 'reports/pairs' does not
     exist")."""

@@ -18,12 +18,14 @@ from tests.conftest import copy_small_pipeline, run_checked
 # foreach key, so ``train`` stands for every train@<scene>)
 EDITS = [
     ("eskin/reporting/presentation.py", "a headline label or a figure's caption",
-     {"report", "track"}),
-    ("eskin/reporting/figures.py", "how a figure is drawn", {"report"}),
-    # export and track load the saved models, and unpickling runs their classes' code
-    ("eskin/learning/gp.py", "a model's code", {"train", "export", "track"}),
-    ("eskin/config/train.py", "the train section's schema", {"settings", "train", "track"}),
-    ("eskin/config/live.py", "the live section's schema (no stage reads it)", {"track"}),
+     {"publish"}),
+    ("eskin/reporting/figures.py", "how a figure is drawn", {"publish"}),
+    # the export and the tracking load the saved models, and unpickling runs their
+    # classes' code
+    ("eskin/learning/gp.py", "a model's code", {"train", "publish"}),
+    ("eskin/deploy/export.py", "the ONNX export's code", {"train"}),
+    ("eskin/config/train.py", "the train section's schema", {"settings", "train", "publish"}),
+    ("eskin/config/live.py", "the live section's schema (no stage reads it)", {"publish"}),
 ]
 ACQUIRE = "acquire"
 

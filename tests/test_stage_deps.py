@@ -225,8 +225,8 @@ def test_the_closure_finds_what_a_stage_imports_lazily_and_starts_as_a_process(t
     assert ROOT / "eskin/evaluation/tasks.py" in report  # imported inside headline_metrics()
     learn = closure("eskin.learning.train")
     assert ROOT / "eskin/learning/gp.py" in learn            # through eskin.learning.estimators
-    track = closure("stages.track")
-    assert ROOT / "eskin/tracking/runs.py" in track      # imported inside main()
+    train = closure("stages.train")
+    assert ROOT / "eskin/steps/export.py" in train      # imported inside main()
     session = closure("eskin.acquisition.session")
     assert ROOT / "eskin/device/board.py" in session  # the simulated board's own process
 
@@ -239,7 +239,9 @@ def test_dvc_yaml_trains_every_task_of_the_catalog():
     pipeline = yaml.safe_load((ROOT / "dvc.yaml").read_text())
     stage = pipeline["stages"]["train"]["do"]
     outs = [next(iter(out)) if isinstance(out, dict) else out for out in stage["outs"]]
-    named = [path.rsplit("/", 1)[1].split(".")[0] for path in outs]
+    # then the scene's stack, exported in the same process
+    assert outs[-2:] == ["models/${key}/stack.onnx", "reports/export/${key}.json"]
+    named = [path.rsplit("/", 1)[1].split(".")[0] for path in outs[:-2]]
     assert tuple(dict.fromkeys(named)) == TASK_NAMES
     assert [named.count(task) for task in TASK_NAMES] == [4] * len(TASK_NAMES)
     # each kept in place for the step to keep (persist): DVC would otherwise remove them

@@ -48,8 +48,8 @@ def test_a_changed_settings_file_changes_the_inputs(tmp_path):
 
 def test_the_code_md5_covers_the_code_the_train_stage_runs():
     """The files hashed are the train stage's import closure (what dvc.yaml lists, checked
-    by test_stage_deps), less its 8-line shim in stages/: an edit in any module training
-    runs, a lazy import included, trains every task again."""
-    ran = {p for p in closure("stages.train") if p.parts[len(ROOT.parts)] == "eskin"}
+    by test_stage_deps) less its export's: an edit in any module training runs, a lazy
+    import included, trains every task again; an edit of the export alone, none."""
+    ran = {p for p in closure("eskin.steps.train") if p.parts[len(ROOT.parts)] == "eskin"}
     hashed = {p for p in code_files() if not implicit_init(p)}
     assert ran - {p for p in ran if implicit_init(p)} == hashed

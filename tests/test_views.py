@@ -8,7 +8,7 @@ not fit 120 columns (docs/experiments.md says why); the daily loop's view is the
 experiment's name, the params that differ and the headline scores that differ, each
 dependency's hash left out.
 
-DVC's metrics are a file a scene, reports/metrics/<scene>.json (the report stage writes
+DVC's metrics are a file a scene, reports/metrics/<scene>.json (the publish stage writes
 them), one conditions-CV number a question, named by its target (two contacts: as a set),
 no entry for a skipped task.
 """

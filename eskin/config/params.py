@@ -1,5 +1,5 @@
 """params.yaml whole: every section's schema, for what reads the file whole (the
-tracking stage logs it; `eskin`'s commands check it before they start). A stage
+publish stage logs it; `eskin`'s commands check it before they start). A stage
 reads only its own sections (eskin.config.base.sections)."""
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ class Params(Section):
 
 
 # The sections `dvc repro` reads, which are params.yaml's (make bench's and make stress's
-# have files of their own): the tracking stage logs these to the pipeline's MLflow run.
+# have files of their own): the publish stage logs these to the pipeline's MLflow run.
 # `live` is `eskin live`'s (and the bench's live hour's): no pipeline stage reads it.
 PIPELINE_SECTIONS: tuple[str, ...] = tuple(name for name in Params.model_fields
                                            if name != "live")

@@ -79,11 +79,13 @@ class SkinStack:
     # ------------------------------------------------------------ loading
 
     @classmethod
-    def from_workspace(cls, scene: str, root: Path = Path(".")) -> SkinStack:
+    def from_workspace(cls, scene: str, root: Path = Path("."),
+                       recorded: dict[str, str] | None = None) -> SkinStack:
         """The stack ``dvc repro`` trained for ``scene``, each file checked against the md5
-        dvc.lock records for it (a model file is code: only the recorded one is loaded)."""
+        dvc.lock records for it (a model file is code: only the recorded one is loaded), or
+        the one ``recorded`` gives (the train stage's, before DVC records its outputs)."""
         root = Path(root)
-        recorded = locked_md5s(root)
+        recorded = locked_md5s(root) if recorded is None else recorded
         features = root / features_path(scene)
         if not features.exists():
             raise StackError(f"no trained stack for scene {scene!r} ({features} is missing): "

@@ -144,7 +144,7 @@ def results_markdown(scenes: Scenes) -> str:
     A file of its own, not a section of the README: written into the README, every
     experiment rewrote it, and a prose edit made `dvc status` report a changed output."""
     parts = ["# Results",
-             "Written by the report stage from the scores of this commit "
+             "Written by the report (the publish stage) from the scores of this commit "
              "(`reports/scores/`; `dvc metrics show` has the conditions-CV headline, and "
              "the figures and the model hashes are in `reports/index.html`)."]
     for scene, kind, skin, scores in scenes:

@@ -1,6 +1,7 @@
 """What the report shows of each kind of scene: its headline rows (where each number is,
-and the paper's value) and its figures. Presentation only: an edit here reruns the report
-and the tracking stage (which logs the headline and attaches the figures), nothing else.
+and the paper's value) and its figures. Presentation only: an edit here reruns the publish
+stage (the report, and MLflow's runs, which log the headline and attach the figures),
+nothing else.
 """
 
 from __future__ import annotations
@@ -39,7 +40,7 @@ class Figure:
     """One figure of a scene's report: drawn by the drawer ``draw`` names (registered in
     eskin.reporting.figures with ``@drawer``) from one task's out-of-fold predictions under
     one CV scheme. A name, not the function: so this module imports no matplotlib, and
-    the tracking stage, which reads the headlines here, does not rerun on a drawing edit.
+    what reads the headlines here (the tracking, the CLI) does not load it.
 
     ``scores`` are the (target, metric) pairs of the task's scores file the figure states
     in its heading beside the scene, task, scheme and n; the first is its headline."""

@@ -127,7 +127,7 @@ def save(figure, about: Identity, dpi: int) -> tuple[bytes, bytes]:
     png, svg = io.BytesIO(), io.BytesIO()
     figure.savefig(png, format="png", dpi=dpi, metadata={**meta, "Software": None})
     # The constrained layout, found while drawing the PNG, is kept for the other files:
-    # finding it again was a third of the report stage's time.
+    # finding it again was a third of the report's time.
     figure.set_layout_engine("none")
     figure.savefig(svg, format="svg", metadata={**meta, "Date": None})
     return png.getvalue(), svg.getvalue()
@@ -193,7 +193,7 @@ FIGURE_CACHE_REPORTS = 8
 def _draw_all(jobs: list[FigureJob], cache: Path | None = None) -> list[FigureFiles]:
     """Every figure, on as many cores as this process may use (at most two figures at a
     time): each figure is drawn on its own, so the files are the same in any order.
-    Drawing was most of the report stage (12 figures × 3 files: about 9 of its 12 s).
+    Drawing was most of the report's time (12 figures × 3 files: about 9 of its 12 s).
 
     ``cache``: a directory where each figure's files are kept under a key of its data,
     spec, skin, identity and drawing code (joblib's Memory): a figure whose key is there
@@ -241,7 +241,7 @@ def _score_pairs(scores: dict[str, dict[str, Any]],
     """Each scene's contacts scored as sets, added to its scores (last, as ``pairs``) and
     written where the scene has two contacts (a one-contact scene's says why it has none,
     on the page, and has no file). A file left by a scene since removed is deleted. The
-    directory is made even when no scene has two contacts: it is the report stage's DVC
+    directory is made even when no scene has two contacts: it is the publish stage's DVC
     output, which must exist."""
     if pairs_dir is not None:
         pairs_dir.mkdir(parents=True, exist_ok=True)

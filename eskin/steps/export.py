@@ -1,5 +1,10 @@
 """A scene's trained stack → one ONNX file, checked against the scikit-learn stack.
 
+The train stage exports its scene's stack after training, in its own process: a stack
+exported from the same models, dataset and code is kept, not exported again (its inputs
+and outputs recorded by md5 in ``.cache/export/``), so that a knob of one scene's model
+exports only that scene's stack.
+
 :func:`export_at` reads and writes; the conversion is
 :func:`eskin.deploy.export.stack_to_onnx` and the check :func:`~eskin.deploy.export.compare`,
 which do neither."""
@@ -13,6 +18,7 @@ import numpy as np
 import pandas as pd
 
 from eskin.catalog import (
+    EXPORT_CACHE,
     TASK_NAMES,
     export_report_path,
     featurizer_path,
@@ -22,8 +28,10 @@ from eskin.catalog import (
 )
 from eskin.config.base import DEFAULT_PARAMS, load_params, sections
 from eskin.config.scenes import Scenes, get_scene
+from eskin.data.schema import md5_file
 from eskin.deploy.export import MAX_DIFFERING, TOLERANCE, ExportError, compare, write_stack
 from eskin.deploy.stack import ExportedStack, SkinStack, locked_md5s
+from eskin.steps import code
 
 
 def run(scene: str, params_path: Path | str = DEFAULT_PARAMS) -> str:
@@ -31,14 +39,59 @@ def run(scene: str, params_path: Path | str = DEFAULT_PARAMS) -> str:
     return export_at(scene)
 
 
-def export_at(scene: str, root: Path = Path("."), *, check: bool = True) -> str:
+def trained_md5s(scene: str, root: Path = Path(".")) -> dict[str, str]:
+    """The md5s of ``scene``'s featurizer (as dvc.lock records it: the prepare stage's)
+    and of its task models as the workspace holds them: the train stage's, which DVC
+    records only once the stage ends."""
+    return {**locked_md5s(root), **{model_path(scene, task).as_posix():
+                                    md5_file(Path(root) / model_path(scene, task))
+                                    for task in TASK_NAMES}}
+
+
+def export_at(scene: str, root: Path = Path("."), *, check: bool = True,
+              recorded: dict[str, str] | None = None, keep: bool = False) -> str:
     """The workspace's stack of ``scene`` → ``models/<scene>/stack.onnx``, checked against
-    the scikit-learn stack on the scene's dataset (``reports/export/<scene>.json``)."""
+    the scikit-learn stack on the scene's dataset (``reports/export/<scene>.json``).
+
+    ``recorded``: the md5 each model file must have (default: dvc.lock's). ``keep``: a
+    stack exported, and checked, from these models, this dataset and this code is left as
+    it is."""
     root = Path(root)
-    stack = SkinStack.from_workspace(scene, root)
-    recorded = locked_md5s(root)
+    recorded = locked_md5s(root) if recorded is None else recorded
     sources = {p.as_posix(): recorded[p.as_posix()] for p in
                [featurizer_path(scene)] + [model_path(scene, task) for task in TASK_NAMES]}
+    inputs = {"sources_md5": sources, "dataset_md5": md5_file(root / processed_path(scene)),
+              "code_md5": code.code_md5(__file__), "check": check}
+    record = root / EXPORT_CACHE / f"{scene}.json"
+    outputs = [stack_path(scene), *([export_report_path(scene)] if check else [])]
+    if keep and _kept(root, record, inputs, outputs):
+        return (f"{scene}: stack kept, exported from these models, dataset and code "
+                f"({stack_path(scene)})")
+    said = _export(scene, root, recorded, sources, check)
+    if keep:
+        record.parent.mkdir(parents=True, exist_ok=True)
+        record.write_text(json.dumps({**inputs, "outputs_md5": {
+            p.as_posix(): md5_file(root / p) for p in outputs}}, indent=2) + "\n")
+    return said
+
+
+def _kept(root: Path, record: Path, inputs: dict, outputs: list[Path]) -> bool:
+    """Whether ``record`` says the stack was made from ``inputs``, and its ``outputs`` are
+    still the files it made."""
+    try:
+        recorded = json.loads(record.read_text())
+    except (OSError, ValueError):
+        return False
+    made = recorded.get("outputs_md5", {})
+    return (all(recorded.get(key) == value for key, value in inputs.items())
+            and set(made) == {p.as_posix() for p in outputs}
+            and all((root / p).exists() and made[p.as_posix()] == md5_file(root / p)
+                    for p in outputs))
+
+
+def _export(scene: str, root: Path, recorded: dict[str, str], sources: dict[str, str],
+            check: bool) -> str:
+    stack = SkinStack.from_workspace(scene, root, recorded)
     out = write_stack(stack, root / stack_path(scene), sources)
     if not check:
         return f"{scene}: stack → {out}"

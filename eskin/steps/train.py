@@ -1,5 +1,5 @@
 """Features and folds of a scene, and the models its settings name → each task's scores,
-predictions, models, and the run's record for the tracking stage.
+predictions, models, and the run's record for the publish stage.
 
 A scene's tasks train in one process (the scene's train stage). A task is kept, not
 trained again, when its features, folds, settings and code are those its lineage file
@@ -11,15 +11,12 @@ setting that changes no result (``cv.n_jobs``), refits only what it changes.
 
 from __future__ import annotations
 
-import functools
-import hashlib
 import json
 import os
 import socket
 import sys
 import time
 from collections.abc import Callable
-from modulefinder import ModuleFinder
 from pathlib import Path
 
 from eskin.catalog import FEATURES_DIR, TASK_NAMES, folds_path, settings_path, task_outputs
@@ -33,6 +30,7 @@ from eskin.evaluation.outputs import save_predictions, write_json
 from eskin.learning.saved import save_models
 from eskin.learning.settings import read_settings
 from eskin.learning.train import Trained, train_task
+from eskin.steps import code
 
 INPUTS = ("code_md5", "features_md5", "folds_md5", "settings_md5")
 
@@ -57,37 +55,15 @@ def run(scene: str, task: str | None = None, params_path: Path | str = DEFAULT_P
     return "\n".join(said)
 
 
-@functools.cache
 def code_files() -> tuple[Path, ...]:
-    """The code a task's training runs: this module and every eskin module it imports, at
-    any depth and inside functions (:mod:`modulefinder` reads their bytecode and runs
-    nothing); the files the train stage lists in dvc.yaml (a test compares the two)."""
-    finder = _EskinModules(path=[str(_ROOT)])
-    finder.run_script(__file__)
-    return tuple(sorted({Path(module.__file__).resolve() for module in finder.modules.values()
-                         if module.__file__}))
+    """The code a task's training runs (:func:`eskin.steps.code.code_files` of this
+    module): the files the train stage lists in dvc.yaml for it (a test compares the two)."""
+    return code.code_files(__file__)
 
 
 def code_md5() -> str:
-    """The md5 of :func:`code_files`, each by its path under the package's parent, so that
-    the same code gives the same md5 in any checkout."""
-    digest = hashlib.md5()
-    for path in code_files():
-        digest.update(path.relative_to(_ROOT).as_posix().encode() + b"\0")
-        digest.update(hashlib.md5(path.read_bytes()).hexdigest().encode() + b"\n")
-    return digest.hexdigest()
-
-
-_ROOT = Path(__file__).resolve().parents[2]  # the directory that holds the eskin package
-
-
-class _EskinModules(ModuleFinder):
-    """A module finder that follows eskin's own imports only."""
-
-    def import_module(self, partname, fqname, parent):
-        if fqname.split(".")[0] != "eskin":
-            return None
-        return super().import_module(partname, fqname, parent)
+    """The md5 of :func:`code_files` (:func:`eskin.steps.code.code_md5`)."""
+    return code.code_md5(__file__)
 
 
 def scene_inputs(features: Path, folds: Path) -> dict[str, str]:
@@ -138,7 +114,7 @@ def train_at(scene: str, task: str, *, task_params: TaskModels | None, configura
     ``lineage_path`` (uncached in dvc.yaml, which turns DVC's run cache off for the
     stage): what trained the model, and from what (``inputs``, :func:`task_inputs`).
     ``record_path`` (not a DVC output, so its times never reach dvc.lock): when and how
-    long it ran, and each fold's scores, for the tracking stage (:mod:`eskin.tracking.runs`)
+    long it ran, and each fold's scores, for the publish stage (:mod:`eskin.tracking.runs`)
     to log; a task kept has none."""
     started, started_at = time.perf_counter(), time.time()
     source = Path(features_dir) / f"{scene}.parquet"

@@ -11,7 +11,7 @@ import os
 from pathlib import Path
 
 # MLflow sets its loggers' level when imported: its INFO lines (the tables it creates in a
-# new SQLite store, alembic's migrations) are not the tracking stage's output. Warnings
+# new SQLite store, alembic's migrations) are not the publish stage's output. Warnings
 # and errors still show; MLFLOW_LOGGING_LEVEL=INFO brings the rest back.
 os.environ.setdefault("MLFLOW_LOGGING_LEVEL", "WARNING")
 os.environ.setdefault("MLFLOW_ENABLE_TELEMETRY", "false")
@@ -60,12 +60,12 @@ def tracking_uri() -> str:
 
 def log_pipeline_command() -> str:
     """The command that fills an empty store, as the workspace stands: `dvc repro`, unless
-    its tracking stage already ran here (into another store, or one since deleted), when
+    its publish stage already ran here (into another store, or one since deleted), when
     DVC would skip it."""
     from eskin.catalog import TRACKED
 
     if (project_root() / TRACKED).exists():
-        return "`dvc repro --force --single-item track`"
+        return "`dvc repro --force --single-item publish`"
     return "`dvc repro`"
 
 
@@ -137,7 +137,7 @@ def model_runs_url(experiment_id: str, md5: str) -> str:
     """The MLflow UI's runs table of the experiment, filtered to the runs of the model
     file of this md5 (tag ``eskin.model_md5``: the run that trained it, and any that
     reused it): a link that needs no run id, for the report page, written before the
-    tracking stage. Sorted by name, not by date: sorted by date, the UI nests a task run
+    publish stage. Sorted by name, not by date: sorted by date, the UI nests a task run
     under its pipeline run, closed, and the filtered run did not show."""
     from urllib.parse import quote, urlencode
 

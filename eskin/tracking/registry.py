@@ -431,7 +431,7 @@ def _workspace_pipeline_run(client, ids: list[str], scene: str, root: Path):
     from eskin.tracking import connection
 
     raise NoRunsError(f"no pipeline run logged the {scene} models dvc.lock records: run "
-                      f"{connection.log_pipeline_command()} (its track stage logs them), or name "
+                      f"{connection.log_pipeline_command()} (its publish stage logs them), or name "
                       "one with "
                       f"--experiment ({_variants(client, ids)}) or --run")
 

@@ -6,7 +6,7 @@ stage runs in a temporary copy of the repository, so the project is found
 through ``DVC_ROOT`` (set by DVC to the parent repository) and every
 experiment logs to the same store. ``MLFLOW_TRACKING_URI`` overrides it all.
 
-No training stage talks to MLflow: the tracking stage, last in the pipeline, logs one
+No training stage talks to MLflow: the publish stage, last in the pipeline, logs one
 ``dvc repro`` or ``dvc exp run`` in one process (:func:`track_pipeline`). Its pipeline
 run is keyed by the DVC experiment name, or, outside ``dvc exp``, by the git commit and
 the params; it holds the params the pipeline reads (for ``eskin compare``) and the
@@ -188,7 +188,7 @@ def _requirements() -> list[str]:
     return [f"{name}=={version(name)}" for name in ("scikit-learn", "numpy", "scipy", "pandas")]
 
 
-# ---------------------------------------------------------------- the tracking stage
+# ---------------------------------------------------------------- the publish stage
 @dataclass(frozen=True)
 class TaskFiles:
     """What the pipeline left of one scene's task: its scores (every scheme, and what
@@ -353,7 +353,7 @@ def headline_view(client: MlflowClient, experiment_id: str,
 
 def tracked_record(tasks: list[TaskFiles], headline: Mapping[str, Any],
                    params: Mapping[str, Any]) -> dict[str, Any]:
-    """What the tracking stage logged, by content alone (no run id, time or commit), so
+    """What the publish stage logged, by content alone (no run id, time or commit), so
     that the same pipeline outputs give the same file on any machine: its hash in dvc.lock
     does not move when a fresh clone logs them again."""
     text = json.dumps(params, sort_keys=True, default=str)
@@ -498,7 +498,7 @@ def _log_trained(client, experiment_id, files, record, variant, common) -> str:
             # No input_example: with one, MLflow reloads the saved model and predicts the
             # example to validate it for serving (measured about 1 s a model); the
             # environment is pinned (pip_requirements), the signature names the inputs,
-            # and the export stage checks the stack's predictions against the models'.
+            # and the train stage's export checks the stack's predictions against the models'.
             # What is lost: the example shown on the model's page.
             info = mlflow.sklearn.log_model(
                 model, name=files.task if target == files.task else f"{files.task}-{target}",
