@@ -74,6 +74,9 @@ FIGURE_CACHE = Path(".cache/figures")
 # What each scene's stack was exported from (the train stage keeps a stack made from the
 # same models, dataset and code): not a DVC output, ignored by git
 EXPORT_CACHE = Path(".cache/export")
+# What the report was written from (the publish stage keeps a report written from the
+# same predictions, scores, params and code): not a DVC output, ignored by git
+REPORT_CACHE = Path(".cache/report.json")
 BENCH_DIR = Path("reports/benchmark")
 BOUND_DIR = Path("bench/bound")  # in bench/'s own DVC project, so in DVC's cache (not git)
 LEARNING_CURVE_DIR = Path("reports/learning_curve")

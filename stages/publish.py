@@ -3,7 +3,8 @@
 1. The report: a two-contact scene's contacts scored as sets (reports/pairs/), figures,
    plot data, reports/index.html, reports/results.md, the headline scores
    (reports/metrics.json) and DVC's metrics, a file a scene (reports/metrics/). A figure
-   whose data and drawing code are unchanged is read from its cache, not drawn again.
+   whose data and drawing code are unchanged is read from its cache, not drawn again;
+   a report written from the same predictions, scores, params and code is kept whole.
 2. MLflow: the pipeline run (its params and headline scores) and a run per task, trained
    here or reused by DVC; a task run already logged for its model is not logged again.
    Its output, reports/runs/tracked.json, says what it logged; git ignores it, so a fresh
@@ -17,41 +18,23 @@ import functools
 import json
 import sys
 
-from eskin.catalog import (
-    FIGURE_CACHE,
-    FIGURES_DIR,
-    METRICS,
-    PAGE,
-    PAIRS_DIR,
-    PLOTS_DIR,
-    PREDICTIONS_DIR,
-    SCENE_METRICS_DIR,
-    SCORES_DIR,
-    TRACKED,
-)
+from eskin.catalog import METRICS, PAGE, TRACKED
 from eskin.config.base import load_params
 from eskin.config.params import Params, pipeline_params
 from eskin.errors import TRACK_KEPT, run_friendly
-from eskin.reporting import report
+from eskin.steps.report import report_at
 from eskin.tracking import connection, runs
 
 
-def write_report(params: Params) -> str:
-    # The page links each model to its runs in MLflow's UI, which are logged next: by the
-    # experiment they are logged to, found or made here. A store out of reach costs the
-    # links, not the report.
+def model_runs():
+    """The page's links to each model's runs in MLflow's UI, which are logged next: by the
+    experiment they are logged to, found or made here. A store out of reach costs the
+    links, not the report."""
     try:
-        model_runs = functools.partial(connection.model_runs_url, connection.ensure_experiment())
+        return functools.partial(connection.model_runs_url, connection.ensure_experiment())
     except connection.TrackingError as err:
         print(f"report: the page's model md5s link nowhere: {err}", file=sys.stderr)
-        model_runs = None
-    return report.report(
-        report=params.report, scenes=params.scenes, scores_dir=SCORES_DIR,
-        predictions_dir=PREDICTIONS_DIR, figures_dir=FIGURES_DIR, plots_dir=PLOTS_DIR,
-        page_path=PAGE, results_path="reports/results.md", metrics_path=METRICS,
-        scene_metrics_dir=SCENE_METRICS_DIR, run=report.provenance(),
-        model_runs=model_runs, figure_cache=FIGURE_CACHE,
-        pairs_dir=PAIRS_DIR).summary
+        return None
 
 
 def track(params: Params) -> str:
@@ -70,7 +53,7 @@ def track(params: Params) -> str:
 
 def main() -> str:
     params = load_params(Params)
-    reported = write_report(params)
+    reported = report_at(params, model_runs)
     print(reported, flush=True)
     return track(params)
 

@@ -108,5 +108,7 @@ def test_a_knob_trains_only_its_task_and_a_cv_setting_that_moves_no_result_train
     said = run_checked(["dvc", "repro"], root, env)
     out = said.stdout + said.stderr
     assert "Running stage 'train@single_force'" in out and "Running stage 'train@two_force'" in out
-    assert out.count(": kept") == 8, out
+    assert out.count(": kept, trained") == 8, out
+    # and the views: each scene's stack, and the report
+    assert out.count("stack kept") == 2 and "report: kept" in out, out
     assert stale_stages(root, env) == set()

@@ -365,9 +365,10 @@ def report(*, report: Report, scenes: Mapping[str, Scene], scores_dir: Path,
                  Path(scores_dir))
 
     figures_dir, plots_dir = Path(figures_dir), Path(plots_dir)
-    # The directory holds this run's figures only: none left from a scene, figure or
-    # scheme since removed or renamed (DVC clears it before the stage; a direct run too).
-    for stale in [*figures_dir.glob("*/*.png"), *figures_dir.glob("*/*.svg")]:
+    # The directories hold this run's figures and plot data only: none left from a scene,
+    # figure or scheme since removed or renamed (their DVC outputs persist).
+    for stale in [*figures_dir.glob("*/*.png"), *figures_dir.glob("*/*.svg"),
+                  *plots_dir.glob("*/*.csv")]:
         stale.unlink()
     page_figures: dict[str, list[FigureRow]] = {scene: [] for scene in kinds}
     jobs: list[tuple[FigureRow, str, Path, FigureJob]] = []

@@ -1,7 +1,9 @@
-"""The train stage exports its scene's stack, and keeps one exported from the same
-models, dataset and code (eskin/steps/export.py): an experiment that changes one scene's
-model exports that scene only; an edit of the export's code, or of the file itself,
-exports it again. (Its models are keyed as its code is: their md5s, in the same record.)"""
+"""The views keep what they would make again. The train stage exports its scene's stack,
+and keeps one exported from the same models, dataset and code (eskin/steps/export.py):
+an experiment that changes one scene's model exports that scene only; an edit of the
+export's code, or of the file itself, exports it again. (Its models are keyed as its
+code is: their md5s, in the same record.) The publish stage keeps its report likewise
+(eskin/steps/report.py)."""
 
 from __future__ import annotations
 
@@ -48,3 +50,20 @@ def test_a_stack_from_the_same_inputs_is_kept_and_any_change_exports_it_again(
     stack.write_bytes(stack.read_bytes() + b"\0")
     assert "stack →" in export_kept(workspace, monkeypatch)
     assert md5_file(stack) == before
+
+
+def test_a_forced_publish_keeps_a_report_it_would_write_again(small_pipeline, tmp_path):
+    """The publish stage's report is kept when written from the same predictions, scores,
+    params and code (eskin/steps/report.py): logged again, as to another store, the page
+    and dvc.lock do not move; an edit of the report's code writes it again."""
+    from tests.conftest import run_checked
+
+    root = tmp_path / "project"
+    env = copy_small_pipeline(small_pipeline, root, f"sqlite:///{tmp_path / 'other.db'}",
+                              track=False)
+    forced = ["dvc", "repro", "--force", "--single-item", "publish"]
+    assert "report: kept" in run_checked(forced, root, env).stdout
+    assert run_checked(["git", "status", "--porcelain"], root, env).stdout == ""
+    edited = root / "eskin" / "reporting" / "presentation.py"
+    edited.write_text(edited.read_text() + "# one more line\n")
+    assert "report: kept" not in run_checked(forced, root, env).stdout
