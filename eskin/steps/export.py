@@ -32,6 +32,7 @@ from eskin.data.schema import md5_file
 from eskin.deploy.export import MAX_DIFFERING, TOLERANCE, ExportError, compare, write_stack
 from eskin.deploy.stack import ExportedStack, SkinStack, locked_md5s
 from eskin.steps import code
+from eskin.steps.keep import kept, write_record
 
 
 def run(scene: str, params_path: Path | str = DEFAULT_PARAMS) -> str:
@@ -64,29 +65,13 @@ def export_at(scene: str, root: Path = Path("."), *, check: bool = True,
               "code_md5": code.code_md5(__file__), "check": check}
     record = root / EXPORT_CACHE / f"{scene}.json"
     outputs = [stack_path(scene), *([export_report_path(scene)] if check else [])]
-    if keep and _kept(root, record, inputs, outputs):
+    if keep and kept(root, record, inputs, outputs):
         return (f"{scene}: stack kept, exported from these models, dataset and code "
                 f"({stack_path(scene)})")
     said = _export(scene, root, recorded, sources, check)
     if keep:
-        record.parent.mkdir(parents=True, exist_ok=True)
-        record.write_text(json.dumps({**inputs, "outputs_md5": {
-            p.as_posix(): md5_file(root / p) for p in outputs}}, indent=2) + "\n")
+        write_record(root, record, inputs, outputs)
     return said
-
-
-def _kept(root: Path, record: Path, inputs: dict, outputs: list[Path]) -> bool:
-    """Whether ``record`` says the stack was made from ``inputs``, and its ``outputs`` are
-    still the files it made."""
-    try:
-        recorded = json.loads(record.read_text())
-    except (OSError, ValueError):
-        return False
-    made = recorded.get("outputs_md5", {})
-    return (all(recorded.get(key) == value for key, value in inputs.items())
-            and set(made) == {p.as_posix() for p in outputs}
-            and all((root / p).exists() and made[p.as_posix()] == md5_file(root / p)
-                    for p in outputs))
 
 
 def _export(scene: str, root: Path, recorded: dict[str, str], sources: dict[str, str],

@@ -9,8 +9,6 @@ runs are not among its inputs: they name the store the page was written against.
 
 from __future__ import annotations
 
-import hashlib
-import json
 from collections.abc import Callable
 from pathlib import Path
 
@@ -29,6 +27,7 @@ from eskin.catalog import (
 from eskin.config.params import Params
 from eskin.reporting import report
 from eskin.steps import code
+from eskin.steps.keep import kept, tree_md5, write_record
 
 RESULTS = Path("reports/results.md")
 OUTPUTS = (FIGURES_DIR, PLOTS_DIR, PAIRS_DIR, PAGE, RESULTS, METRICS, SCENE_METRICS_DIR)
@@ -49,7 +48,7 @@ def report_at(params: Params, model_runs: Callable[[], Callable[[str], str] | No
               "run": {"commit": run.commit, "experiment": run.experiment},
               "code_md5": code.code_md5(report.__file__), "templates_md5": tree_md5(TEMPLATES)}
     record = root / REPORT_CACHE
-    if _kept(root, record, inputs):
+    if kept(root, record, inputs, OUTPUTS):
         return "report: kept, written from these predictions, scores, params and code"
     summary = report.report(
         report=params.report, scenes=params.scenes, scores_dir=root / SCORES_DIR,
@@ -58,34 +57,5 @@ def report_at(params: Params, model_runs: Callable[[], Callable[[str], str] | No
         metrics_path=root / METRICS, scene_metrics_dir=root / SCENE_METRICS_DIR, run=run,
         model_runs=model_runs(), figure_cache=root / FIGURE_CACHE,
         pairs_dir=root / PAIRS_DIR).summary
-    record.parent.mkdir(parents=True, exist_ok=True)
-    record.write_text(json.dumps({**inputs, "outputs_md5": {
-        p.as_posix(): tree_md5(root / p) for p in OUTPUTS}}, indent=2) + "\n")
+    write_record(root, record, inputs, OUTPUTS)
     return summary
-
-
-def tree_md5(path: Path) -> str:
-    """The md5 of a file, or of a directory's files by their relative paths ("" for
-    neither)."""
-    path = Path(path)
-    if path.is_file():
-        return hashlib.md5(path.read_bytes()).hexdigest()
-    if not path.is_dir():
-        return ""
-    digest = hashlib.md5()
-    for file in sorted(p for p in path.rglob("*") if p.is_file()):
-        digest.update(file.relative_to(path).as_posix().encode() + b"\0")
-        digest.update(hashlib.md5(file.read_bytes()).hexdigest().encode() + b"\n")
-    return digest.hexdigest()
-
-
-def _kept(root: Path, record: Path, inputs: dict) -> bool:
-    try:
-        recorded = json.loads(record.read_text())
-    except (OSError, ValueError):
-        return False
-    made = recorded.get("outputs_md5", {})
-    return (all(recorded.get(key) == value for key, value in inputs.items())
-            and set(made) == {p.as_posix() for p in OUTPUTS}
-            and all(made[p.as_posix()] and made[p.as_posix()] == tree_md5(root / p)
-                    for p in OUTPUTS))
