@@ -182,10 +182,29 @@ def registered_name(scene: str, task: str, target: str) -> str:
     return f"{scene}.{task}" if target == task else f"{scene}.{task}.{target}"
 
 
-def _requirements() -> list[str]:
-    """Pinned from the running environment: no dependency inference at log time."""
+def requirements() -> list[str]:
+    """A logged model's pip requirements, pinned from the running environment: no
+    dependency inference at log time."""
     from importlib.metadata import version
     return [f"{name}=={version(name)}" for name in ("scikit-learn", "numpy", "scipy", "pandas")]
+
+
+@contextlib.contextmanager
+def pinned_environment():
+    """MLflow's check, as it logs a model, that the running environment satisfies the
+    model's requirements, left out: :func:`requirements` pins them from this environment
+    (and MLflow pins itself from its own version), so the check cannot find a mismatch,
+    and it cost about 1.2 s a process that logs a model (importlib.metadata reads every
+    installed distribution to map modules to packages; issue 55). An MLflow that no
+    longer makes the check by this name fails here, not silently slower
+    (tests/test_logged_models.py)."""
+    from unittest import mock
+
+    import mlflow.utils.environment
+
+    with mock.patch.object(mlflow.utils.environment, "warn_dependency_requirement_mismatches",
+                           lambda model_requirements: None):
+        yield
 
 
 # ---------------------------------------------------------------- the publish stage
@@ -500,10 +519,11 @@ def _log_trained(client, experiment_id, files, record, variant, common) -> str:
             # environment is pinned (pip_requirements), the signature names the inputs,
             # and the train stage's export checks the stack's predictions against the models'.
             # What is lost: the example shown on the model's page.
-            info = mlflow.sklearn.log_model(
-                model, name=files.task if target == files.task else f"{files.task}-{target}",
-                signature=infer_signature(example, model.predict(example)),
-                pip_requirements=_requirements(), serialization_format="cloudpickle")
+            with pinned_environment():
+                info = mlflow.sklearn.log_model(
+                    model, name=files.task if target == files.task else f"{files.task}-{target}",
+                    signature=infer_signature(example, model.predict(example)),
+                    pip_requirements=requirements(), serialization_format="cloudpickle")
             # Registered with the run's lineage: `eskin reproduce` finds the dataset
             # version by these tags and reruns the cross-validation on it.
             name = registered_name(files.scene, files.task, target)
