@@ -545,16 +545,22 @@ def test_a_continuous_force_is_summarised_in_a_few_bins():
     assert figures.force_parity(levels).axes[1].get_title() == "spread per level"
 
 
+def _cached(cache, function: str) -> set:
+    """The calls of ``function`` a cache holds: joblib's Memory keeps each call's output in
+    a folder, under one a function."""
+    return {path.parent.name for path in cache.rglob(f"{function}/*/output.pkl")}
+
+
 def _cached_figures(cache) -> set:
-    """The figures a cache holds: joblib's Memory keeps each call's output in a folder."""
-    return {path.parent.name for path in cache.rglob("output.pkl")}
+    return _cached(cache, "draw_figure")
 
 
 @pytest.mark.heavy
 def test_the_figure_cache_redraws_only_the_figures_whose_data_changed(tmp_path):
     """An experiment that changes one model changes its task's predictions only: the
-    report then draws that task's figures and reads the rest from the cache, and every
-    file is byte for byte what drawing them all gives."""
+    report then draws that task's figures and scores that scene's pairs, reads the rest
+    from the cache, and every file is byte for byte what drawing and scoring them all
+    gives."""
     root = fake_outputs(tmp_path / "in")
     cache = tmp_path / "cache"
 
@@ -562,21 +568,23 @@ def test_the_figure_cache_redraws_only_the_figures_whose_data_changed(tmp_path):
         return {p.relative_to(out).as_posix(): p.read_bytes()
                 for p in sorted(out.rglob("*")) if p.is_file()}
 
-    def run(out, figure_cache):
+    def run(out, cache):
         return report.report(
             report=SETTINGS, scenes=SCENES, scores_dir=root / "scores",
             predictions_dir=root / "predictions", figures_dir=out / "figures",
             plots_dir=out / "plots", page_path=out / "index.html",
             results_path=out / "results.md", metrics_path=out / "metrics.json",
-            run=Provenance(commit=COMMIT), figure_cache=figure_cache)
+            run=Provenance(commit=COMMIT), cache=cache)
 
     drawn = run(tmp_path / "drawn", None)
     run(tmp_path / "first", cache)
     assert len(_cached_figures(cache)) == drawn.figures
     assert files(tmp_path / "first") == files(tmp_path / "drawn")
-    before = _cached_figures(cache)
-    run(tmp_path / "again", cache)  # nothing changed: nothing drawn
+    before, scored = _cached_figures(cache), _cached(cache, "scored_pairs")
+    assert len(scored) == len(SCENES)  # each scene's localise predictions, paired
+    run(tmp_path / "again", cache)  # nothing changed: nothing drawn, nothing scored
     assert _cached_figures(cache) == before
+    assert _cached(cache, "scored_pairs") == scored
     assert files(tmp_path / "again") == files(tmp_path / "drawn")
 
     # one model's predictions change (the single-force scene's force task)
@@ -588,6 +596,7 @@ def test_the_figure_cache_redraws_only_the_figures_whose_data_changed(tmp_path):
     force_figures = sum(spec.task == "force" for spec in
                         presentation.figures(get_kind("single_force"))) * len(SETTINGS.schemes)
     assert len(_cached_figures(cache) - before) == force_figures > 0
+    assert len(_cached(cache, "scored_pairs") - scored) == 1  # that scene's only
     assert files(tmp_path / "changed") == files(run(tmp_path / "redrawn", None).figures_dir.parent)
 
 

@@ -17,11 +17,11 @@ import os
 from collections.abc import Callable, Mapping
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
+from importlib.metadata import version
 from pathlib import Path
 from typing import Any
 
-import matplotlib
-import matplotlib.pyplot as plt
+import joblib
 import numpy as np
 import pandas as pd
 from joblib import Memory
@@ -31,9 +31,7 @@ from eskin.config.report import Report
 from eskin.config.scenes import Scene, scene_kind, scene_skin
 from eskin.data.schema import force_columns, node_columns
 from eskin.evaluation.outputs import write_json
-from eskin.evaluation.pairs import score_scene_pairs
 from eskin.kinds import get_kind
-from eskin.reporting import figures as fig
 from eskin.reporting import presentation
 from eskin.reporting.page import (
     FigureRow,
@@ -56,6 +54,8 @@ def node_word(skin: AnySkin) -> str:
 def draw(figure: Figure, oof: pd.DataFrame, skin: AnySkin):
     """One of a kind's figures (eskin/kinds.py) from its task's out-of-fold predictions on
     ``skin``."""
+    from eskin.reporting import figures as fig  # matplotlib: only where a figure is drawn
+
     build = fig.DRAWERS.get(figure.draw)
     if build is None:
         raise ValueError(f"figure {figure.id!r} ({figure.task}) is drawn by {figure.draw!r}, "
@@ -157,10 +157,14 @@ class FigureFiles:
     shown: Rendering
 
 
-def draw_figure(job: FigureJob, code: str = "") -> FigureFiles:
+def draw_figure(job: FigureJob, key: str = "") -> FigureFiles:
     """Draw one figure: its PNG and SVG bytes, and its PNG for the page, with its width
-    and smallest text (how wide the page shows it). ``code``: the version of the drawing
-    code (:func:`drawing_code`), which only the figure cache reads."""
+    and smallest text (how wide the page shows it). ``key``: the figure's key
+    (:func:`figure_key`), which only the figure cache reads."""
+    import matplotlib.pyplot as plt
+
+    from eskin.reporting import figures as fig
+
     figure = draw(job.spec, job.oof, job.skin)
     fig.identify(figure, job.about.heading)
     png, svg = save(figure, job.about, job.dpi)
@@ -179,45 +183,58 @@ def drawing_code() -> str:
     spec, its text and its skin are the cached call's arguments, so they are in the key
     already: a headline label edited in ``presentation.py`` redraws nothing."""
     package = Path(__file__).parent
-    digest = hashlib.md5(f"{matplotlib.__version__} {np.__version__}".encode())
+    digest = hashlib.md5(f"{version('matplotlib')} {np.__version__}".encode())
     for source in (package / "figures.py", Path(__file__), package.parent / "skin.py"):
         digest.update(source.read_bytes())
     return digest.hexdigest()
 
 
-# A cache holds the figures of this many reports' worth of jobs (about 8 MB a report on
-# the default scenes), the most recently used kept.
-FIGURE_CACHE_REPORTS = 8
+def figure_key(job: FigureJob, code: str) -> str:
+    """What decides a figure's files, by content: its predictions' values, columns and
+    dtypes, its spec, skin, identity and resolutions, and the drawing code (``code``,
+    :func:`drawing_code`). Not joblib's hash of the job: a frame of nullable columns
+    pickled to a worker and back hashes differently there, so the parent could not tell
+    which figures the cache holds."""
+    digest = hashlib.md5(code.encode())
+    digest.update(pd.util.hash_pandas_object(job.oof, index=False).to_numpy().tobytes())
+    digest.update(repr([(str(c), str(t)) for c, t in job.oof.dtypes.items()]).encode())
+    digest.update(joblib.hash((job.spec, job.skin, job.about, job.dpi, job.page_dpi)).encode())
+    return digest.hexdigest()
 
 
-def _draw_all(jobs: list[FigureJob], cache: Path | None = None) -> list[FigureFiles]:
+# A cache holds the figures and scored pairs of this many reports (about 8 MB a report
+# on the default scenes), the most recently used kept.
+CACHE_REPORTS = 8
+
+
+def _draw_all(jobs: list[FigureJob], memory: Memory | None = None) -> list[FigureFiles]:
     """Every figure, on as many cores as this process may use (at most two figures at a
     time): each figure is drawn on its own, so the files are the same in any order.
     Drawing was most of the report's time (12 figures × 3 files: about 9 of its 12 s).
 
-    ``cache``: a directory where each figure's files are kept under a key of its data,
-    spec, skin, identity and drawing code (joblib's Memory): a figure whose key is there
-    is read, not drawn again. An experiment that changes one model redraws only that
-    model's figures."""
+    ``memory``: where each figure's files are kept under a key of its data, spec, skin,
+    identity and drawing code (joblib's Memory): a figure whose key is there is read, not
+    drawn again. An experiment that changes one model redraws only that model's figures;
+    a report that draws none imports no matplotlib (issue 55: a headline label edited)."""
     draw_one: Callable[..., FigureFiles] = draw_figure
-    memory = None
-    if cache is not None:
-        memory = Memory(cache, verbose=0)
-        draw_one = memory.cache(draw_figure)
-    code = drawing_code() if memory is not None else ""
-    workers = min(2, len(os.sched_getaffinity(0)), len(jobs))
-    if workers < 2:
-        drawn = [draw_one(job, code) for job in jobs]
-    else:
-        # fork: the workers start with matplotlib and the data already imported. The
-        # parent has read Parquet; Arrow's thread pool and allocator register at-fork
-        # handlers (a forked child of a threaded process is otherwise unsafe).
-        with ProcessPoolExecutor(workers,
-                                 mp_context=multiprocessing.get_context("fork")) as pool:
-            drawn = list(pool.map(draw_one, jobs, [code] * len(jobs)))
+    keys = [""] * len(jobs)
     if memory is not None:
-        memory.reduce_size(items_limit=FIGURE_CACHE_REPORTS * max(len(jobs), 1))
-    return drawn
+        draw_one = memory.cache(draw_figure, ignore=["job"])
+        code = drawing_code()
+        keys = [figure_key(job, code) for job in jobs]
+    to_draw = sum(memory is None or not draw_one.check_call_in_cache(job, key)
+                  for job, key in zip(jobs, keys, strict=True))
+    if not to_draw:
+        return [draw_one(job, key) for job, key in zip(jobs, keys, strict=True)]
+    from eskin.reporting import figures  # noqa: F401 - once, before the workers fork
+    workers = min(2, len(os.sched_getaffinity(0)), to_draw)
+    if workers < 2:
+        return [draw_one(job, key) for job, key in zip(jobs, keys, strict=True)]
+    # fork: the workers start with matplotlib and the data already imported. The parent
+    # has read Parquet; Arrow's thread pool and allocator register at-fork handlers (a
+    # forked child of a threaded process is otherwise unsafe).
+    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) as pool:
+        return list(pool.map(draw_one, jobs, keys))
 
 
 def provenance(environ: Mapping[str, str] | None = None) -> Provenance:
@@ -235,14 +252,45 @@ def provenance(environ: Mapping[str, str] | None = None) -> Provenance:
                       experiment=environ.get("DVC_EXP_NAME", ""))
 
 
+def scored_pairs(scene: str, predictions: Mapping[str, pd.DataFrame],
+                 localise: Mapping[str, Any] | None, code: str = "") -> tuple[dict, bool]:
+    """:func:`~eskin.evaluation.pairs.score_scene_pairs`'s document, and whether it
+    applies (the scene has two contacts): plain data, so that reading it from the cache
+    imports nothing. Imported here: scoring imports scikit-learn's metrics, which a report
+    that scores nothing anew does without. ``code``: the version of the scoring code,
+    which only the cache reads."""
+    from eskin.evaluation.pairs import score_scene_pairs
+
+    paired = score_scene_pairs(scene, predictions, localise)
+    return paired.document, paired.applies
+
+
+def pairs_code() -> str:
+    """The version of the pairs' scoring code, for the cache's keys: the md5 of
+    ``eskin/evaluation/pairs.py`` and every eskin module it imports."""
+    from eskin.steps.code import code_md5
+
+    return code_md5(str(Path(__file__).parents[1] / "evaluation" / "pairs.py"))
+
+
+# What a scene's contacts are scored as sets from: its tasks' predictions (pairs.py)
+PAIRED_TASKS = ("localise", "force")
+
+
 def _score_pairs(scores: dict[str, dict[str, Any]],
                  predictions: Mapping[str, Mapping[str, pd.DataFrame]],
-                 pairs_dir: Path | None, scores_dir: Path) -> None:
+                 pairs_dir: Path | None, scores_dir: Path, memory: Memory | None = None) -> None:
     """Each scene's contacts scored as sets, added to its scores (last, as ``pairs``) and
     written where the scene has two contacts (a one-contact scene's says why it has none,
     on the page, and has no file). A file left by a scene since removed is deleted. The
     directory is made even when no scene has two contacts: it is the publish stage's DVC
-    output, which must exist."""
+    output, which must exist. ``memory``: where each scene's scoring is kept under a key
+    of its predictions, localise scores and scoring code, so that a scene whose
+    predictions are unchanged is not scored again."""
+    score: Callable[..., Any] = scored_pairs
+    code = ""
+    if memory is not None:
+        score, code = memory.cache(scored_pairs), pairs_code()
     if pairs_dir is not None:
         pairs_dir.mkdir(parents=True, exist_ok=True)
         for stale in pairs_dir.glob("*.json"):
@@ -251,11 +299,13 @@ def _score_pairs(scores: dict[str, dict[str, Any]],
     for scene, by_task in scores.items():
         if "localise" not in by_task:  # nothing trained to pair
             continue
-        paired = score_scene_pairs(scene, predictions[scene], by_task["localise"])
-        by_task[PAIRS] = paired.document
-        if paired.applies:
-            write_json(paired.document, (pairs_dir / f"{scene}.json" if pairs_dir is not None
-                                         else scores_dir / scene / f"{PAIRS}.json"))
+        document, applies = score(scene, {task: frame for task, frame
+                                          in predictions[scene].items()
+                                          if task in PAIRED_TASKS}, by_task["localise"], code)
+        by_task[PAIRS] = document
+        if applies:
+            write_json(document, (pairs_dir / f"{scene}.json" if pairs_dir is not None
+                                  else scores_dir / scene / f"{PAIRS}.json"))
 
 
 def _task_files(directory: Path, scene: str, suffix: str, reader) -> dict[str, Any]:
@@ -339,14 +389,15 @@ def report(*, report: Report, scenes: Mapping[str, Scene], scores_dir: Path,
            results_path: Path, metrics_path: Path, scene_metrics_dir: Path | None = None,
            run: Provenance | None = None,
            model_runs: Callable[[str], str] | None = None,
-           figure_cache: Path | None = None, pairs_dir: Path | None = None) -> Reported:
+           cache: Path | None = None, pairs_dir: Path | None = None) -> Reported:
     """Figures, plot data, the page, the results and DVC's metrics of every scene in
     ``scenes`` (the ``scenes`` section: which, and their kinds), with the ``report``
     section; ``run``: which commit and experiment the page says it shows
     (:func:`provenance`); ``scene_metrics_dir``: where DVC's metrics go, a file a scene
     (:func:`scene_metrics`); ``model_runs``: a model md5 → the MLflow UI's page of its
-    runs, the page's link; ``figure_cache``: where drawn figures are kept, so that an
-    unchanged figure is not drawn again (:func:`_draw_all`; None: every figure drawn);
+    runs, the page's link; ``cache``: where drawn figures and scored pairs are kept, so
+    that an unchanged figure is not drawn again (:func:`_draw_all`) nor an unchanged
+    scene's pairs scored again (:func:`_score_pairs`; None: all drawn and scored);
     ``pairs_dir``: where a two-contact scene's contacts scored as sets are written, a file
     a scene (:func:`~eskin.evaluation.pairs.score_scene_pairs`; None: ``scores_dir``/
     ``<scene>``/pairs.json, a direct run's layout)."""
@@ -360,9 +411,10 @@ def report(*, report: Report, scenes: Mapping[str, Scene], scores_dir: Path,
                                 f"({', '.join(kinds)}); run the training stages first")
     predictions = {scene: _task_files(predictions_dir, scene, ".parquet", pd.read_parquet)
                    for scene in kinds}
+    memory = Memory(cache, verbose=0) if cache is not None else None
     # scored from the predictions just read, not read again
     _score_pairs(scores, predictions, Path(pairs_dir) if pairs_dir is not None else None,
-                 Path(scores_dir))
+                 Path(scores_dir), memory)
 
     figures_dir, plots_dir = Path(figures_dir), Path(plots_dir)
     # The directories hold this run's figures and plot data only: none left from a scene,
@@ -396,10 +448,12 @@ def report(*, report: Report, scenes: Mapping[str, Scene], scores_dir: Path,
             (plots_dir / template).mkdir(parents=True, exist_ok=True)
             frame.to_csv(plots_dir / template / f"{scene}_{stem}.csv", index=False)
     for (row, scheme, path, job), files in zip(jobs, _draw_all([job for *_, job in jobs],
-                                                               figure_cache), strict=True):
+                                                               memory), strict=True):
         path.with_suffix(".png").write_bytes(files.png)
         path.with_suffix(".svg").write_bytes(files.svg)
         row.schemes.append((scheme, job.about.heading.replace("\n", "; "), files.shown))
+    if memory is not None:
+        memory.reduce_size(items_limit=CACHE_REPORTS * max(len(jobs) + len(kinds), 1))
 
     scenes = [(scene, kinds[scene], skins[scene], scores[scene]) for scene in kinds]
     href = Path(os.path.relpath(figures_dir, Path(page_path).parent)).as_posix()

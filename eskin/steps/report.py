@@ -55,7 +55,7 @@ def report_at(params: Params, model_runs: Callable[[], Callable[[str], str] | No
         predictions_dir=root / PREDICTIONS_DIR, figures_dir=root / FIGURES_DIR,
         plots_dir=root / PLOTS_DIR, page_path=root / PAGE, results_path=root / RESULTS,
         metrics_path=root / METRICS, scene_metrics_dir=root / SCENE_METRICS_DIR, run=run,
-        model_runs=model_runs(), figure_cache=root / FIGURE_CACHE,
+        model_runs=model_runs(), cache=root / FIGURE_CACHE,
         pairs_dir=root / PAIRS_DIR).summary
     write_record(root, record, inputs, OUTPUTS)
     return summary
