@@ -433,6 +433,14 @@ def test_the_first_fold_decides_whether_the_rest_go_to_the_pool(project, monkeyp
                                         PAPER_SKIN, n_jobs=2, probe=True)
     assert not runs[1e6].pooled and runs[0.0].pooled
     pd.testing.assert_frame_equal(runs[1e6].predictions, runs[0.0].predictions)
+    # a fold's seconds from the last run decide instead, against what a first fold would
+    for starts_s, fold_s, pooled in ((1e6, 1e9, True), (0.0, 0.0, False)):
+        monkeypatch.setattr(crossval, "POOL_STARTS_S", starts_s)
+        known = cross_validate(task_, frame, folds, estimator, "conditions", PAPER_SKIN,
+                               n_jobs=2, probe=True, fold_seconds=fold_s)
+        assert known.pooled is pooled
+        pd.testing.assert_frame_equal(known.predictions, runs[0.0].predictions)
+    assert runs[0.0].fold_seconds > 0
 
 
 def test_ray_is_no_backend_and_params_say_which_are(repo_params):
@@ -527,3 +535,35 @@ def test_peak_window_refuses_positions_that_are_not_node_numbers():
         PeakWindow().fit(X, np.linspace(1.0, 10.0, 40))
     with pytest.raises(ValueError, match="cx1..cxR"):
         PeakWindow().fit(X.to_numpy(), np.arange(40) % 10 + 1)
+
+
+def test_the_last_runs_record_says_whether_the_next_runs_folds_go_to_a_pool(project, tmp_path,
+                                                                         monkeypatch):
+    """The train step records a fold's seconds per scheme, with the model; the next run of
+    that model hands them to the cross-validation (which then runs no fold first to time
+    it), and a run of another model, or an unreadable record, does not."""
+    from eskin.learning import train as training
+
+    handed = []
+
+    def spy(*args, **kwargs):
+        handed.append(kwargs.get("fold_seconds"))
+        return cross_validate(*args, **kwargs)
+
+    monkeypatch.setattr(training, "cross_validate", spy)
+    record = tmp_path / "record.json"
+    train(project, "single_force", "stretch", tmp_path, record_path=record)
+    first = json.loads(record.read_text())
+    schemes = list(project[0]["cv"]["schemes"])
+    assert handed == [None] * len(schemes)  # no record yet: the first fold times the rest
+    assert set(first["fold_seconds"]) == set(schemes) and first["model"]
+    assert all(seconds > 0 for seconds in first["fold_seconds"].values())
+    handed.clear()
+    train(project, "single_force", "stretch", tmp_path, record_path=record)
+    assert handed == [first["fold_seconds"][scheme] for scheme in schemes]
+    handed.clear()
+    record.write_text(json.dumps({**first, "model": "another"}))
+    train(project, "single_force", "stretch", tmp_path, record_path=record)
+    record.write_text("{ half written")
+    train(project, "single_force", "stretch", tmp_path, record_path=record)
+    assert handed == [None] * (2 * len(schemes))

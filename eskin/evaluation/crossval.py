@@ -44,6 +44,12 @@ class CVResult:
     notes: dict[str, int] = field(default_factory=dict)  # fit remark → folds that made it
     pooled: bool = False  # whether folds went to the n_jobs workers (:func:`pool_pays`)
 
+    @property
+    def fold_seconds(self) -> float:
+        """A fold's fit and predict seconds, on average (``fold_seconds`` of a later run)."""
+        folds = max((len(scores) for scores in self.per_fold.values()), default=0)
+        return (self.fit_seconds + self.predict_seconds) / max(folds, 1)
+
 
 LOKY_IDLE_S = 10
 # Starting a process pool costs a stage one to three seconds on this machine (each worker
@@ -204,13 +210,16 @@ def sharing_hyperparameters(estimator: BaseEstimator,
 def cross_validate(task: Task, frame: pd.DataFrame, folds: np.ndarray, estimator: BaseEstimator,
                    scheme: str, skin: AnySkin, *, n_jobs: int = 1, probe: bool = False,
                    progress: str | None = None, n_folds: int | None = None,
-                   share_hyperparameters: bool = False) -> CVResult:
+                   share_hyperparameters: bool = False,
+                   fold_seconds: float | None = None) -> CVResult:
     """Score ``estimator`` on ``task`` over the given fold assignment of ``frame``'s rows,
     readings of ``skin``; where the skin places its nodes in mm, each contact's position
     error in mm too.
 
     ``n_jobs``: folds in parallel; with ``probe``, only if the first fold, run here, says
-    that a pool pays (:func:`pool_pays`; ``CVResult.pooled`` says which).
+    that a pool pays (:func:`pool_pays`; ``CVResult.pooled`` says which), or
+    ``fold_seconds``, a fold's seconds in an earlier run of the same model: then no fold
+    waits alone for the answer, on one core of the pool's (issue 55).
     ``progress``: a label, and a progress bar of the folds on stderr (as they finish).
     ``n_folds``: only the first so many folds are run (the bench's ``evaluate_folds``);
     the other folds' rows are trained on, not predicted.
@@ -235,8 +244,12 @@ def cross_validate(task: Task, frame: pd.DataFrame, folds: np.ndarray, estimator
         outcomes: list[FoldOutcome] = []
         later = estimator  # what the folds after the first fit
         probing = probe and n_jobs != 1
-        if splits and (probing or share_hyperparameters):
-            with (threadpool_limits(max(cpu_count() // n_jobs, 1)) if probing
+        workers = cpu_count() if n_jobs < 0 else n_jobs
+        in_process = False  # every fold run here: a pool would not pay
+        if probing and fold_seconds is not None:
+            probing, in_process = False, not pool_pays(fold_seconds, len(splits), workers)
+        if splits and (probing or in_process or share_hyperparameters):
+            with (threadpool_limits(max(cpu_count() // n_jobs, 1)) if probing or in_process
                   else contextlib.nullcontext()):
                 started = time.perf_counter()
                 outcomes.append(_fit_predict_fold(estimator, X, channels, target_frame,
@@ -244,8 +257,8 @@ def cross_validate(task: Task, frame: pd.DataFrame, folds: np.ndarray, estimator
                 bar.update()
                 if share_hyperparameters:
                     later = sharing_hyperparameters(estimator, outcomes[0].hyperparameters)
-                if probing and not pool_pays(time.perf_counter() - started, len(splits) - 1,
-                                             cpu_count() if n_jobs < 0 else n_jobs):
+                if in_process or (probing and not pool_pays(time.perf_counter() - started,
+                                                            len(splits) - 1, workers)):
                     for k in range(1, len(splits)):
                         outcomes.append(_fit_predict_fold(later, X, channels,
                                                           target_frame, splitter, k, binary))

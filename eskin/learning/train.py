@@ -8,7 +8,7 @@ eskin.evaluation.pairs.score_scene_pairs.)
 from __future__ import annotations
 
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -52,7 +52,7 @@ class Trained:
 def train_task(scene: str, task_name: str, frame: pd.DataFrame, *, meta: dict[str, Any],
                skin: AnySkin, data_kind: Kind, folds: dict[str, np.ndarray],
                fold_notes: dict[str, str], task_params: TaskModels | None,
-               configuration: str, cv: CV,
+               configuration: str, cv: CV, last_run: Mapping[str, Any] | None = None,
                log: Callable[[str], None] = lambda message: print(message, file=sys.stderr,
                                                                   flush=True)) -> Trained:
     """Cross-validate one task on the scene's folds (``folds``: scheme → its folds, as the
@@ -65,7 +65,10 @@ def train_task(scene: str, task_name: str, frame: pd.DataFrame, *, meta: dict[st
     regression on a skin of long axes by PeakWindow, and the summary says so.
 
     ``task_params`` is the task's ``train.<task>`` section, ``configuration``
-    ``train.configuration``; of ``cv`` only how folds run (``n_jobs``, ``backend``)."""
+    ``train.configuration``; of ``cv`` only how folds run (``n_jobs``, ``backend``).
+    ``last_run``: the task's record from its last training here (:mod:`eskin.steps.train`
+    writes it); where it trained the same model, its seconds a fold say whether a pool of
+    workers pays, so that no fold runs first to find out (results do not depend on it)."""
     kind = data_kind.name
     task = get_task(kind, task_name)
     header = {"scene": scene, "kind": kind, "task": task_name,
@@ -89,14 +92,17 @@ def train_task(scene: str, task_name: str, frame: pd.DataFrame, *, meta: dict[st
 
     results: list = []
     n_jobs = int(cv.n_jobs)
+    last_run = last_run or {}
+    fold_seconds = last_run.get("fold_seconds", {}) if last_run.get("model") == model_name else {}
     with parallel_backend(cv.backend):
         for scheme, scheme_folds in folds.items():
-            # each scheme's first fold decides whether a pool pays (crossval.pool_pays): a
-            # scheme's folds differ in size from another's, and a fold run here gets the
-            # threads a worker would, wherever it runs (issue 55)
+            # each scheme's first fold decides whether a pool pays (crossval.pool_pays),
+            # unless the last run says: a scheme's folds differ in size from another's,
+            # and a fold run here gets the threads a worker would, wherever it runs
             results.append(cross_validate(
                 task, frame, scheme_folds, estimator, scheme, skin, probe=True,
-                n_jobs=n_jobs, progress=f"{scene}/{task_name} [{model_name}] {scheme} CV"))
+                n_jobs=n_jobs, progress=f"{scene}/{task_name} [{model_name}] {scheme} CV",
+                fold_seconds=fold_seconds.get(scheme)))
     log(f"{scene}/{task_name} [{model_name}]: refitting on all {len(frame):,} rows …")
     models = fit_final(task, frame, estimator, skin)
     scores: dict[str, Any] = {"status": "trained", "rows": int(task.rows(frame).sum()),

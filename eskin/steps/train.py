@@ -101,6 +101,16 @@ def kept(inputs: dict[str, str], outputs: dict[str, Path]) -> bool:
     return all(recorded.get(name) == inputs[name] for name in INPUTS)
 
 
+def _last_run(record_path: Path | None) -> dict | None:
+    """The task's record from its last training here: only a hint of how long its folds
+    take, so none, or one that cannot be read, is no record."""
+    try:
+        record = json.loads(Path(record_path).read_text()) if record_path is not None else None
+    except (OSError, ValueError):
+        return None
+    return record if isinstance(record, dict) else None
+
+
 def train_at(scene: str, task: str, *, task_params: TaskModels | None, configuration: str,
              cv: CV, features_dir: Path, folds_path: Path, scores_path: Path,
              predictions_path: Path, model_path: Path, lineage_path: Path | None = None,
@@ -125,7 +135,8 @@ def train_at(scene: str, task: str, *, task_params: TaskModels | None, configura
                          skin=dataset_skin(source), data_kind=dataset_kind(source),
                          folds=read_scene_folds(folds_path, frame),
                          fold_notes=read_fold_notes(folds_path), task_params=task_params,
-                         configuration=configuration, cv=cv, log=log)
+                         configuration=configuration, cv=cv, last_run=_last_run(record_path),
+                         log=log)
     header, skipped = trained.header, trained.status == "skipped"
     save_models(trained.models, model_path)
     if not skipped:  # the model file's md5 (as in dvc.lock) links scores, DVC and MLflow
@@ -135,7 +146,7 @@ def train_at(scene: str, task: str, *, task_params: TaskModels | None, configura
     save_predictions(trained.predictions, predictions_path)
     if record_path is not None and not skipped:
         results = trained.results
-        write_json({"model_md5": header["model_md5"],
+        write_json({"model_md5": header["model_md5"], "model": trained.model,
                     "hyperparameters": trained.hyperparameters,
                     "started": started_at, "ended": time.time(),
                     "wall_seconds": time.perf_counter() - started,
@@ -143,7 +154,9 @@ def train_at(scene: str, task: str, *, task_params: TaskModels | None, configura
                     "timings": {r.scheme: {"fit_seconds": r.fit_seconds,
                                            "predict_seconds": r.predict_seconds}
                                 for r in results},
-                    "per_fold": {r.scheme: r.per_fold for r in results}}, record_path)
+                    "per_fold": {r.scheme: r.per_fold for r in results},
+                    # whether the next run's folds go to a pool (eskin.learning.train)
+                    "fold_seconds": {r.scheme: r.fold_seconds for r in results}}, record_path)
     if lineage_path is not None:  # last: a task is kept by it (:func:`kept`), so a Ctrl-C
         # before it leaves the task to be trained again, never kept half-written
         lineage = {**header, "status": trained.status, **(inputs or {})}
