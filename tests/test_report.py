@@ -4,6 +4,7 @@ import functools
 import html
 import json
 import re
+from pathlib import Path
 from types import SimpleNamespace
 from urllib.parse import parse_qs, urlsplit
 
@@ -622,3 +623,22 @@ def test_every_kinds_figure_names_a_registered_drawer_and_a_typo_is_named():
     typo = presentation.Figure(presentation.DETECTION, "detect", "", "detektion", ())
     with pytest.raises(ValueError, match="'detektion'.*@drawer.*detection"):
         report.draw(typo, pd.DataFrame(), PAPER_SKIN)
+
+
+def test_the_pairs_code_version_reads_every_module_the_scoring_imports(monkeypatch):
+    """The pairs' cache key names the scoring code by its sources: every eskin module
+    pairs.py imports, at any depth (eskin.steps.code finds them), is read for it."""
+    from eskin.steps.code import code_files
+
+    read = set()
+    original = Path.read_bytes
+
+    def spy(self):
+        read.add(self.resolve())
+        return original(self)
+
+    monkeypatch.setattr(Path, "read_bytes", spy)
+    report.pairs_code()
+    pairs = Path(report.__file__).parents[1] / "evaluation" / "pairs.py"
+    # the packages' __init__ files hold no scoring (eskin's sets the thread environment)
+    assert {path for path in code_files(str(pairs)) if path.name != "__init__.py"} <= read

@@ -266,11 +266,16 @@ def scored_pairs(scene: str, predictions: Mapping[str, pd.DataFrame],
 
 
 def pairs_code() -> str:
-    """The version of the pairs' scoring code, for the cache's keys: the md5 of
-    ``eskin/evaluation/pairs.py`` and every eskin module it imports."""
-    from eskin.steps.code import code_md5
-
-    return code_md5(str(Path(__file__).parents[1] / "evaluation" / "pairs.py"))
+    """The version of the pairs' scoring code, for the cache's keys, as
+    :func:`drawing_code` is the figures': the sources of ``pairs.py`` and of the eskin
+    modules it imports (the scores, the kinds and their skins), and the versions of
+    numpy, scipy and scikit-learn."""
+    package = Path(__file__).parents[1]
+    digest = hashlib.md5(" ".join(version(name) for name in ("numpy", "scipy", "scikit-learn"))
+                         .encode())
+    for source in ("evaluation/pairs.py", "evaluation/metrics.py", "kinds.py", "skin.py"):
+        digest.update((package / source).read_bytes())
+    return digest.hexdigest()
 
 
 # What a scene's contacts are scored as sets from: its tasks' predictions (pairs.py)
