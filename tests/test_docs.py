@@ -92,7 +92,7 @@ QUOTED_OUTPUTS = ("reports/scores/*/*.json", "reports/pairs/*.json", "reports/me
 HISTORY = {
     ("getting-started.md", "4a4d39e"), ("getting-started.md", "c00665b"),
     ("benchmark.md", "5662b67"), ("benchmark.md", "a04e336"), ("benchmark.md", "47c6cc5"),
-    ("benchmark.md", "5d5c46c"),
+    ("benchmark.md", "5d5c46c"), ("benchmark.md", "12765ac"), ("benchmark.md", "008bced"),
     ("benchmark.md", "6452867"), ("benchmark.md", "004a3ca"), ("benchmark.md", "9510804"),
     ("benchmark.md", "894f906"), ("benchmark.md", "cf46b9c"), ("benchmark.md", "7de7013"),
     ("benchmark.md", "486b34c"), ("results.md", "486b34c"),
