@@ -42,12 +42,13 @@ def test_logging_a_model_reads_the_installed_distributions_only_unpinned(tmp_pat
     monkeypatch.setattr(requirements_utils, "_MODULES_TO_PACKAGES", None)  # MLflow's memo
     monkeypatch.setattr(requirements_utils.importlib_metadata, "packages_distributions",
                         lambda: read.append(1) or scan())
-    mlflow.set_tracking_uri(f"sqlite:///{tmp_path / 'mlflow.db'}")
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    experiment = mlflow.MlflowClient(uri).create_experiment("pinned")
+    mlflow.set_tracking_uri(uri)  # no active experiment set: other tests' stays theirs
     try:
-        mlflow.set_experiment("pinned")
         X = np.arange(10.0).reshape(5, 2)
         model = LinearRegression().fit(X, X.sum(axis=1))
-        with mlflow.start_run():
+        with mlflow.start_run(experiment_id=experiment):
             if pinned:
                 with pinned_environment():
                     info = mlflow.sklearn.log_model(model, name="m",
