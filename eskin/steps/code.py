@@ -6,9 +6,10 @@ the export step's stacks); these files are what "the same code" means."""
 from __future__ import annotations
 
 import functools
-import hashlib
 from modulefinder import ModuleFinder
 from pathlib import Path
+
+from eskin.steps.keep import files_md5
 
 _ROOT = Path(__file__).resolve().parents[2]  # the directory that holds the eskin package
 
@@ -25,11 +26,7 @@ def code_files(script: str) -> tuple[Path, ...]:
 def code_md5(script: str) -> str:
     """The md5 of :func:`code_files`, each by its path under the package's parent, so that
     the same code gives the same md5 in any checkout."""
-    digest = hashlib.md5()
-    for path in code_files(script):
-        digest.update(path.relative_to(_ROOT).as_posix().encode() + b"\0")
-        digest.update(hashlib.md5(path.read_bytes()).hexdigest().encode() + b"\n")
-    return digest.hexdigest()
+    return files_md5(code_files(script), _ROOT)
 
 
 class _EskinModules(ModuleFinder):

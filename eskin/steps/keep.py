@@ -6,10 +6,20 @@ from __future__ import annotations
 
 import hashlib
 import json
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 from eskin.data.schema import md5_file
+
+
+def files_md5(files: Iterable[Path], root: Path) -> str:
+    """The md5 of ``files`` (under ``root``) by their paths relative to it and their
+    bytes' md5s: the same files give the same md5 wherever ``root`` is."""
+    digest = hashlib.md5()
+    for file in sorted(Path(f) for f in files):
+        digest.update(file.relative_to(root).as_posix().encode() + b"\0")
+        digest.update(md5_file(file).encode() + b"\n")
+    return digest.hexdigest()
 
 
 def tree_md5(path: Path) -> str:
@@ -20,11 +30,7 @@ def tree_md5(path: Path) -> str:
         return md5_file(path)
     if not path.is_dir():
         return ""
-    digest = hashlib.md5()
-    for file in sorted(p for p in path.rglob("*") if p.is_file()):
-        digest.update(file.relative_to(path).as_posix().encode() + b"\0")
-        digest.update(md5_file(file).encode() + b"\n")
-    return digest.hexdigest()
+    return files_md5((p for p in path.rglob("*") if p.is_file()), path)
 
 
 def kept(root: Path, record: Path, inputs: dict, outputs: Sequence[Path]) -> bool:
