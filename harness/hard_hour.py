@@ -33,7 +33,7 @@ import pandas as pd
 
 from eskin.data.plan import ScenePlan
 from eskin.kinds import ONE_CONTACT, TWO_CONTACTS
-from harness.live_hour import GRACE_MS, LIGHT_EDGES, Press, Step, scene_presses
+from harness.live_hour import GRACE_MS, LIGHT_EDGES, Press, Step, says_contact, scene_presses
 
 PARTS = ("light_edges", "held_through_stretch", "taps", "long_presses", "untouched")
 # The parts whose presses are all the plan's lightest on edge and corner nodes: their
@@ -133,7 +133,7 @@ def hard_script(settings, plan: ScenePlan, rest_length_mm: float) -> tuple[list[
 def reported(frame: pd.DataFrame) -> pd.Series:
     """Whether live reported a contact on each frame: its hysteresis' verdict, or, for a
     stack that counts none (two contacts on the paper's plan), that it placed one."""
-    if "contact" in frame and frame["contact"].notna().any():
+    if says_contact(frame):
         return frame["contact"].fillna(False).astype(bool)
     return frame[TWO_CONTACTS.node_columns[0]].notna()
 
@@ -272,8 +272,7 @@ def score_hard(frame: pd.DataFrame, batch_cv: dict[str, Any], targets) -> dict[s
             "hours": round(float(frame["t_ms"].max() - frame["t_ms"].min()) / 3.6e6, 3),
             "two_contacts": pairs, "parts": parts,
             # a two-contact stack counts where its scene recorded fewer (contact_counts)
-            **({"counts_contacts": bool("contact" in frame and frame["contact"].notna().any())}
-               if pairs else {}),
+            **({"counts_contacts": says_contact(frame)} if pairs else {}),
             "phantoms_longer_than_target": int((runs["seconds"]
                                                 > targets.phantom_after_release_s).sum()),
             "latency_ms_median": round(  # one frame through the stack run() ran

@@ -37,9 +37,9 @@ from eskin.device.board import SimulatedBoard
 from eskin.device.simulate import accelerated_stream, live_board
 from eskin.kinds import KINDS
 
-# What a stack may estimate, scored per frame where it does: whether a contact presses,
-# each kind's positions and forces, the stretch.
-# what live says of a frame, where the stack says it ("contacts": a counting two-contact one)
+# What live says of a frame, scored where its stack says it: whether a contact presses,
+# how many ("contacts": a counting two-contact stack), each kind's positions and forces,
+# the stretch.
 ESTIMATES = ["contact", "contacts", *dict.fromkeys(column for kind in KINDS.values()
                                        for column in (*kind.node_columns, *kind.force_columns)),
              "stretch"]
@@ -257,6 +257,13 @@ def score(frame: pd.DataFrame, batch_scores: dict[str, Any]) -> dict[str, Any]:
     }
 
 
+def says_contact(frame: pd.DataFrame) -> bool:
+    """Whether live said, frame by frame, if a contact pressed (its hysteresis' verdict):
+    a one-contact stack's detector, or a two-contact stack that counts (its scene was
+    recorded with contact_counts). A stack trained on pairs alone says none."""
+    return "contact" in frame and bool(frame["contact"].notna().any())
+
+
 def score_pairs(frame: pd.DataFrame, batch_scores: dict[str, Any]) -> dict[str, Any]:
     """A two-contact scene's hour: the frames of its pair presses scored as the batch pairs
     are (:mod:`eskin.evaluation.pairs`: a pair right as a set, each contact's force against
@@ -269,7 +276,7 @@ def score_pairs(frame: pd.DataFrame, batch_scores: dict[str, Any]) -> dict[str, 
 
     pressed = frame[frame["pressed"] & (frame["since_ms"] >= GRACE_MS)]
     untouched = frame[~frame["pressed"] & (frame["since_ms"] >= GRACE_MS)]
-    counts = "contacts" in frame and bool(frame["contacts"].notna().any())
+    counts = says_contact(frame)
     contact = frame["contact"].fillna(False).astype(bool) if counts else None
     # how many the script pressed: a one-node press has no second contact
     true_count = sum((pressed.get(f"true_force{i}", pd.Series(0.0, index=pressed.index))
