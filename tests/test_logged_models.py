@@ -34,16 +34,23 @@ def test_mlflow_still_checks_the_environment_by_the_name_left_out():
     assert "warn_dependency_requirement_mismatches(" in source
 
 
+@pytest.fixture(scope="module")
+def store(tmp_path_factory) -> tuple[str, str]:
+    """A SQLite store and an experiment in it, made once: MLflow's schema migrations are
+    most of a store's first second."""
+    uri = f"sqlite:///{tmp_path_factory.mktemp('store') / 'mlflow.db'}"
+    return uri, mlflow.MlflowClient(uri).create_experiment("pinned")
+
+
 @pytest.mark.parametrize("pinned", [False, True])
-def test_logging_a_model_reads_the_installed_distributions_only_unpinned(tmp_path, monkeypatch,
+def test_logging_a_model_reads_the_installed_distributions_only_unpinned(store, monkeypatch,
                                                                           pinned):
     read = []
     scan = requirements_utils.importlib_metadata.packages_distributions
     monkeypatch.setattr(requirements_utils, "_MODULES_TO_PACKAGES", None)  # MLflow's memo
     monkeypatch.setattr(requirements_utils.importlib_metadata, "packages_distributions",
                         lambda: read.append(1) or scan())
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
-    experiment = mlflow.MlflowClient(uri).create_experiment("pinned")
+    uri, experiment = store
     mlflow.set_tracking_uri(uri)  # no active experiment set: other tests' stays theirs
     try:
         X = np.arange(10.0).reshape(5, 2)
