@@ -165,7 +165,7 @@ check: setup
 # cd4049e), and live counting on a real-time board.
 test: setup browser firmware postgres sshd
 	mkdocs build --strict --quiet
-	pytest -q -n 2 --dist loadfile -m "not alone" --durations=15
+	pytest -q -n 2 --dist loadfile -m "not alone" --durations=15 --cpu-by-file
 	pytest -q -m alone
 
 # The documentation site (mkdocs.yml, docs/) into site/; --strict: a broken link, a missing

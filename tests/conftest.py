@@ -61,13 +61,54 @@ def starts_what(args) -> str | None:
 
 
 _running_test = [""]
+# CPU seconds per test file: this process's and its waited-for children's (DVC, stages,
+# servers once stopped), setup and teardown included; a session fixture's build counts in
+# the first test that asks for it. `make test` prints the table: on two cores the suite's
+# length is bounded by its CPU, not by its waits (issue 55).
+_cpu_by_file: dict[str, float] = {}
+
+
+def _cpu_seconds() -> float:
+    import resource
+
+    own, children = (resource.getrusage(who) for who in (resource.RUSAGE_SELF,
+                                                         resource.RUSAGE_CHILDREN))
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
 
 
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_protocol(item, nextitem):
     _running_test[0] = item.nodeid  # its fixtures' setup included, of every scope
+    before = _cpu_seconds()
     yield
     _running_test[0] = ""
+    name = item.nodeid.split("::")[0]
+    _cpu_by_file[name] = _cpu_by_file.get(name, 0.0) + _cpu_seconds() - before
+
+
+def pytest_sessionfinish(session):
+    if hasattr(session.config, "workeroutput"):  # a pytest-xdist worker: to the controller
+        session.config.workeroutput["cpu_by_file"] = dict(_cpu_by_file)
+
+
+@pytest.hookimpl(optionalhook=True)  # pytest-xdist's
+def pytest_testnodedown(node, error):
+    for name, seconds in getattr(node, "workeroutput", {}).get("cpu_by_file", {}).items():
+        _cpu_by_file[name] = _cpu_by_file.get(name, 0.0) + seconds
+
+
+def pytest_terminal_summary(terminalreporter, config):
+    if not config.getoption("--cpu-by-file") or not _cpu_by_file:
+        return
+    total = sum(_cpu_by_file.values())
+    terminalreporter.section(f"CPU by test file: {total:.0f} CPU-s in all")
+    for name, seconds in sorted(_cpu_by_file.items(), key=lambda kv: -kv[1])[:15]:
+        terminalreporter.write_line(f"{seconds:7.1f} CPU-s {seconds / total:6.1%}  {name}")
+
+
+def pytest_addoption(parser):
+    parser.addoption("--cpu-by-file", action="store_true",
+                     help="print the CPU seconds each test file took, the 15 largest")
 
 
 def pytest_configure(config):
