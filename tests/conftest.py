@@ -98,9 +98,9 @@ def pytest_testnodedown(node, error):
 
 
 def pytest_terminal_summary(terminalreporter, config):
-    if not config.getoption("--cpu-by-file") or not _cpu_by_file:
-        return
     total = sum(_cpu_by_file.values())
+    if not config.getoption("--cpu-by-file") or total <= 0:  # none, or below the clock's tick
+        return
     terminalreporter.section(f"CPU by test file: {total:.0f} CPU-s in all")
     for name, seconds in sorted(_cpu_by_file.items(), key=lambda kv: -kv[1])[:15]:
         terminalreporter.write_line(f"{seconds:7.1f} CPU-s {seconds / total:6.1%}  {name}")
