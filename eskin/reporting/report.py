@@ -14,7 +14,7 @@ import io
 import json
 import multiprocessing
 import os
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from importlib.metadata import version
@@ -22,7 +22,6 @@ from pathlib import Path
 from typing import Any
 
 import joblib
-import numpy as np
 import pandas as pd
 from joblib import Memory
 
@@ -183,8 +182,14 @@ def drawing_code() -> str:
     spec, its text and its skin are the cached call's arguments, so they are in the key
     already: a headline label edited in ``presentation.py`` redraws nothing."""
     package = Path(__file__).parent
-    digest = hashlib.md5(f"{version('matplotlib')} {np.__version__}".encode())
-    for source in (package / "figures.py", Path(__file__), package.parent / "skin.py"):
+    return _code_version(("matplotlib", "numpy"),
+                         (package / "figures.py", Path(__file__), package.parent / "skin.py"))
+
+
+def _code_version(distributions: Sequence[str], sources: Sequence[Path]) -> str:
+    """The md5 of the ``distributions``' installed versions and the ``sources``' bytes."""
+    digest = hashlib.md5(" ".join(version(name) for name in distributions).encode())
+    for source in sources:
         digest.update(source.read_bytes())
     return digest.hexdigest()
 
@@ -271,11 +276,10 @@ def pairs_code() -> str:
     modules it imports (the scores, the kinds and their skins), and the versions of
     numpy, scipy and scikit-learn."""
     package = Path(__file__).parents[1]
-    digest = hashlib.md5(" ".join(version(name) for name in ("numpy", "scipy", "scikit-learn"))
-                         .encode())
-    for source in ("evaluation/pairs.py", "evaluation/metrics.py", "kinds.py", "skin.py"):
-        digest.update((package / source).read_bytes())
-    return digest.hexdigest()
+    return _code_version(("numpy", "scipy", "scikit-learn"),
+                         [package / source for source in ("evaluation/pairs.py",
+                                                          "evaluation/metrics.py", "kinds.py",
+                                                          "skin.py")])
 
 
 # What a scene's contacts are scored as sets from: its tasks' predictions (pairs.py)
