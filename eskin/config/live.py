@@ -26,6 +26,10 @@ class LiveBaseline(Section):
     # left within the drift a freeze of this long may have missed (0: never)
     frozen_first_s: NonNegative = 10.0   # contact_channels: a press's first seconds (one
     # of its channels beyond the gate), frozen whole: the drift they may hide is a count
+    lift_average_s: NonNegative = 0.25   # contact_channels: the contact's summed rise,
+    # averaged over this long, is judged against half its peak (the press lifted) ...
+    lifted_time_constant_s: NonNegative = 0.5  # ... and what a lifted press left is
+    # followed this fast (drift the freeze missed: a phantom until it is)
 
 
 class LiveContact(Section):

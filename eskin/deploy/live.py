@@ -65,6 +65,11 @@ class Tare:
     _contact_ms: float = 0.0       # board time the present contact has lasted
     _peak: float = 0.0             # ... and its channels' largest summed rise in it
     _pressed: bool = False         # ... and whether one of them rose beyond the gate in it
+    lift_average_ms: float = 0.0   # ... whose summed rise is averaged over this long
+    lifted_time_constant_ms: float = 0.0  # ... and once lifted, followed this fast
+    _near: np.ndarray | None = None  # ... every terminal the contact was placed near so far
+    _level: float = 0.0            # ... their summed rise, averaged over lift_average_ms
+    _lifted: bool = False          # ... and whether its press has lifted
 
     @classmethod
     def take(cls, frames: np.ndarray, rest: RestTable | None, *,
@@ -81,7 +86,9 @@ class Tare:
             "gate_counts": float(baseline.gate_counts), "in_contact": baseline.in_contact,
             "fallen_counts": float(baseline.fallen_counts),
             "drift_bound": float(baseline.drift_counts_per_sqrt_s),
-            "frozen_first_ms": 1000.0 * float(baseline.frozen_first_s)}
+            "frozen_first_ms": 1000.0 * float(baseline.frozen_first_s),
+            "lift_average_ms": 1000.0 * float(baseline.lift_average_s),
+            "lifted_time_constant_ms": 1000.0 * float(baseline.lifted_time_constant_s)}
         return cls(offset, rest, None if rest is None else offset.copy(), **follow)
 
     @classmethod
@@ -121,7 +128,8 @@ class Tare:
         reading: capacitive touch controllers' "anti-touch" recalibration).
 
         In contact, ``under_contact`` are the contact's channels (the terminals within
-        reach of its location, a press's flanks included). ``contact_channels``: for the
+        reach of its location, a press's flanks included; with ``contact_channels``,
+        within reach of any location it had since it began). ``contact_channels``: for the
         contact's first ``frozen_first_ms`` nothing is followed, once one of its
         channels rose beyond the gate (a press's time: the drift it may hide is under a
         count); after, the other channels are followed as on an untouched frame (a
@@ -129,12 +137,13 @@ class Tare:
         is not; the contact's own channels stay frozen, so a sustained press is never
         absorbed, except where they cannot be the press: (a) a channel more than
         ``fallen_counts`` below its expected untouched reading (no press lowers a
-        reading: its baseline is stale), and (b) once the contact's summed rise has
-        fallen to half its peak in this contact (the press lifted) and what is left on
-        each of its channels is within the drift the freeze may have missed
-        (``drift_bound`` counts per √s of the contact's board time, a random walk's
-        growth): what is left is that drift, and is followed, so that the phantom a
-        release would leave ends.
+        reading: its baseline is stale), and (b) once the contact's summed rise
+        (averaged over ``lift_average_ms``) has fallen to half its peak in this contact
+        (the press lifted) and what is left on each of its channels is within the drift
+        the freeze may have missed (``drift_bound`` counts per √s of the contact's board
+        time, a random walk's growth): what is left is that drift, and is followed with
+        time constant ``lifted_time_constant_ms``, so that the phantom a release would
+        leave ends within a second.
         ``quiet_channels``: the channels within the gate, but where some channel is
         beyond it, not the contact's; a contact with every channel within the gate is
         followed. ``freeze``: nothing is followed in contact."""
@@ -143,15 +152,23 @@ class Tare:
         touching = under_contact is not None
         if not touching:
             self._contact_ms, self._peak, self._pressed = 0.0, 0.0, False
+            self._near, self._level, self._lifted = None, 0.0, False
         if touching and self.in_contact == "freeze":
             return False
+        if touching and self.in_contact == "contact_channels":
+            # every terminal the contact was placed near since it began: a count that
+            # flickers (two contacts, then one) frees none of the other's channels (it
+            # freed them, they were followed into the press, and the harder hour's
+            # 10-minute light pair was lost after about 450 s, issue 57)
+            self._near = under_contact if self._near is None else self._near | under_contact
+            under_contact = self._near
         # in contact the stretch is the other channels' to say: a press raises its own
         # (half of a 10 x 10 skin's within reach 2), and a stretch read from them all
         # would move every expected reading, and the offset followed toward it
         ignore = under_contact if touching and self.in_contact == "contact_channels" \
             else None
         error = np.asarray(counts, dtype=np.float64) - self.expected(counts, ignore=ignore)
-        own = error - np.median(error if ignore is None else error[~ignore])
+        own = error - np.median(error if ignore is None or ignore.all() else error[~ignore])
         if not touching:
             quiet = own <= self.gate_counts
         elif self.in_contact == "quiet_channels":
@@ -163,7 +180,11 @@ class Tare:
         if not quiet.any():
             return False
         # an exponential average in board time: the same for any frame rate or lost frames
-        weight = -math.expm1(-max(elapsed_ms, 0.0) / 1000.0 / self.time_constant_s)
+        weight = _share(elapsed_ms, 1000.0 * self.time_constant_s)
+        if touching and self._lifted:  # what a lifted press left is drift the freeze
+            # missed, and a phantom until it is followed: so followed fast
+            weight = np.where(under_contact, _share(elapsed_ms, self.lifted_time_constant_ms),
+                              weight)
         self.offset = self.offset + np.where(quiet, weight * error, 0.0)
         return True
 
@@ -173,9 +194,14 @@ class Tare:
         self._contact_ms += elapsed_ms
         quiet = (~near & (own <= self.gate_counts)) | (own < -self.fallen_counts)
         rise = float(np.clip(own[near], 0.0, None).sum())
-        self._peak = max(self._peak, rise)
+        # averaged, so that a frame's noise (about a count a channel) neither sets the
+        # peak nor passes for a lifted press
+        self._level += (_share(elapsed_ms, self.lift_average_ms) if self._peak else 1.0) \
+            * (rise - self._level)
+        self._peak = max(self._peak, self._level)
         self._pressed |= bool((own[near] > self.gate_counts).any())
         missed = self.drift_bound * math.sqrt(self._contact_ms / 1000.0)
+        self._lifted = False
         if self._contact_ms < self.frozen_first_ms and self._pressed:
             # A press's first seconds hide no drift worth following: followed from its
             # first frame, the live hour (seed 39) had 4.2 % phantom frames at 16 mm,
@@ -184,7 +210,8 @@ class Tare:
             # drift each phantom there lasted the hold (0.67 % of the hour's untouched
             # frames held 10 s whatever the contact, 0.018 % held only a press's).
             return np.zeros_like(quiet)
-        if rise <= self._peak / 2 and (own[near] <= missed).all():
+        self._lifted = self._level <= self._peak / 2 and bool((own[near] <= missed).all())
+        if self._lifted:
             quiet |= near
         return quiet
 
@@ -193,6 +220,14 @@ class Tare:
         if self.tared is None:
             return None
         return round(float(np.max(np.abs(self.offset - self.tared))), 3)
+
+
+def _share(elapsed_ms: float, time_constant_ms: float) -> float:
+    """How much of the way an exponential average of this time constant moves in
+    ``elapsed_ms`` of board time (all of it at a time constant of 0)."""
+    if time_constant_ms <= 0:
+        return 1.0
+    return -math.expm1(-max(elapsed_ms, 0.0) / time_constant_ms)
 
 
 @dataclass
