@@ -337,12 +337,14 @@ def render(scene: str, result: dict[str, Any]) -> str:
                   f"{_spread(cv, 'force_mae', 1, ' N')}")
     if LIGHT_EDGES in cv:
         light = cv[LIGHT_EDGES]
+        where = [f"pairs right {_spread(light, 'pair_accuracy', 100, ' %')}"] if pairs else [
+            f"x {_spread(light, 'x_accuracy', 100, ' %')}",
+            f"y {_spread(light, 'y_accuracy', 100, ' %')}"]
         spread.append("and on the lightest presses on edge and corner nodes, which the "
                       "light edge and long press parts are set beside (the whole script: "
                       "each part's, weighted by the frames it located): "
-                      f"x {_spread(light, 'x_accuracy', 100, ' %')}, "
-                      f"y {_spread(light, 'y_accuracy', 100, ' %')}, "
-                      f"force MAE {_spread(light, 'force_mae', 1, ' N')}")
+                      + ", ".join(where)
+                      + f", force MAE {_spread(light, 'force_mae', 1, ' N')}")
     lines += ["", "Conditions CV (mean ± fold SD): " + ", ".join(spread) + ". "
               f"Frames scored: a press's first {GRACE_MS} ms, and a release's, are not "
               "(the longest phantom counts from the release's first frame). "

@@ -358,7 +358,9 @@ def batch_cv_scores(scene: str, scores_dir: Path = SCORES_DIR,
     localised = pd.read_parquet(localise) if localise.exists() else None
     weighed = pd.read_parquet(force) if force.exists() else None
     out.update(cv_scores_of(localised, weighed))
-    light = cv_scores_of(localised, weighed, light_edge_rows)
+    paired = localised is not None and {"x2_true", "y2_true"} <= set(localised)
+    light = (pair_cv_scores_of if paired else cv_scores_of)(localised, weighed,
+                                                            light_edge_rows)
     if light:
         out[LIGHT_EDGES] = light
     return out
@@ -368,18 +370,43 @@ LIGHT_EDGES = "light_edges"  # batch_cv's key of the light edge and corner press
 
 
 def light_edge_rows(predictions: pd.DataFrame) -> pd.Series:
-    """The rows of a one-contact task's predictions pressed at the plan's lightest force on
-    an edge or corner node (its first or last row or column): the harder hour's light
-    edge and long presses, whose batch scores are below the average press's (single_force,
-    conditions CV: x right on 95.4 % of them, 99.1 % of all presses)."""
-    force = predictions["force"]
-    pressed = force > 0
-    if not pressed.any() or not {"x", "y"} <= set(predictions):
+    """The rows of a task's predictions whose every contact presses at the plan's lightest
+    force on an edge or corner node (its first or last row or column): the harder hour's
+    light edge and long presses, whose batch scores are below the average press's
+    (single_force, conditions CV: x right on 95.4 % of them, 99.1 % of all presses;
+    two_force: pairs right on 75.3 % of its light edge pairs, 91.3 % of all pairs)."""
+    contacts = [("x", "y", "force")] if "force" in predictions else \
+        [(f"x{i}", f"y{i}", f"force{i}") for i in (1, 2)]
+    if not {name for contact in contacts for name in contact} <= set(predictions):
         return pd.Series(False, index=predictions.index)
-    x, y = predictions["x"], predictions["y"]
-    on_edge = (x.isin([x[pressed].min(), x[pressed].max()])
-               | y.isin([y[pressed].min(), y[pressed].max()]))
-    return pressed & (force == force[pressed].min()) & on_edge
+    pressed = pd.concat([predictions[force][predictions[force] > 0]
+                         for _, _, force in contacts])
+    if pressed.empty:
+        return pd.Series(False, index=predictions.index)
+    xs = pd.concat([predictions[x][predictions[force] > 0] for x, _, force in contacts])
+    ys = pd.concat([predictions[y][predictions[force] > 0] for _, y, force in contacts])
+    rows = pd.Series(True, index=predictions.index)
+    for x, y, force in contacts:
+        on_edge = (predictions[x].isin([xs.min(), xs.max()])
+                   | predictions[y].isin([ys.min(), ys.max()]))
+        rows &= (predictions[force] == pressed.min()) & on_edge
+    return rows
+
+
+def pair_cv_scores_of(localised: pd.DataFrame, weighed: pd.DataFrame | None,
+                      rows: Callable[[pd.DataFrame], pd.Series],
+                      scheme: str = "conditions") -> dict[str, list[float]]:
+    """A two-contact stack's CV scores under ``scheme`` on the ``rows`` kept, scored as the
+    report scores its pairs (:func:`eskin.evaluation.pairs.score_pairs`): pairs right and
+    the matched force error, each mean and fold SD."""
+    from eskin.evaluation.pairs import score_pairs
+
+    kept = localised[(localised["scheme"] == scheme) & rows(localised)]
+    if kept.empty:
+        return {}
+    scores = score_pairs(kept, weighed).get(scheme, {})
+    return {name: [round(scores[name], 4), round(scores[f"{name}_std"], 4)]
+            for name in ("pair_accuracy", "force_mae") if name in scores}
 
 
 def cv_scores_of(localised: pd.DataFrame | None, weighed: pd.DataFrame | None,

@@ -219,6 +219,33 @@ def test_the_light_edge_parts_are_set_beside_the_batchs_light_edge_presses(tmp_p
     assert cv["x_accuracy"] == pytest.approx([0.75, 0.0]) and cv[LIGHT_EDGES] == light
 
 
+def test_a_two_contact_scenes_light_edge_parts_are_set_beside_its_light_edge_pairs(tmp_path):
+    # Pairs (fold, (x1, y1, f1), (x2, y2, f2), the second contact predicted at x2p): both
+    # light on edge nodes, one wrong a fold; a light pair with an inner contact, a heavy
+    # edge pair and a one-contact row (a counting scene's) are not of the class.
+    rows = [(0, (1, 1, 1.29), (10, 10, 1.29), 9), (0, (1, 10, 1.29), (10, 1, 1.29), 10),
+            (1, (1, 1, 1.29), (10, 1, 1.29), 10), (1, (1, 10, 1.29), (10, 10, 1.29), 6),
+            (0, (1, 1, 1.29), (6, 6, 1.29), 6), (1, (1, 1, 3.25), (10, 10, 3.25), 10),
+            (1, (1, 1, 1.29), (0, 0, 0.0), 0)]
+    localised = pd.DataFrame([
+        {"scheme": "conditions", "fold": fold, "trial": i, "sample": 0,
+         "x1": a[0], "y1": a[1], "force1": a[2], "x2": b[0], "y2": b[1], "force2": b[2],
+         "x1_true": a[0], "y1_true": a[1], "x2_true": b[0], "y2_true": b[1],
+         "x1_pred": a[0], "y1_pred": a[1], "x2_pred": x2p, "y2_pred": b[1]}
+        for i, (fold, a, b, x2p) in enumerate(rows)])
+    weighed = localised[["scheme", "fold", "trial", "sample", "x1", "y1", "x2", "y2",
+                         "force1", "force2"]].assign(
+        force1_true=localised["force1"], force2_true=localised["force2"],
+        force1_pred=localised["force1"] + 0.1, force2_pred=localised["force2"])
+    assert light_edge_rows(localised).tolist() == [True] * 4 + [False] * 3
+    (tmp_path / "p").mkdir()
+    localised.to_parquet(tmp_path / "p" / "localise.parquet")
+    weighed.to_parquet(tmp_path / "p" / "force.parquet")
+    light = batch_cv_scores("p", tmp_path, tmp_path)[LIGHT_EDGES]
+    assert light["pair_accuracy"] == pytest.approx([0.5, 0.0])
+    assert light["force_mae"] == pytest.approx([0.05, 0.0])  # 0.1 N on one of two contacts
+
+
 def test_a_light_edge_part_is_judged_against_its_class_and_the_rest_against_all(settings):
     frame = frame_of([
         ("light_edges", "press", True, 100, [True] * 100),
