@@ -164,7 +164,7 @@ check: setup
 # flake, Dask's memory manager dropping the data the folds share, is survived since
 # cd4049e), and live counting on a real-time board.
 test: setup browser firmware postgres sshd
-	mkdocs build --strict --quiet
+	mkdocs build --strict
 	pytest -q -n 2 --dist loadfile -m "not alone" --durations=15 --cpu-by-file
 	pytest -q -m alone
 

@@ -71,7 +71,8 @@ def test_every_page_is_in_the_nav():
 def test_site_builds_strict(tmp_path):
     env = dict(os.environ, NO_MKDOCS_2_WARNING="1")
     result = subprocess.run(
-        [sys.executable, "-m", "mkdocs", "build", "--strict", "--quiet",
+        # not --quiet: it silences the warnings --strict counts (a broken anchor passed)
+        [sys.executable, "-m", "mkdocs", "build", "--strict",
          "--config-file", str(MKDOCS_YML), "--site-dir", str(tmp_path / "site")],
         cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stdout + result.stderr
