@@ -397,9 +397,9 @@ def test_a_count_that_flickers_frees_none_of_a_pairs_channels():
     counts and 6 of their flanks' 7: the pair was gone)."""
     tare, untouched, rise, first, both = _corner_pair_tare()
     tared = tare.offset.copy()
-    noise = np.random.default_rng(57).normal(0.0, 1.0, (15_000, 20))
-    for i in range(15_000):  # 48 ms apart: the tracking is in board time
-        tare.track(untouched + rise + noise[i], 48.0,
+    noise = np.random.default_rng(57).normal(0.0, 1.0, (6_000, 20))
+    for i in range(6_000):  # 120 ms apart: the tracking is in board time
+        tare.track(untouched + rise + noise[i], 120.0,
                    under_contact=first if i % 20 == 19 else both)
     moved = np.abs(tare.offset - tared)
     assert moved[both].max() < 0.5, moved.round(1)
@@ -412,8 +412,8 @@ def test_what_a_lifted_press_left_is_followed_within_a_second():
     on the contact's rise averaged over lift_average_s, what is left is followed at
     lifted_time_constant_s (0.5 s): within a second, under a count."""
     tare, untouched, rise, first, both = _corner_pair_tare()
-    for _ in range(int(600 / 0.012)):  # ten minutes held
-        tare.track(untouched + rise, 12.0, under_contact=both)
+    for _ in range(int(600 / 0.12)):  # ten minutes held (a frame each 120 ms: board time)
+        tare.track(untouched + rise, 120.0, under_contact=both)
     left = np.where(np.isin(np.arange(20), [9, 10]), 4.0, 0.0)  # x10 and y1: 4 counts
     for _ in range(int(1.0 / 0.012)):
         tare.track(untouched + left, 12.0, under_contact=both)
