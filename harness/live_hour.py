@@ -379,17 +379,17 @@ def light_edge_rows(predictions: pd.DataFrame) -> pd.Series:
         [(f"x{i}", f"y{i}", f"force{i}") for i in (1, 2)]
     if not {name for contact in contacts for name in contact} <= set(predictions):
         return pd.Series(False, index=predictions.index)
-    pressed = pd.concat([predictions[force][predictions[force] > 0]
-                         for _, _, force in contacts])
-    if pressed.empty:
+    # every contact that presses, one a row: the plan's lightest force and its edge lines
+    presses = pd.concat([predictions[list(contact)].set_axis(["x", "y", "force"], axis=1)
+                         for contact in contacts])
+    presses = presses[presses["force"] > 0]
+    if presses.empty:
         return pd.Series(False, index=predictions.index)
-    xs = pd.concat([predictions[x][predictions[force] > 0] for x, _, force in contacts])
-    ys = pd.concat([predictions[y][predictions[force] > 0] for _, y, force in contacts])
     rows = pd.Series(True, index=predictions.index)
     for x, y, force in contacts:
-        on_edge = (predictions[x].isin([xs.min(), xs.max()])
-                   | predictions[y].isin([ys.min(), ys.max()]))
-        rows &= (predictions[force] == pressed.min()) & on_edge
+        on_edge = (predictions[x].isin([presses["x"].min(), presses["x"].max()])
+                   | predictions[y].isin([presses["y"].min(), presses["y"].max()]))
+        rows &= (predictions[force] == presses["force"].min()) & on_edge
     return rows
 
 
