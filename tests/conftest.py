@@ -7,6 +7,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections import Counter
 from pathlib import Path
 
 import pytest
@@ -65,7 +66,7 @@ _running_test = [""]
 # servers once stopped), setup and teardown included; a session fixture's build counts in
 # the first test that asks for it. `make test` prints the table: on two cores the suite's
 # length is bounded by its CPU, not by its waits (issue 55).
-_cpu_by_file: dict[str, float] = {}
+_cpu_by_file: Counter[str] = Counter()
 
 
 def _cpu_seconds() -> float:
@@ -83,7 +84,7 @@ def pytest_runtest_protocol(item, nextitem):
     yield
     _running_test[0] = ""
     name = item.nodeid.split("::")[0]
-    _cpu_by_file[name] = _cpu_by_file.get(name, 0.0) + _cpu_seconds() - before
+    _cpu_by_file[name] += _cpu_seconds() - before
 
 
 def pytest_sessionfinish(session):
@@ -93,8 +94,7 @@ def pytest_sessionfinish(session):
 
 @pytest.hookimpl(optionalhook=True)  # pytest-xdist's
 def pytest_testnodedown(node, error):
-    for name, seconds in getattr(node, "workeroutput", {}).get("cpu_by_file", {}).items():
-        _cpu_by_file[name] = _cpu_by_file.get(name, 0.0) + seconds
+    _cpu_by_file.update(getattr(node, "workeroutput", {}).get("cpu_by_file", {}))
 
 
 def pytest_terminal_summary(terminalreporter, config):
@@ -102,7 +102,7 @@ def pytest_terminal_summary(terminalreporter, config):
     if not config.getoption("--cpu-by-file") or total <= 0:  # none, or below the clock's tick
         return
     terminalreporter.section(f"CPU by test file: {total:.0f} CPU-s in all")
-    for name, seconds in sorted(_cpu_by_file.items(), key=lambda kv: -kv[1])[:15]:
+    for name, seconds in _cpu_by_file.most_common(15):
         terminalreporter.write_line(f"{seconds:7.1f} CPU-s {seconds / total:6.1%}  {name}")
 
 
